@@ -1,0 +1,152 @@
+"""The topic registry: key expression -> message type, kind and limits.
+
+One encoder and one typed decoder per topic are built at import and reused. Decoding validates
+types and value limits (msgspec ``Meta``), rejects payloads over the topic's size limit, payloads
+of another version, and non-finite floats, raising ``BadMessage`` with a reason a person can read.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import msgspec
+
+from schemas.messages import (
+    AimCue,
+    ControllerState,
+    DepthFrame,
+    EmgSample,
+    GraspTarget,
+    Health,
+    Log,
+    Message,
+    ProsthesisCommand,
+    ProsthesisState,
+    Reconstruction,
+    ScanLines,
+    TactorCommand,
+)
+
+Kind = Literal["sensor", "command", "status"]
+
+_ENCODER = msgspec.msgpack.Encoder()
+
+
+class BadMessage(ValueError):
+    """A payload that does not decode to its topic's type; ``reason`` says why."""
+
+    def __init__(self, key: str, reason: str) -> None:
+        super().__init__(f"{key}: {reason}")
+        self.key = key
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A bus topic. ``kind`` decides delivery: sensor topics keep only the newest sample and
+    drop under congestion; command topics are FIFO and block rather than drop."""
+
+    key: str
+    type: type[Message]
+    kind: Kind
+    max_bytes: int = 64 * 1024
+    decoder: msgspec.msgpack.Decoder = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "decoder", msgspec.msgpack.Decoder(self.type))
+
+    @property
+    def wildcard(self) -> bool:
+        return self.key.endswith("/*")
+
+    def matches(self, key: str) -> bool:
+        if self.wildcard:
+            prefix = self.key[:-1]
+            rest = key[len(prefix) :]
+            return key.startswith(prefix) and bool(rest) and "/" not in rest
+        return key == self.key
+
+    def decode(self, payload: bytes | memoryview, key: str | None = None) -> Any:
+        key = key or self.key
+        if len(payload) > self.max_bytes:
+            raise BadMessage(key, f"payload of {len(payload)} bytes exceeds {self.max_bytes}")
+        try:
+            message = self.decoder.decode(payload)
+        except msgspec.ValidationError as exc:
+            raise BadMessage(key, f"invalid {self.type.__name__}: {exc}") from exc
+        except msgspec.DecodeError as exc:
+            raise BadMessage(key, f"malformed payload: {exc}") from exc
+        if message.version != 1:
+            raise BadMessage(key, f"version {message.version} not supported (expected 1)")
+        bad = _first_non_finite(message)
+        if bad is not None:
+            raise BadMessage(key, f"non-finite value in field {bad}")
+        return message
+
+
+TOPICS: tuple[Topic, ...] = (
+    Topic("lpc/camera/depth", DepthFrame, "sensor", max_bytes=16 * 1024 * 1024),
+    Topic("lpc/scans", ScanLines, "sensor", max_bytes=1024 * 1024),
+    Topic("lpc/reconstruction", Reconstruction, "sensor"),
+    Topic("lpc/grasp/target", GraspTarget, "sensor"),
+    Topic("lpc/aim/cue", AimCue, "sensor"),
+    Topic("lpc/tactors/command", TactorCommand, "command"),
+    Topic("lpc/emg", EmgSample, "sensor"),
+    Topic("lpc/controller/state", ControllerState, "status"),
+    Topic("lpc/prosthesis/command", ProsthesisCommand, "command"),
+    Topic("lpc/prosthesis/state", ProsthesisState, "sensor"),
+    Topic("lpc/health/*", Health, "status"),
+    Topic("lpc/log/*", Log, "status"),
+)
+
+_BY_KEY = {t.key: t for t in TOPICS if not t.wildcard}
+
+
+def topic_for_key(key: str) -> Topic:
+    """The registered topic a concrete key expression belongs to; ``KeyError`` if none."""
+    topic = _BY_KEY.get(key)
+    if topic is not None:
+        return topic
+    for candidate in TOPICS:
+        if candidate.wildcard and candidate.matches(key):
+            return candidate
+    raise KeyError(f"no schema registered for key {key!r}")
+
+
+def encode(message: Message) -> bytes:
+    """Encode any registered message as msgpack."""
+    return _ENCODER.encode(message)
+
+
+def decode(key: str, payload: bytes | memoryview) -> Any:
+    """Decode a payload received on ``key``; raises ``BadMessage`` (or ``KeyError``)."""
+    return topic_for_key(key).decode(payload, key)
+
+
+def json_schema(message_type: type[Message]) -> dict[str, Any]:
+    """The JSON schema of one message type, self-contained, for MCAP and outside subscribers."""
+    return msgspec.json.schema(message_type)
+
+
+def _first_non_finite(value: Any, path: str = "") -> str | None:
+    # Recursion over struct fields only; arrays travel as bytes and are checked when converted.
+    if isinstance(value, float):
+        return None if math.isfinite(value) else (path or "<value>")
+    if isinstance(value, msgspec.Struct):
+        for name in value.__struct_fields__:
+            found = _first_non_finite(getattr(value, name), f"{path}.{name}" if path else name)
+            if found is not None:
+                return found
+    elif isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            found = _first_non_finite(item, f"{path}[{i}]")
+            if found is not None:
+                return found
+    elif isinstance(value, dict):
+        for k, item in value.items():
+            found = _first_non_finite(item, f"{path}[{k!r}]")
+            if found is not None:
+                return found
+    return None

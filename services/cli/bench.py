@@ -1,0 +1,21 @@
+"""``lpc bench NAME``: benchmarks that print their figures (speed belongs here, not in tests)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+# name -> (module, one-line help); each module defines add_arguments(parser) and run(args).
+BENCHES: dict[str, tuple[str, str]] = {}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="bench", metavar="NAME", required=True)
+    for name, (module, help_text) in BENCHES.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_bench_module=module)
+        importlib.import_module(module).add_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    return int(importlib.import_module(args._bench_module).run(args) or 0)

@@ -1,0 +1,435 @@
+"""The shared service runtime: one Zenoh session per process, typed publish/subscribe, the
+asyncio bridge, the injected clock, liveliness, health counters and clean shutdown.
+
+Zenoh calls its callbacks on its own threads; this module alone hands samples to the event loop
+(``loop.call_soon_threadsafe``). Decoding happens on the loop, so a malformed payload is counted
+and reported there and never reaches a step function.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import collections
+import contextlib
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import msgspec
+import numpy as np
+import zenoh
+
+from schemas import TOPICS, BadMessage, Health, Log, Topic, encode, json_schema, topic_for_key
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+HEALTH_PERIOD_S = 1.0
+
+
+# --------------------------------------------------------------------------- clock
+
+
+class Clock(Protocol):
+    """Where services get time. Live services use ``SystemClock``; tests inject their own."""
+
+    def now_ns(self) -> int: ...
+
+    async def sleep_until(self, t_ns: int) -> None: ...
+
+
+class SystemClock:
+    """Wall-clock nanoseconds (shared by processes on one host, so latencies add up)."""
+
+    def now_ns(self) -> int:
+        return time.time_ns()
+
+    async def sleep_until(self, t_ns: int) -> None:
+        delay = (t_ns - time.time_ns()) / 1e9
+        if delay > 0:
+            await asyncio.sleep(delay)
+
+
+# --------------------------------------------------------------------------- config
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags every process shares: how to reach the bus."""
+    group = parser.add_argument_group("bus")
+    group.add_argument(
+        "--mode", choices=("peer", "client"), default="peer", help="Zenoh mode (default: peer)"
+    )
+    group.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"endpoint to connect to, repeatable (default: {DEFAULT_ENDPOINT})",
+    )
+    group.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on, repeatable (default: tcp/127.0.0.1:0, loopback only)",
+    )
+    group.add_argument(
+        "--config", metavar="FILE", help="a Zenoh JSON5 config file for multi-host use"
+    )
+
+
+def zenoh_config(
+    *,
+    mode: str = "peer",
+    connect: Sequence[str] | None = None,
+    listen: Sequence[str] | None = None,
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """Peer mode on loopback with multicast scouting off, unless a config file says otherwise.
+
+    Gossip stays on so that peers which reach one rendezvous peer form a full mesh.
+    """
+    if config_file:
+        try:
+            conf = zenoh.Config.from_file(config_file)
+        except (zenoh.ZError, OSError, ValueError) as exc:
+            raise SystemExit(f"error: cannot read Zenoh config {config_file}: {exc}") from exc
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(mode))
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("scouting/gossip/enabled", "true")
+        conf.insert_json5("timestamping/enabled", "true")
+    if connect is not None or not config_file:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect or [DEFAULT_ENDPOINT])))
+    if listen is not None or (not config_file and mode == "peer"):
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen or ["tcp/127.0.0.1:0"])))
+    return conf
+
+
+def config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    return zenoh_config(
+        mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config
+    )
+
+
+# --------------------------------------------------------------------------- counters
+
+
+@dataclass
+class _Stream:
+    """Counters of one topic as seen by one process."""
+
+    count: int = 0
+    dropped: int = 0
+    rejected: int = 0
+    stamps: collections.deque[int] = field(default_factory=lambda: collections.deque(maxlen=512))
+    latencies_ms: collections.deque[float] = field(
+        default_factory=lambda: collections.deque(maxlen=2048)
+    )
+
+    def rate_hz(self, now_ns: int, window_ns: int = 2_000_000_000) -> float:
+        recent = [t for t in self.stamps if now_ns - t <= window_ns]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / ((recent[-1] - recent[0]) / 1e9 or 1e-9)
+
+
+class HealthCounters:
+    """What a service reports on ``lpc/health/<service>``."""
+
+    def __init__(self, service: str) -> None:
+        self.service = service
+        self.published: dict[str, _Stream] = collections.defaultdict(_Stream)
+        self.received: dict[str, _Stream] = collections.defaultdict(_Stream)
+        self.counters: collections.Counter[str] = collections.Counter()
+        self.detail = ""
+        self.seq = 0
+
+    def snapshot(self, now_ns: int, status: str = "ok") -> Health:
+        rates = {k: round(s.rate_hz(now_ns), 2) for k, s in self.published.items()}
+        latency: dict[str, float] = {}
+        samples = [x for s in self.published.values() for x in s.latencies_ms]
+        if samples:
+            p50, p99 = np.percentile(samples, [50, 99])
+            latency = {"p50": round(float(p50), 3), "p99": round(float(p99), 3)}
+        counters = dict(self.counters)
+        counters["received"] = sum(s.count for s in self.received.values())
+        counters["published"] = sum(s.count for s in self.published.values())
+        counters["dropped"] = sum(s.dropped for s in self.received.values())
+        counters["rejected"] = sum(s.rejected for s in self.received.values())
+        self.seq += 1
+        return Health(
+            seq=self.seq,
+            t_ns=now_ns,
+            service=self.service,
+            pid=os.getpid(),
+            status=status,  # type: ignore[arg-type]
+            rates_hz=rates,
+            latency_ms=latency,
+            counters=counters,
+            rss_bytes=_rss_bytes(),
+            detail=self.detail,
+        )
+
+
+def _rss_bytes() -> int:
+    try:
+        with open("/proc/self/statm", "rb") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+# --------------------------------------------------------------------------- pub / sub
+
+
+class Publisher:
+    """A typed publisher: encodes with the topic's schema and counts what it sends."""
+
+    def __init__(self, bus: Bus, key: str) -> None:
+        self.key = key
+        self.topic = topic_for_key(key)
+        sensor = self.topic.kind == "sensor"
+        self._zpub = bus.session.declare_publisher(
+            key,
+            congestion_control=(
+                zenoh.CongestionControl.DROP if sensor else zenoh.CongestionControl.BLOCK
+            ),
+            priority=zenoh.Priority.DATA if sensor else zenoh.Priority.INTERACTIVE_HIGH,
+            express=not sensor,
+        )
+        self._bus = bus
+        self._stream = bus.health.published[key]
+
+    def put(self, message: msgspec.Struct) -> None:
+        if not isinstance(message, self.topic.type):
+            raise TypeError(f"{self.key} carries {self.topic.type.__name__}, not {type(message)}")
+        self._zpub.put(encode(message))
+        now = self._bus.clock.now_ns()
+        self._stream.count += 1
+        self._stream.stamps.append(now)
+        t_ns = getattr(message, "t_ns", None)
+        if t_ns:
+            self._stream.latencies_ms.append((now - t_ns) / 1e6)
+
+
+class Subscription:
+    """Samples of one key expression, handed from Zenoh's threads to the event loop.
+
+    ``latest=True`` keeps only the newest undelivered sample (sensor topics: a slow consumer
+    always gets the freshest frame; the ones it skipped are counted as dropped). Otherwise the
+    queue is FIFO, bounded by ``capacity``; an overflow is counted, never silent.
+    """
+
+    def __init__(self, bus: Bus, key: str, *, latest: bool, capacity: int, decode: bool) -> None:
+        self._bus = bus
+        self._latest = latest
+        self._decode = decode
+        self._queue: collections.deque[tuple[str, bytes, int]] = collections.deque(
+            maxlen=1 if latest else capacity
+        )
+        self._ready = asyncio.Event()
+        self._loop = bus.loop
+        self._closed = False
+        self._zsub = bus.session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Zenoh's thread: copy the payload out and hand it over; nothing else.
+        item = (str(sample.key_expr), sample.payload.to_bytes(), self._bus.clock.now_ns())
+        with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
+            self._loop.call_soon_threadsafe(self._push, item)
+
+    def _push(self, item: tuple[str, bytes, int]) -> None:
+        if len(self._queue) == self._queue.maxlen:
+            self._bus.health.received[item[0]].dropped += 1
+        self._queue.append(item)
+        self._ready.set()
+
+    async def receive(self) -> tuple[str, Any, int]:
+        """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
+        while True:
+            while not self._queue:
+                self._ready.clear()
+                await self._ready.wait()
+            key, payload, received_ns = self._queue.popleft()
+            stream = self._bus.health.received[key]
+            stream.count += 1
+            stream.stamps.append(received_ns)
+            if not self._decode:
+                return key, payload, received_ns
+            try:
+                return key, topic_for_key(key).decode(payload, key), received_ns
+            except (BadMessage, KeyError) as exc:
+                stream.rejected += 1
+                self._bus.reject(key, str(exc))
+
+    def __aiter__(self) -> AsyncIterator[Any]:
+        return self._messages()
+
+    async def _messages(self) -> AsyncIterator[Any]:
+        while True:
+            _, message, _ = await self.receive()
+            yield message
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._zsub.undeclare()
+
+
+class Bus:
+    """A service's view of the bus: typed publishers and subscriptions, health, logs."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        service: str,
+        *,
+        loop: asyncio.AbstractEventLoop,
+        clock: Clock | None = None,
+        quiet: bool = False,
+    ) -> None:
+        self.session = session
+        self.service = service
+        self.loop = loop
+        self.clock: Clock = clock or SystemClock()
+        self.health = HealthCounters(service)
+        self.quiet = quiet
+        self.status = "starting"
+        self._health_pub = session.declare_publisher(f"lpc/health/{service}")
+        self._log_pub = session.declare_publisher(f"lpc/log/{service}")
+        self._log_seq = 0
+        self._reject_reports: collections.Counter[str] = collections.Counter()
+        self._token = session.liveliness().declare_token(f"lpc/alive/{service}")
+        self._schemas = session.declare_queryable("lpc/schemas/**", _answer_schema_query)
+        self._subs: list[Subscription] = []
+
+    def publisher(self, key: str) -> Publisher:
+        return Publisher(self, key)
+
+    def subscribe(
+        self,
+        key: str,
+        *,
+        latest: bool | None = None,
+        capacity: int = 4096,
+        decode: bool = True,
+    ) -> Subscription:
+        if latest is None:
+            latest = topic_for_key(key).kind == "sensor" if "*" not in key else False
+        sub = Subscription(self, key, latest=latest, capacity=capacity, decode=decode)
+        self._subs.append(sub)
+        return sub
+
+    def log(self, level: str, text: str) -> None:
+        """One line on stderr, in a fixed format, and the same on ``lpc/log/<service>``."""
+        if not self.quiet or level in ("warning", "error"):
+            print(f"[{self.service}] {level}: {text}", file=sys.stderr, flush=True)
+        self._log_seq += 1
+        message = Log(
+            seq=self._log_seq,
+            t_ns=self.clock.now_ns(),
+            service=self.service,
+            level=level,  # type: ignore[arg-type]
+            text=text,
+        )
+        with contextlib.suppress(zenoh.ZError):
+            self._log_pub.put(encode(message))
+
+    def reject(self, key: str, reason: str) -> None:
+        """Count a rejected input; report the first few of each topic, then every 100th."""
+        self.health.counters[f"rejected:{key}"] += 1
+        n = self._reject_reports[key] = self._reject_reports[key] + 1
+        if n <= 3 or n % 100 == 0:
+            self.log("warning", f"rejected #{n} on {key}: {reason}")
+
+    def publish_health(self) -> None:
+        snapshot = self.health.snapshot(self.clock.now_ns(), self.status)
+        with contextlib.suppress(zenoh.ZError):
+            self._health_pub.put(encode(snapshot))
+
+    async def health_loop(self) -> None:
+        while True:
+            self.publish_health()
+            await asyncio.sleep(HEALTH_PERIOD_S)
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.close()
+        self._schemas.undeclare()
+        self._token.undeclare()
+
+
+def _answer_schema_query(query: zenoh.Query) -> None:
+    prefix = "lpc/schemas/"
+    selector = str(query.key_expr)
+    for topic in TOPICS:
+        key = prefix + topic.key
+        if zenoh.KeyExpr(key).intersects(zenoh.KeyExpr(selector)):
+            query.reply(key, json.dumps(json_schema(topic.type)).encode())
+
+
+# --------------------------------------------------------------------------- entry point
+
+Serve = Callable[[Bus, argparse.Namespace], Awaitable[None]]
+
+
+def service_parser(name: str, description: str) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=f"python -m services.{name}", description=description)
+    add_bus_arguments(parser)
+    parser.add_argument("--quiet", action="store_true", help="log only warnings and errors")
+    return parser
+
+
+def run_service(
+    name: str,
+    serve: Serve,
+    args: argparse.Namespace,
+    *,
+    clock: Clock | None = None,
+) -> int:
+    """Open the session, run ``serve`` until it returns or SIGINT/SIGTERM arrives, close."""
+    try:
+        return asyncio.run(_run(name, serve, args, clock))
+    except KeyboardInterrupt:
+        return 0
+
+
+async def _run(name: str, serve: Serve, args: argparse.Namespace, clock: Clock | None) -> int:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        session = zenoh.open(config_from_args(args))
+    except zenoh.ZError as exc:
+        print(f"[{name}] error: cannot open the Zenoh session: {exc}", file=sys.stderr)
+        return 2
+    with session:
+        bus = Bus(session, name, loop=loop, clock=clock, quiet=getattr(args, "quiet", False))
+        bus.log("info", f"started (pid {os.getpid()})")
+        bus.status = "ok"
+        health = asyncio.create_task(bus.health_loop())
+        work = asyncio.create_task(serve(bus, args))
+        stopper = asyncio.create_task(stop.wait())
+        done, _ = await asyncio.wait({work, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        code = 0
+        if work in done and work.exception() is not None:
+            exc = work.exception()
+            bus.log("error", f"failed: {type(exc).__name__}: {exc}")
+            code = 1
+        bus.status = "stopping"
+        for task in (work, stopper, health):
+            task.cancel()
+        await asyncio.gather(work, stopper, health, return_exceptions=True)
+        bus.publish_health()
+        bus.log("info", "stopped")
+        bus.close()
+    return code
+
+
+def topics_table() -> list[Topic]:
+    return list(TOPICS)

@@ -1,0 +1,38 @@
+"""Scans service: depth frames in, the four scan lines out (``lpc/camera/depth`` -> ``lpc/scans``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from lpc_core.scans import ScanParams
+
+from lpc_core.pipeline import ScansState, scans_step
+from services.runtime import Bus, run_service, service_parser
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    state = ScansState(params=ScanParams(band_m=args.band_mm / 1000.0))
+    scans = bus.publisher("lpc/scans")
+    async for frame in bus.subscribe("lpc/camera/depth"):
+        try:
+            state, out = scans_step(state, frame, bus.clock.now_ns())
+        except ValueError as exc:
+            bus.reject("lpc/camera/depth", str(exc))
+            continue
+        scans.put(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("scans", __doc__ or "")
+    parser.add_argument(
+        "--band-mm", type=float, default=0.5, help="half-width of a scan line (default 0.5 mm)"
+    )
+    args = parser.parse_args(argv)
+    if not 0 < args.band_mm <= 10:
+        parser.error("--band-mm must be in (0, 10]")
+    return run_service("scans", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
