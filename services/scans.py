@@ -1,4 +1,4 @@
-"""Scans service: depth frames in, the four scan lines out (``lpc/camera/depth`` -> ``lpc/scans``)."""
+"""Scans service: depth frames in on ``lpc/camera/depth``, four scan lines out on ``lpc/scans``."""
 
 from __future__ import annotations
 

@@ -1,0 +1,97 @@
+"""Camera service: depth frames on ``lpc/camera/depth`` from the simulated scene (default), a
+RealSense camera or file, or an MCAP recording. Simulated and replayed frames are paced by the
+injected clock; a live camera paces itself."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from lpc_core.pipeline import intrinsics_to_message
+from schemas import DepthFrame, to_wire
+from services.drivers.depth import (
+    DepthReading,
+    EndOfStream,
+    RealSenseSource,
+    ReplaySource,
+    SimSource,
+    SourceUnavailable,
+)
+from services.runtime import Bus, run_service, service_parser
+
+
+def _frame(seq: int, t_ns: int, reading: DepthReading, intrinsics, source: str) -> DepthFrame:
+    return DepthFrame(
+        seq=seq,
+        t_ns=t_ns,
+        intrinsics=intrinsics,
+        depth=to_wire(reading.depth),
+        source=source,
+        truth=reading.truth,
+    )
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    try:
+        if args.source == "sim":
+            source = SimSource(seed=args.seed)
+        elif args.source == "realsense":
+            source = RealSenseSource(args.file, rate=round(args.rate))
+        else:
+            source = ReplaySource(args.file)
+    except SourceUnavailable as exc:
+        bus.log("error", str(exc))
+        raise
+    intrinsics = intrinsics_to_message(source.intrinsics)
+    depth = bus.publisher("lpc/camera/depth")
+    bus.log("info", f"source {args.source} {source.intrinsics.width}x{source.intrinsics.height}")
+    period_ns = round(1e9 / args.rate)
+    start_ns = bus.clock.now_ns()
+    seq = 0
+    try:
+        while True:
+            if args.source == "realsense":
+                reading = await asyncio.to_thread(source.read, 1.0)
+                if reading is None:
+                    bus.health.counters["timeouts"] += 1
+                    continue
+                t_ns = bus.clock.now_ns()
+            else:
+                due = start_ns + seq * period_ns
+                now = bus.clock.now_ns()
+                if now - due > period_ns:  # fell behind: skip the missed slots, count them
+                    missed = (now - due) // period_ns
+                    bus.health.counters["late_frames"] += int(missed)
+                    start_ns += missed * period_ns
+                    due += missed * period_ns
+                await bus.clock.sleep_until(due)
+                t_ns = bus.clock.now_ns()
+                if args.source == "sim":
+                    reading = source.render((t_ns - start_ns) / 1e9, seq)
+                else:
+                    _, reading = source.next_frame()
+            depth.put(_frame(seq, t_ns, reading, intrinsics, args.source))
+            seq += 1
+    except EndOfStream:
+        bus.log("info", f"end of {args.file} after {seq} frames")
+    finally:
+        source.shutdown()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("camera", __doc__ or "")
+    parser.add_argument("--source", choices=("sim", "realsense", "replay"), default="sim")
+    parser.add_argument("--file", help="recording for realsense (.bag/.db3) or replay (.mcap)")
+    parser.add_argument("--rate", type=float, default=90.0, help="frame rate in Hz (default 90)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene")
+    args = parser.parse_args(argv)
+    if args.source == "replay" and not args.file:
+        parser.error("--source replay needs --file FILE.mcap")
+    if not 0 < args.rate <= 1000:
+        parser.error("--rate must be in (0, 1000]")
+    return run_service("camera", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

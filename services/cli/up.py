@@ -1,0 +1,349 @@
+"""``lpc up``: start the service set as separate processes on one bus, show their status, stop
+them cleanly.
+
+The supervisor's own Zenoh session is the rendezvous every service connects to (gossip makes
+the rest of the mesh). It watches liveliness tokens to know who is up, restarts a crashed
+service with backoff, and stops services in reverse start order so that the recorder, started
+first, is stopped last and loses nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import zenoh
+
+from schemas import Health, decode
+from services.runtime import zenoh_config
+
+STOP_GRACE_S = 2.0
+START_TIMEOUT_S = 60.0
+
+
+@dataclass(frozen=True)
+class ServiceSpec:
+    """How ``lpc up`` starts one service: its module, its flags, and when it runs at all."""
+
+    module: str
+    argv: Callable[[argparse.Namespace], list[str]] = lambda args: []
+    enabled: Callable[[argparse.Namespace], bool] = lambda args: True
+
+
+def _camera_argv(args: argparse.Namespace) -> list[str]:
+    argv = ["--source", args.source[0], "--rate", str(args.rate), "--seed", str(args.seed)]
+    if len(args.source) > 1:
+        argv += ["--file", args.source[1]]
+    return argv
+
+
+def _recorder_argv(args: argparse.Namespace) -> list[str]:
+    return ["--out", args.record]
+
+
+# Start order: the recorder first (it must see everything), sources last. Stop order: reverse.
+SERVICES: dict[str, ServiceSpec] = {
+    "recorder": ServiceSpec(
+        "services.recorder", _recorder_argv, lambda args: args.record is not None
+    ),
+    "scans": ServiceSpec("services.scans"),
+    "camera": ServiceSpec("services.camera", _camera_argv),
+}
+
+
+@dataclass
+class Child:
+    name: str
+    spec: ServiceSpec
+    argv: list[str]
+    process: asyncio.subprocess.Process | None = None
+    restarts: int = 0
+    next_start: float = 0.0
+    alive: bool = False
+    health: Health | None = None
+    exit_codes: list[int] = field(default_factory=list)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--source",
+        nargs="+",
+        default=["sim"],
+        metavar=("SOURCE", "FILE"),
+        help="depth source: sim (built-in simulated scene, default), realsense [FILE.bag], "
+        "or replay FILE.mcap",
+    )
+    parser.add_argument("--record", metavar="PATH", help="record every lpc/** topic to MCAP")
+    parser.add_argument(
+        "--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)"
+    )
+    parser.add_argument(
+        "--services",
+        nargs="+",
+        metavar="NAME",
+        help=f"services to start (default: all that apply): {', '.join(SERVICES)}",
+    )
+    parser.add_argument(
+        "--port", type=int, default=7447, help="loopback port of the rendezvous (default 7447)"
+    )
+    parser.add_argument("--rate", type=float, default=90.0, help="camera frame rate (Hz)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene")
+    parser.add_argument(
+        "--status-every",
+        type=float,
+        default=None,
+        metavar="S",
+        help="status period in seconds (default: live on a terminal, every 5 s otherwise)",
+    )
+    parser.add_argument(
+        "--no-restart", action="store_true", help="do not restart a service that crashes"
+    )
+
+
+def _validate(args: argparse.Namespace) -> str | None:
+    kind = args.source[0]
+    if kind not in ("sim", "realsense", "replay"):
+        return f"--source must be sim, realsense or replay, not {kind!r}"
+    if kind == "replay" and len(args.source) != 2:
+        return "--source replay needs the recording: --source replay FILE.mcap"
+    if kind == "sim" and len(args.source) != 1:
+        return "--source sim takes no file"
+    if len(args.source) > 2:
+        return "--source takes at most a kind and a file"
+    if args.duration is not None and args.duration <= 0:
+        return "--duration must be positive"
+    if not 0 < args.rate <= 1000:
+        return "--rate must be in (0, 1000] Hz"
+    if not 1 <= args.port <= 65535:
+        return "--port must be a TCP port number"
+    unknown = sorted(set(args.services or []) - set(SERVICES))
+    if unknown:
+        return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    problem = _validate(args)
+    if problem:
+        print(f"lpc up: error: {problem}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(_supervise(args))
+    except KeyboardInterrupt:
+        return 130
+
+
+async def _supervise(args: argparse.Namespace) -> int:
+    endpoint = f"tcp/127.0.0.1:{args.port}"
+    wanted = args.services or list(SERVICES)
+    children = [
+        Child(name, spec, spec.argv(args))
+        for name, spec in SERVICES.items()
+        if name in wanted and spec.enabled(args)
+    ]
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        session = zenoh.open(zenoh_config(connect=[], listen=[endpoint]))
+    except zenoh.ZError as exc:
+        print(
+            f"lpc up: error: cannot listen on {endpoint} ({exc}); is another 'lpc up' running? "
+            "Choose another --port.",
+            file=sys.stderr,
+        )
+        return 2
+    by_name = {c.name: c for c in children}
+    with session:
+
+        def on_health(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            key = str(sample.key_expr)
+            loop.call_soon_threadsafe(_store_health, by_name, key, payload)
+
+        def on_alive(sample: zenoh.Sample) -> None:
+            name = str(sample.key_expr).rsplit("/", 1)[-1]
+            up = sample.kind == zenoh.SampleKind.PUT
+            loop.call_soon_threadsafe(_set_alive, by_name, name, up)
+
+        health_sub = session.declare_subscriber("lpc/health/*", on_health)
+        alive_sub = session.liveliness().declare_subscriber("lpc/alive/*", on_alive, history=True)
+        try:
+            code = await _run_children(args, endpoint, children, stop)
+        finally:
+            await _stop_all(children)
+            health_sub.undeclare()
+            alive_sub.undeclare()
+    _print_summary(children)
+    if code == 0 and any(_unclean(c) for c in children):
+        code = 1
+    return code
+
+
+def _store_health(by_name: dict[str, Child], key: str, payload: bytes) -> None:
+    try:
+        health = decode(key, payload)
+    except (ValueError, KeyError):
+        return
+    child = by_name.get(health.service)
+    if child is not None:
+        child.health = health
+
+
+def _set_alive(by_name: dict[str, Child], name: str, up: bool) -> None:
+    child = by_name.get(name)
+    if child is not None:
+        child.alive = up
+
+
+async def _spawn(child: Child, endpoint: str) -> None:
+    child.process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        child.spec.module,
+        "--connect",
+        endpoint,
+        "--quiet",
+        *child.argv,
+        stdin=asyncio.subprocess.DEVNULL,
+    )
+
+
+async def _run_children(
+    args: argparse.Namespace, endpoint: str, children: list[Child], stop: asyncio.Event
+) -> int:
+    for child in children:
+        await _spawn(child, endpoint)
+    # The duration counts from the moment every service holds its liveliness token.
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while not all(c.alive for c in children):
+        if stop.is_set():
+            return 130
+        failed = [c for c in children if c.process and c.process.returncode is not None]
+        if failed or time.monotonic() > deadline:
+            names = ", ".join(c.name for c in failed or children if not c.alive)
+            print(f"lpc up: error: service(s) failed to start: {names}", file=sys.stderr)
+            return 1
+        await asyncio.sleep(0.05)
+    started = time.monotonic()
+    print(
+        f"lpc up: {len(children)} services up on {endpoint}: "
+        + ", ".join(c.name for c in children),
+        file=sys.stderr,
+        flush=True,
+    )
+    live = sys.stdout.isatty() and args.status_every is None
+    every = args.status_every or (1.0 if live else 5.0)
+    next_status = started + every
+    while not stop.is_set():
+        now = time.monotonic()
+        if args.duration is not None and now - started >= args.duration:
+            break
+        for child in children:
+            await _check_child(child, endpoint, no_restart=args.no_restart)
+        if now >= next_status:
+            _print_status(children, now - started, live)
+            next_status += every
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), timeout=0.1)
+    return 0
+
+
+async def _check_child(child: Child, endpoint: str, *, no_restart: bool) -> None:
+    process = child.process
+    if process is None:
+        if time.monotonic() >= child.next_start:
+            print(f"lpc up: restarting {child.name} (restart #{child.restarts})", file=sys.stderr)
+            await _spawn(child, endpoint)
+        return
+    if process.returncode is None:
+        return
+    child.exit_codes.append(process.returncode)
+    child.process = None
+    child.alive = False
+    if no_restart:
+        print(f"lpc up: {child.name} exited with {process.returncode}", file=sys.stderr)
+        child.next_start = float("inf")
+        return
+    child.restarts += 1
+    backoff = min(0.25 * 2 ** (child.restarts - 1), 5.0)
+    child.next_start = time.monotonic() + backoff
+    print(
+        f"lpc up: {child.name} exited with {process.returncode}; restart in {backoff:.2f} s",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+async def _stop_all(children: list[Child]) -> None:
+    """SIGTERM in reverse start order, each given the grace period, then SIGKILL."""
+    for child in reversed(children):
+        process = child.process
+        if process is None or process.returncode is not None:
+            continue
+        with contextlib.suppress(ProcessLookupError):
+            process.send_signal(signal.SIGTERM)
+        try:
+            await asyncio.wait_for(process.wait(), timeout=STOP_GRACE_S)
+        except TimeoutError:
+            print(
+                f"lpc up: {child.name} did not stop in {STOP_GRACE_S} s; killing it",
+                file=sys.stderr,
+            )
+            with contextlib.suppress(ProcessLookupError):
+                process.kill()
+            await process.wait()
+        child.exit_codes.append(process.returncode if process.returncode is not None else -9)
+
+
+def _unclean(child: Child) -> bool:
+    return bool(child.exit_codes) and child.exit_codes[-1] != 0
+
+
+def _status_line(child: Child) -> str:
+    h = child.health
+    if h is None:
+        return f"{child.name:<18} {'up' if child.alive else 'down':<8} (no health yet)"
+    rate = ", ".join(f"{k.removeprefix('lpc/')} {v:5.1f} Hz" for k, v in h.rates_hz.items())
+    lat = h.latency_ms
+    latency = f"lat p50 {lat['p50']:6.2f} ms p99 {lat['p99']:6.2f} ms" if lat else "lat -"
+    c = h.counters
+    return (
+        f"{child.name:<18} {h.status:<8} {rate or '-':<28} {latency}  "
+        f"in {c.get('received', 0)} drop {c.get('dropped', 0)} rej {c.get('rejected', 0)}  "
+        f"rss {h.rss_bytes / 2**20:5.0f} MB"
+        + (f"  restarts {child.restarts}" if child.restarts else "")
+    )
+
+
+def _print_status(children: list[Child], elapsed: float, live: bool) -> None:
+    lines = [f"--- t = {elapsed:6.1f} s"] + [_status_line(c) for c in children]
+    if live:
+        sys.stdout.write(
+            f"\x1b[{len(lines)}F\x1b[J" if getattr(_print_status, "drawn", False) else ""
+        )
+        _print_status.drawn = True  # type: ignore[attr-defined]
+    sys.stdout.write("\n".join(lines) + "\n")
+    sys.stdout.flush()
+
+
+def _print_summary(children: list[Child]) -> None:
+    summary = {
+        c.name: {
+            "exit": c.exit_codes[-1] if c.exit_codes else None,
+            "restarts": c.restarts,
+            "rates_hz": c.health.rates_hz if c.health else {},
+            "latency_ms": c.health.latency_ms if c.health else {},
+            "counters": c.health.counters if c.health else {},
+        }
+        for c in children
+    }
+    print("lpc up: summary " + json.dumps(summary, sort_keys=True), file=sys.stderr, flush=True)
