@@ -1,0 +1,49 @@
+"""Shared fixtures: a private loopback rendezvous per test, so tests never share a bus."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+import zenoh
+
+from services.runtime import zenoh_config
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def rendezvous(endpoint: str) -> Iterator[zenoh.Session]:
+    """A Zenoh session listening on ``endpoint``: what ``lpc up`` gives its services."""
+    with zenoh.open(zenoh_config(connect=[], listen=[endpoint])) as session:
+        yield session
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 10.0, what: str = "") -> None:
+    """Poll ``condition`` until it holds; fail the test after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what or condition}")
+        time.sleep(0.01)
+
+
+def spawn_service(module: str, endpoint: str, *args: str) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", module, "--connect", endpoint, "--quiet", *args],
+        stdin=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )

@@ -1,0 +1,141 @@
+"""The service runtime over a real Zenoh session on loopback."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import msgspec
+import pytest
+import zenoh
+
+from schemas import EmgSample, Health, decode, encode
+from services.runtime import zenoh_config
+from tests.conftest import spawn_service, wait_for
+
+PUBLISHER = textwrap.dedent(
+    """
+    import asyncio, sys
+    from schemas import EmgSample
+    from services.runtime import run_service, service_parser
+
+    async def serve(bus, args):
+        pub = bus.publisher("lpc/emg")
+        # Wait until the test's subscriber is matched, then send a numbered burst.
+        while not bus.session.liveliness().get("lpc/alive/listener").recv().ok:
+            await asyncio.sleep(0.01)
+        for i in range(args.n):
+            pub.put(EmgSample(seq=i, t_ns=bus.clock.now_ns(), channels=[i * 0.001, 0.0]))
+            await asyncio.sleep(0.002)
+
+    parser = service_parser("publisher", "")
+    parser.add_argument("--n", type=int)
+    sys.exit(run_service("publisher", serve, parser.parse_args()))
+    """
+)
+
+
+def _alive_tokens(session: zenoh.Session) -> set[str]:
+    return {str(r.ok.key_expr) for r in session.liveliness().get("lpc/alive/*") if r.ok}
+
+
+def test_runtime_two_process_publish_subscribe(endpoint: str, rendezvous: zenoh.Session) -> None:
+    received: list[EmgSample] = []
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        with lock:
+            received.append(decode(str(sample.key_expr), sample.payload.to_bytes()))
+
+    sub = rendezvous.declare_subscriber("lpc/emg", on_sample)
+    token = rendezvous.liveliness().declare_token("lpc/alive/listener")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", PUBLISHER, "--connect", endpoint, "--quiet", "--n", "300"],
+        stderr=subprocess.PIPE,
+    )
+    try:
+        assert proc.wait(timeout=30) == 0, proc.stderr.read().decode()
+        wait_for(lambda: len(received) >= 300, timeout=5, what="300 samples")
+    finally:
+        token.undeclare()
+        sub.undeclare()
+    assert [m.seq for m in received] == list(range(300))
+    assert received[123].channels == [pytest.approx(0.123), 0.0]
+
+
+def test_runtime_service_shuts_down_cleanly_on_sigterm(
+    endpoint: str, rendezvous: zenoh.Session
+) -> None:
+    proc = spawn_service("services.scans", endpoint)
+    try:
+        wait_for(lambda: "lpc/alive/scans" in _alive_tokens(rendezvous), 30, "scans token")
+        start = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=5)
+        elapsed = time.monotonic() - start
+    finally:
+        proc.kill()
+    assert code == 0
+    assert elapsed < 2.0
+    wait_for(lambda: "lpc/alive/scans" not in _alive_tokens(rendezvous), 5, "token gone")
+
+
+def test_runtime_bad_payloads_are_counted_and_service_carries_on(
+    endpoint: str, rendezvous: zenoh.Session
+) -> None:
+    healths: list[Health] = []
+
+    def on_health(sample: zenoh.Sample) -> None:
+        healths.append(decode(str(sample.key_expr), sample.payload.to_bytes()))
+
+    sub = rendezvous.declare_subscriber("lpc/health/scans", on_health)
+    proc = spawn_service("services.scans", endpoint)
+    try:
+        wait_for(lambda: "lpc/alive/scans" in _alive_tokens(rendezvous), 30, "scans token")
+        garbage = [
+            b"\xc1",  # not msgpack
+            encode(EmgSample(seq=1, t_ns=1, channels=[0.0])),  # another topic's type
+            msgspec.msgpack.encode({"seq": 1, "t_ns": 1, "version": 9}),
+        ]
+        # Sensor subscriptions keep only the newest sample: space the puts out until each
+        # one has been counted, so the count is exact.
+        for n, payload in enumerate(garbage, start=1):
+            rendezvous.put("lpc/camera/depth", payload)
+            wait_for(
+                lambda n=n: healths and healths[-1].counters.get("rejected", 0) >= n,
+                10,
+                f"{n} rejections",
+            )
+        assert proc.poll() is None
+        assert healths[-1].counters["rejected"] == 3
+        assert healths[-1].counters["published"] == 0
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=5)
+        sub.undeclare()
+
+
+def test_runtime_schemas_queryable_answers(endpoint: str, rendezvous: zenoh.Session) -> None:
+    proc = spawn_service("services.scans", endpoint)
+    try:
+        wait_for(lambda: "lpc/alive/scans" in _alive_tokens(rendezvous), 30, "scans token")
+        replies = [r.ok for r in rendezvous.get("lpc/schemas/lpc/scans") if r.ok]
+        assert replies, "no schema reply"
+        schema = msgspec.json.decode(replies[0].payload.to_bytes())
+        assert "ScanLines" in schema["$defs"]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=5)
+
+
+def test_runtime_default_config_is_loopback_without_multicast() -> None:
+    conf = zenoh_config()
+    text = str(conf)
+    assert '"multicast"' in text or "multicast" in text
+    assert conf.get_json("scouting/multicast/enabled") == "false"
+    assert "127.0.0.1" in conf.get_json("listen/endpoints")
+    assert "127.0.0.1" in conf.get_json("connect/endpoints")

@@ -1,0 +1,156 @@
+from __future__ import annotations
+
+import math
+
+import msgspec
+import numpy as np
+import pytest
+
+from schemas import (
+    TOPICS,
+    AimCue,
+    BadMessage,
+    CameraIntrinsics,
+    ControllerState,
+    DepthFrame,
+    EmgSample,
+    GraspTarget,
+    Health,
+    Log,
+    ProsthesisCommand,
+    ProsthesisState,
+    Reconstruction,
+    ScanLine,
+    ScanLines,
+    TactorCommand,
+    decode,
+    encode,
+    from_wire,
+    json_schema,
+    to_wire,
+    topic_for_key,
+)
+
+INTR = CameraIntrinsics(width=4, height=3, fx=213.0, fy=213.0, ppx=2.0, ppy=1.5)
+
+EXAMPLES = {
+    "lpc/camera/depth": DepthFrame(
+        seq=7,
+        t_ns=1_700_000_000_000_000_000,
+        intrinsics=INTR,
+        depth=to_wire(np.arange(12, dtype=np.uint16).reshape(3, 4)),
+    ),
+    "lpc/scans": ScanLines(
+        seq=7,
+        t_ns=1,
+        frame_seq=7,
+        lines=[ScanLine(angle_deg=45.0, points=to_wire(np.ones((5, 3), np.float32)))],
+    ),
+    "lpc/reconstruction": Reconstruction(
+        seq=1, t_ns=2, frame_seq=3, shape="cylinder", grasp_width_mm=40.0, wrist_angle_deg=30.0
+    ),
+    "lpc/grasp/target": GraspTarget(seq=1, t_ns=2, frame_seq=3, shape="sphere", reconstructed=True),
+    "lpc/aim/cue": AimCue(seq=1, t_ns=2, frame_seq=3, state="guiding", rho=0.5, theta_deg=90.0),
+    "lpc/tactors/command": TactorCommand(seq=1, t_ns=2, amplitudes=[0.5, 0.5, 0.0, 0.0]),
+    "lpc/emg": EmgSample(seq=1, t_ns=2, channels=[0.1, 0.2]),
+    "lpc/controller/state": ControllerState(seq=1, t_ns=2, state="aiming", reason="object seen"),
+    "lpc/prosthesis/command": ProsthesisCommand(seq=1, t_ns=2, grasp=0.5, wrist=-0.25),
+    "lpc/prosthesis/state": ProsthesisState(seq=1, t_ns=2, wrist_angle_deg=10, aperture_mm=50),
+    "lpc/health/camera": Health(seq=1, t_ns=2, service="camera", pid=1, counters={"dropped": 0}),
+    "lpc/log/camera": Log(seq=1, t_ns=2, service="camera", text="hello"),
+}
+
+
+def test_registry_covers_every_topic_once() -> None:
+    keys = [t.key for t in TOPICS]
+    assert len(keys) == len(set(keys))
+    covered = {topic_for_key(k).key for k in EXAMPLES}
+    assert covered == set(keys)
+
+
+@pytest.mark.parametrize("key", sorted(EXAMPLES))
+def test_schema_round_trip(key: str) -> None:
+    message = EXAMPLES[key]
+    assert decode(key, encode(message)) == message
+    assert message.version == 1
+
+
+@pytest.mark.parametrize("key", sorted(EXAMPLES))
+def test_schema_json_schema_is_exported(key: str) -> None:
+    schema = json_schema(topic_for_key(key).type)
+    assert "$defs" in schema or "properties" in schema
+    name = type(EXAMPLES[key]).__name__
+    assert {"seq", "t_ns", "version"} <= set(schema["$defs"][name]["properties"])
+
+
+def test_decode_rejects_malformed_payload() -> None:
+    with pytest.raises(BadMessage, match="malformed"):
+        decode("lpc/emg", b"\xc1\xff")
+
+
+def test_decode_rejects_truncated_payload() -> None:
+    payload = encode(EXAMPLES["lpc/emg"])
+    with pytest.raises(BadMessage):
+        decode("lpc/emg", payload[:-3])
+
+
+def test_decode_rejects_wrong_type_and_limits() -> None:
+    with pytest.raises(BadMessage, match="invalid"):
+        decode("lpc/prosthesis/command", encode(EXAMPLES["lpc/emg"]))
+    too_fast = msgspec.msgpack.encode({"seq": 1, "t_ns": 1, "grasp": 3.0, "wrist": 0.0})
+    with pytest.raises(BadMessage, match="grasp"):
+        decode("lpc/prosthesis/command", too_fast)
+    with pytest.raises(BadMessage):
+        decode("lpc/emg", msgspec.msgpack.encode({"seq": -1, "t_ns": 1, "channels": []}))
+
+
+def test_decode_rejects_other_version() -> None:
+    payload = msgspec.msgpack.encode({"seq": 1, "t_ns": 1, "version": 2, "channels": [0.0]})
+    with pytest.raises(BadMessage, match="version 2"):
+        decode("lpc/emg", payload)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_decode_rejects_non_finite(bad: float) -> None:
+    payload = encode(EmgSample(seq=1, t_ns=1, channels=[0.0, bad]))
+    with pytest.raises(BadMessage, match=r"channels\[1\]"):
+        decode("lpc/emg", payload)
+
+
+def test_decode_rejects_oversized_payload() -> None:
+    with pytest.raises(BadMessage, match="exceeds"):
+        decode("lpc/emg", b"\x00" * (64 * 1024 + 1))
+
+
+def test_decode_unknown_key_is_keyerror() -> None:
+    with pytest.raises(KeyError, match="no schema"):
+        decode("lpc/nope", b"")
+
+
+def test_topic_wildcards_match_one_level() -> None:
+    assert topic_for_key("lpc/health/scans").type is Health
+    with pytest.raises(KeyError):
+        topic_for_key("lpc/health/a/b")
+    with pytest.raises(KeyError):
+        topic_for_key("lpc/health/")
+
+
+def test_array_round_trip_and_checks() -> None:
+    a = np.linspace(0, 1, 12, dtype=np.float32).reshape(4, 3)
+    b = from_wire(to_wire(a))
+    assert b.dtype == np.float32 and b.shape == (4, 3)
+    np.testing.assert_array_equal(a, b)
+    big_endian = a.astype(">f4")
+    np.testing.assert_array_equal(from_wire(to_wire(big_endian)), a)
+    wire = to_wire(a)
+    short = msgspec.structs.replace(wire, data=wire.data[:-4])
+    with pytest.raises(ValueError, match="44 bytes, expected 48"):
+        from_wire(short)
+    with pytest.raises(ValueError, match="NaN"):
+        from_wire(to_wire(np.array([np.nan], np.float32)))
+
+
+def test_array_dtype_pattern_is_validated() -> None:
+    frame = msgspec.msgpack.encode({"data": b"", "dtype": "object", "shape": [0]})
+    with pytest.raises(msgspec.ValidationError):
+        msgspec.msgpack.decode(frame, type=type(to_wire(np.zeros(1))))
