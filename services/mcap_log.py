@@ -1,0 +1,539 @@
+"""MCAP logs of the bus: a writer that rotates by size, and a reader that survives a crash.
+
+Conventions (DESIGN.md): one channel per concrete key, message encoding ``msgpack``, schema
+encoding ``jsonschema`` (one schema per message type); ``log_time`` is the recorder's receive
+time, ``publish_time`` the producer's ``t_ns``, MCAP's 32-bit ``sequence`` the low bits of
+``seq``. A payload whose header does not decode goes, raw, to ``lpc/_rejected/<key>`` (no
+schema, encoding ``application/octet-stream``) so that nothing is lost.
+
+The writer is mcap's own (chunked, with CRCs and indexes), so identical input gives a
+byte-identical file. It writes straight to the file descriptor, without a user-space buffer:
+when the process dies, everything up to the last finished chunk is on disk.
+
+The reader walks the records itself instead of trusting the summary, so that a file cut short
+(no footer, a half-written chunk, a chunk that fails its CRC) reads back up to its last good
+chunk; ``McapLog.cut`` then says where and why, and the last good time.
+"""
+
+from __future__ import annotations
+
+import heapq
+import io
+import json
+import os
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import msgspec
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import breakup_chunk
+from mcap.writer import CompressionType, Writer
+
+from schemas import BadMessage, encode, json_schema, topic_for_key
+from schemas import decode as decode_message
+
+Compression = Literal["none", "lz4", "zstd"]
+COMPRESSIONS: dict[str, CompressionType] = {
+    "none": CompressionType.NONE,
+    "lz4": CompressionType.LZ4,
+    "zstd": CompressionType.ZSTD,
+}
+# Chosen by measurement (``python -m services.cli.bench_mcap write``): see services/recorder.py.
+DEFAULT_COMPRESSION: Compression = "zstd"
+DEFAULT_CHUNK_BYTES = 1024 * 1024
+REJECTED_PREFIX = "lpc/_rejected/"
+RAW_ENCODING = "application/octet-stream"
+PROFILE = "lpc"
+
+MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEAD = struct.Struct("<BQ")
+_CHUNK_TIMES = struct.Struct("<QQ")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")
+
+
+class McapLogError(Exception):
+    """A file that cannot be read at all (missing, empty, not MCAP, unsupported)."""
+
+
+# --------------------------------------------------------------------------- header
+
+
+class _Header(msgspec.Struct):
+    """The two fields every message starts with; decoding ignores the rest of the map."""
+
+    seq: int
+    t_ns: int
+
+
+_HEADER_DECODER = msgspec.msgpack.Decoder(_Header)
+
+
+def read_header(payload: bytes) -> tuple[int, int] | None:
+    """``(seq, t_ns)`` of a bus payload without decoding its body; ``None`` if it has none."""
+    try:
+        header = _HEADER_DECODER.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return None
+    if not (0 <= header.seq < 2**63 and 0 <= header.t_ns < 2**63):
+        return None
+    return header.seq, header.t_ns
+
+
+# --------------------------------------------------------------------------- writer
+
+
+class _FileSink:
+    """An unbuffered binary file that knows its size: what mcap's Writer writes to."""
+
+    def __init__(self, path: Path) -> None:
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._position = 0
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        view = memoryview(data)
+        while view:
+            n = os.write(self._fd, view)
+            view = view[n:]
+            self._position += n
+        return len(data)
+
+    def tell(self) -> int:
+        return self._position
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+
+def rotated_path(path: Path, index: int) -> Path:
+    """The ``index``-th file of a rotated log: ``out.mcap``, ``out-001.mcap``, ``out-002.mcap``."""
+    if index == 0:
+        return path
+    return path.with_name(f"{path.stem}-{index:03d}{path.suffix or '.mcap'}")
+
+
+class LogWriter:
+    """Write bus messages to MCAP, one channel per key, rotating to a new file past ``max_bytes``.
+
+    ``write_raw`` takes a payload as it came off the bus; ``write`` encodes a message first.
+    ``finish()`` writes the summary and footer; it is safe to call twice, and the context
+    manager calls it.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        compression: Compression = DEFAULT_COMPRESSION,
+        chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+        max_bytes: int | None = None,
+    ) -> None:
+        if compression not in COMPRESSIONS:
+            raise ValueError(
+                f"compression must be one of {sorted(COMPRESSIONS)}, not {compression!r}"
+            )
+        if chunk_bytes <= 0:
+            raise ValueError(f"chunk_bytes must be positive, not {chunk_bytes}")
+        if max_bytes is not None and max_bytes <= 0:
+            raise ValueError(f"max_bytes must be positive, not {max_bytes}")
+        self.path = Path(path)
+        self.compression = compression
+        self.chunk_bytes = chunk_bytes
+        self.max_bytes = max_bytes
+        self.paths: list[Path] = []
+        self.messages = 0
+        self._sink: _FileSink | None = None
+        self._writer: Writer | None = None
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._open()
+
+    def _open(self) -> None:
+        path = rotated_path(self.path, len(self.paths))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._sink = _FileSink(path)
+        self._writer = Writer(
+            self._sink,
+            chunk_size=self.chunk_bytes,
+            compression=COMPRESSIONS[self.compression],
+        )
+        self._writer.start(profile=PROFILE)
+        self._schemas.clear()
+        self._channels.clear()
+        self.paths.append(path)
+
+    def _channel(self, key: str) -> int:
+        channel = self._channels.get(key)
+        if channel is not None:
+            return channel
+        assert self._writer is not None
+        if key.startswith(REJECTED_PREFIX):
+            schema_id, encoding = 0, RAW_ENCODING
+        else:
+            try:
+                message_type = topic_for_key(key).type
+            except KeyError:
+                schema_id = 0  # not in the registry: keep it, undescribed
+            else:
+                name = message_type.__name__
+                schema_id = self._schemas.get(name, 0)
+                if not schema_id:
+                    data = json.dumps(json_schema(message_type), sort_keys=True).encode()
+                    schema_id = self._writer.register_schema(name, "jsonschema", data)
+                    self._schemas[name] = schema_id
+            encoding = "msgpack"
+        channel = self._writer.register_channel(key, encoding, schema_id)
+        self._channels[key] = channel
+        return channel
+
+    def write_raw(
+        self,
+        key: str,
+        payload: bytes,
+        *,
+        log_time: int,
+        publish_time: int,
+        sequence: int = 0,
+    ) -> None:
+        """Append one payload; ``sequence`` keeps its low 32 bits (MCAP's field is 32-bit)."""
+        if self._writer is None:
+            raise ValueError(f"{self.path}: write after finish()")
+        self._writer.add_message(
+            self._channel(key),
+            log_time=log_time,
+            data=payload,
+            publish_time=publish_time,
+            sequence=sequence & 0xFFFFFFFF,
+        )
+        self.messages += 1
+        if self.max_bytes is not None and self._sink and self._sink.tell() >= self.max_bytes:
+            self._close_file()
+            self._open()
+
+    def write_received(self, key: str, payload: bytes, received_ns: int) -> bool:
+        """Log a payload as received off the bus. Returns ``False`` if its header did not decode,
+        in which case it went raw to ``lpc/_rejected/<key>`` with the receive time."""
+        header = read_header(payload)
+        if header is None:
+            self.write_raw(
+                REJECTED_PREFIX + key, payload, log_time=received_ns, publish_time=received_ns
+            )
+            return False
+        seq, t_ns = header
+        self.write_raw(key, payload, log_time=received_ns, publish_time=t_ns, sequence=seq)
+        return True
+
+    def write(self, key: str, message: Any, log_time: int) -> None:
+        """Encode a message and append it, with its own ``t_ns`` and ``seq``."""
+        self.write_raw(
+            key, encode(message), log_time=log_time, publish_time=message.t_ns, sequence=message.seq
+        )
+
+    def _close_file(self) -> None:
+        if self._writer is not None:
+            try:
+                self._writer.finish()
+            finally:
+                self._writer = None
+                if self._sink is not None:
+                    self._sink.close()
+                    self._sink = None
+
+    def finish(self) -> None:
+        self._close_file()
+
+    @property
+    def finished(self) -> bool:
+        return self._writer is None
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()
+
+
+# --------------------------------------------------------------------------- reader
+
+
+@dataclass(frozen=True)
+class LoggedMessage:
+    """One message of a log. ``order`` is its position in the file (ties in ``log_time``)."""
+
+    key: str
+    log_time: int
+    publish_time: int
+    sequence: int
+    payload: bytes
+    order: int
+    encoding: str = "msgpack"
+    message: Any = None  # the decoded message, when asked for and it decodes
+    error: str = ""  # why it did not decode, when asked for
+
+
+@dataclass(frozen=True)
+class Cut:
+    """Where a log stops being readable: byte offset, reason, and the last good log time."""
+
+    offset: int
+    reason: str
+    last_good_ns: int | None
+    first_ns: int | None
+
+    def describe(self) -> str:
+        if self.last_good_ns is None:
+            when = "no message before the cut"
+        else:
+            span = (self.last_good_ns - (self.first_ns or self.last_good_ns)) / 1e9
+            when = f"last good time {format_time(self.last_good_ns)} ({span:.3f} s after the start)"
+        return f"cut short at byte {self.offset}: {self.reason}; {when}"
+
+
+def format_time(t_ns: int) -> str:
+    """Seconds since the epoch with nanoseconds: what a person can compare across tools."""
+    return f"{t_ns // 1_000_000_000}.{t_ns % 1_000_000_000:09d}"
+
+
+@dataclass(frozen=True)
+class _Item:
+    """A data-section record worth loading: a chunk, or a loose schema/channel/message."""
+
+    offset: int
+    length: int  # of the record body
+    opcode: int
+    start_ns: int  # earliest log time inside (chunks, messages); max for others
+
+
+class McapLog:
+    """Read an MCAP log, complete or cut short.
+
+    ``messages()`` yields in ``(log_time, file order)``; ``messages(ordered=False)`` in file
+    order. After iterating, ``cut`` is ``None`` for a complete, sound file, or a ``Cut``.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "rb")  # noqa: SIM115 - closed by close()/__exit__
+        except OSError as exc:
+            raise McapLogError(f"cannot open {self.path}: {exc.strerror or exc}") from exc
+        self.size = os.fstat(self._file.fileno()).st_size
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.compressions: set[str] = set()
+        self.profile = ""
+        self.library = ""
+        self.complete = False  # a footer and the closing magic were found
+        self.cut: Cut | None = None
+        self._first_ns: int | None = None
+        self._last_ns: int | None = None
+        self._scan_cut: tuple[int, str] | None = None
+        self._items = self._scan()
+
+    # -- structure
+
+    def _scan(self) -> list[_Item]:
+        """Walk the records' headers (without decompressing) up to the footer or the cut."""
+        f = self._file
+        head = f.read(len(MAGIC))
+        if head != MAGIC:
+            what = "empty" if not head else "not an MCAP file (bad magic)"
+            raise McapLogError(f"{self.path}: {what}")
+        items: list[_Item] = []
+        offset = len(MAGIC)
+        summary = False
+        while True:
+            f.seek(offset)
+            raw = f.read(_RECORD_HEAD.size)
+            if len(raw) < _RECORD_HEAD.size:
+                self._scan_cut = (offset, "no footer (the writer did not finish)")
+                break
+            opcode, length = _RECORD_HEAD.unpack(raw)
+            body = offset + _RECORD_HEAD.size
+            if body + length > self.size:
+                self._scan_cut = (offset, f"{_opname(opcode)} record is incomplete")
+                break
+            if opcode == Opcode.HEADER:
+                self._read_header_record(body, length)
+            elif opcode == Opcode.CHUNK:
+                start_ns, _ = _CHUNK_TIMES.unpack(f.read(_CHUNK_TIMES.size))
+                items.append(_Item(body, length, opcode, start_ns))
+            elif opcode == Opcode.MESSAGE:
+                _, _, log_time, _ = _MESSAGE_HEAD.unpack(f.read(_MESSAGE_HEAD.size))
+                items.append(_Item(body, length, opcode, log_time))
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL) and not summary:
+                items.append(_Item(body, length, opcode, 2**64))
+            elif opcode == Opcode.DATA_END:
+                summary = True  # what follows repeats what the data section said
+            elif opcode == Opcode.FOOTER:
+                f.seek(body + length)
+                if f.read(len(MAGIC)) == MAGIC:
+                    self.complete = True
+                else:
+                    self._scan_cut = (body + length, "the closing magic is missing")
+                break
+            elif opcode == 0 or (opcode < 0x80 and opcode not in _KNOWN):
+                self._scan_cut = (offset, f"invalid record opcode 0x{opcode:02x}")
+                break
+            offset = body + length
+        return items
+
+    def _read_header_record(self, body: int, length: int) -> None:
+        self._file.seek(body)
+        stream = ReadDataStream(io.BytesIO(self._file.read(length)))
+        try:
+            self.profile = stream.read_prefixed_string()
+            self.library = stream.read_prefixed_string()
+        except (McapError, UnicodeDecodeError, struct.error):
+            pass
+
+    def _load(self, item: _Item) -> list[Any]:
+        """The records of one item; raises on any corruption."""
+        self._file.seek(item.offset)
+        stream = ReadDataStream(io.BytesIO(self._file.read(item.length)))
+        if item.opcode == Opcode.CHUNK:
+            chunk = Chunk.read(stream)
+            self.compressions.add(chunk.compression or "none")
+            records = breakup_chunk(chunk, validate_crc=True)
+            return records
+        if item.opcode == Opcode.MESSAGE:
+            return [Message.read(stream, item.length)]
+        if item.opcode == Opcode.SCHEMA:
+            return [Schema.read(stream)]
+        return [Channel.read(stream)]
+
+    # -- messages
+
+    def messages(
+        self,
+        topics: Iterable[str] | None = None,
+        *,
+        decode: bool = False,
+        ordered: bool = True,
+    ) -> Iterator[LoggedMessage]:
+        """Messages of the log (of ``topics`` only, if given), decoded if ``decode``."""
+        wanted = None if topics is None else set(topics)
+        items = self._items
+        # Chunks are loaded in file order (so channels are defined before use) but a message
+        # leaves the heap only when no unloaded chunk can hold an earlier one.
+        later_start = [2**64] * (len(items) + 1)
+        for i in range(len(items) - 1, -1, -1):
+            later_start[i] = min(items[i].start_ns, later_start[i + 1])
+        heap: list[tuple[int, int, Message]] = []
+        order = 0
+        index = 0
+        self.cut = None
+        failure: tuple[int, str] | None = None
+        while True:
+            while index < len(items) and (
+                not heap or (ordered and heap[0][0] > later_start[index])
+            ):
+                item = items[index]
+                index += 1
+                try:
+                    records = self._load(item)
+                except (McapError, ValueError, struct.error, EOFError, OSError) as exc:
+                    failure = (item.offset - _RECORD_HEAD.size, _describe_error(item, exc))
+                    items = items[: index - 1]  # nothing after a bad chunk is trusted
+                    break
+                for record in records:
+                    if isinstance(record, Message):
+                        heapq.heappush(heap, (record.log_time if ordered else 0, order, record))
+                        order += 1
+                    elif isinstance(record, Schema):
+                        self.schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        self.channels[record.id] = record
+            if not heap:
+                break
+            _, position, record = heapq.heappop(heap)
+            logged = self._logged(record, position, wanted, decode)
+            if logged is not None:
+                yield logged
+        failure = failure or self._scan_cut
+        if failure is not None:
+            self._set_cut(*failure)
+
+    def _logged(
+        self, record: Message, position: int, wanted: set[str] | None, decode: bool
+    ) -> LoggedMessage | None:
+        channel = self.channels.get(record.channel_id)
+        key = channel.topic if channel is not None else f"<channel {record.channel_id}>"
+        self._first_ns = (
+            record.log_time if self._first_ns is None else min(self._first_ns, record.log_time)
+        )
+        self._last_ns = (
+            record.log_time if self._last_ns is None else max(self._last_ns, record.log_time)
+        )
+        if wanted is not None and key not in wanted:
+            return None
+        message, error = None, ""
+        encoding = channel.message_encoding if channel is not None else ""
+        if decode:
+            try:
+                if encoding != "msgpack":
+                    raise BadMessage(key, f"message encoding {encoding!r} is not msgpack")
+                message = decode_message(key, record.data)
+            except BadMessage as exc:
+                error = exc.reason
+            except KeyError as exc:
+                error = str(exc)
+        return LoggedMessage(
+            key=key,
+            log_time=record.log_time,
+            publish_time=record.publish_time,
+            sequence=record.sequence,
+            payload=record.data,
+            order=position,
+            encoding=encoding,
+            message=message,
+            error=error,
+        )
+
+    def _set_cut(self, offset: int, reason: str) -> None:
+        self.cut = Cut(offset, reason, self._last_ns, self._first_ns)
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> McapLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+_KNOWN = {int(op) for op in Opcode}
+
+
+def _opname(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name.lower().replace("_", " ")
+    except ValueError:
+        return f"opcode 0x{opcode:02x}"
+
+
+def _describe_error(item: _Item, exc: Exception) -> str:
+    what = _opname(item.opcode)
+    text = str(exc) or type(exc).__name__
+    if "crc" in text.lower():
+        return f"{what} fails its CRC"
+    return f"{what} is unreadable ({text})"
+
+
+def read_messages(
+    path: str | os.PathLike[str], topics: Iterable[str] | None = None, *, decode: bool = True
+) -> Iterator[LoggedMessage]:
+    """Messages of a log in ``(log_time, file order)``, decoded; stops quietly at a cut."""
+    with McapLog(path) as log:
+        yield from log.messages(topics, decode=decode)

@@ -1,0 +1,219 @@
+"""MCAP writer and reader: conventions, ordering, rotation, determinism and cut-short files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from schemas import CameraIntrinsics, DepthFrame, EmgSample, Health, decode, encode, to_wire
+from services.mcap_log import (
+    REJECTED_PREFIX,
+    LogWriter,
+    McapLog,
+    McapLogError,
+    read_header,
+    read_messages,
+    rotated_path,
+)
+
+T0 = 1_700_000_000_000_000_000
+INTRINSICS = CameraIntrinsics(width=424, height=240, fx=213.0, fy=213.0, ppx=212.0, ppy=120.0)
+
+
+def depth_frame(seq: int) -> DepthFrame:
+    rng = np.random.default_rng(seq)
+    depth = rng.integers(150, 250, size=(240, 424)).astype(np.uint16)
+    return DepthFrame(
+        seq=seq, t_ns=T0 + seq * 11_111_111, intrinsics=INTRINSICS, depth=to_wire(depth)
+    )
+
+
+def session(n_frames: int = 20) -> list[tuple[str, bytes, int]]:
+    """What a recorder receives: depth at 90 Hz and EMG at 100 Hz, as (key, payload, time)."""
+    items = []
+    for i in range(n_frames):
+        frame = depth_frame(i)
+        items.append(("lpc/camera/depth", encode(frame), frame.t_ns + 300_000))
+    for i in range(n_frames * 100 // 90):
+        emg = EmgSample(seq=i, t_ns=T0 + i * 10_000_000, channels=[0.1 * i, 0.2])
+        items.append(("lpc/emg", encode(emg), emg.t_ns + 100_000))
+    items.sort(key=lambda item: item[2])
+    return items
+
+
+def write_session(path: Path, items: list[tuple[str, bytes, int]], **kwargs) -> LogWriter:
+    with LogWriter(path, **kwargs) as writer:
+        for key, payload, t in items:
+            writer.write_received(key, payload, t)
+    return writer
+
+
+def test_writer_conventions_as_mcap_reads_them(tmp_path: Path) -> None:
+    items = session(5)
+    write_session(tmp_path / "a.mcap", items)
+    with open(tmp_path / "a.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        channels = {c.topic: c for c in summary.channels.values()}
+        assert set(channels) == {"lpc/camera/depth", "lpc/emg"}
+        for channel in channels.values():
+            assert channel.message_encoding == "msgpack"
+            schema = summary.schemas[channel.schema_id]
+            assert schema.encoding == "jsonschema"
+            assert "$defs" in json.loads(schema.data)
+        assert summary.schemas[channels["lpc/emg"].schema_id].name == "EmgSample"
+        got = list(reader.iter_messages(log_time_order=True))
+    assert len(got) == len(items)
+    for (_, channel, message), (key, payload, t) in zip(got, items, strict=True):
+        assert channel.topic == key
+        assert message.data == payload
+        assert message.log_time == t
+        decoded = decode(key, payload)
+        assert message.publish_time == decoded.t_ns
+        assert message.sequence == decoded.seq
+
+
+def test_writer_identical_input_gives_identical_bytes(tmp_path: Path) -> None:
+    items = session(12)
+    for compression in ("none", "lz4", "zstd"):
+        write_session(tmp_path / f"a-{compression}.mcap", items, compression=compression)
+        write_session(tmp_path / f"b-{compression}.mcap", items, compression=compression)
+        a = (tmp_path / f"a-{compression}.mcap").read_bytes()
+        assert a == (tmp_path / f"b-{compression}.mcap").read_bytes()
+
+
+def test_writer_sequence_keeps_low_32_bits(tmp_path: Path) -> None:
+    big = 2**40 + 7
+    with LogWriter(tmp_path / "s.mcap") as writer:
+        writer.write("lpc/emg", EmgSample(seq=big, t_ns=T0, channels=[0.0, 0.0]), T0 + 1)
+    (message,) = read_messages(tmp_path / "s.mcap")
+    assert message.sequence == 7
+    assert message.message.seq == big
+
+
+def test_writer_bad_header_goes_raw_to_rejected_channel(tmp_path: Path) -> None:
+    with LogWriter(tmp_path / "r.mcap") as writer:
+        assert not writer.write_received("lpc/emg", b"\xc1 not msgpack", T0)
+        assert writer.write_received(
+            "lpc/health/cam", encode(Health(seq=1, t_ns=T0, service="cam", pid=1)), T0 + 1
+        )
+    with McapLog(tmp_path / "r.mcap") as log:
+        rejected, health = log.messages(decode=True)
+        assert log.cut is None
+    assert rejected.key == REJECTED_PREFIX + "lpc/emg"
+    assert rejected.payload == b"\xc1 not msgpack"
+    assert rejected.encoding == "application/octet-stream"
+    assert rejected.message is None and rejected.error
+    assert health.key == "lpc/health/cam" and health.message.service == "cam"
+
+
+def test_read_header_fields_only() -> None:
+    assert read_header(encode(depth_frame(3))) == (3, T0 + 3 * 11_111_111)
+    assert read_header(b"\x80") is None  # an empty map: no seq
+    assert read_header(b"") is None
+
+
+def test_reader_orders_by_log_time_then_file_order(tmp_path: Path) -> None:
+    emg = [EmgSample(seq=i, t_ns=T0, channels=[float(i), 0.0]) for i in range(6)]
+    log_times = [T0 + 5, T0 + 1, T0 + 5, T0 + 3, T0 + 1, T0 + 9]
+    # Tiny chunks so that the out-of-order times straddle chunk boundaries.
+    with LogWriter(tmp_path / "o.mcap", chunk_bytes=64) as writer:
+        for message, t in zip(emg, log_times, strict=True):
+            writer.write("lpc/emg", message, t)
+    got = [m.message.seq for m in read_messages(tmp_path / "o.mcap")]
+    assert got == [1, 4, 3, 0, 2, 5]
+    with McapLog(tmp_path / "o.mcap") as log:
+        assert [m.order for m in log.messages(ordered=False)] == list(range(6))
+
+
+def test_reader_topic_filter_and_decode(tmp_path: Path) -> None:
+    write_session(tmp_path / "f.mcap", session(4))
+    depth = list(read_messages(tmp_path / "f.mcap", topics=["lpc/camera/depth"]))
+    assert [m.message.seq for m in depth] == [0, 1, 2, 3]
+    assert np.array_equal(
+        np.frombuffer(depth[2].message.depth.data, np.uint16).reshape(240, 424),
+        np.frombuffer(depth_frame(2).depth.data, np.uint16).reshape(240, 424),
+    )
+
+
+def test_writer_rotates_by_size(tmp_path: Path) -> None:
+    items = session(30)
+    writer = write_session(
+        tmp_path / "big.mcap", items, max_bytes=2 * 1024 * 1024, compression="none"
+    )
+    assert len(writer.paths) >= 2
+    assert writer.paths[1] == rotated_path(tmp_path / "big.mcap", 1) == tmp_path / "big-001.mcap"
+    got = []
+    for path in writer.paths:
+        with McapLog(path) as log:
+            got += [(m.key, m.payload, m.log_time) for m in log.messages()]
+            assert log.complete and log.cut is None
+    assert got == items
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_reader_cut_short_reads_to_last_complete_chunk(tmp_path: Path, compression: str) -> None:
+    items = session(30)
+    write_session(tmp_path / "full.mcap", items, compression=compression)
+    data = (tmp_path / "full.mcap").read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: len(data) * 2 // 3])
+    with McapLog(tmp_path / "cut.mcap") as log:
+        got = list(log.messages())
+        assert not log.complete
+        cut = log.cut
+    assert cut is not None
+    assert 0 < len(got) < len(items)
+    assert [(m.key, m.payload, m.log_time) for m in got] == items[: len(got)]
+    assert cut.last_good_ns == got[-1].log_time
+    assert "incomplete" in cut.reason and str(cut.offset) in cut.describe()
+    assert "last good time" in cut.describe()
+
+
+def test_reader_missing_footer_is_a_cut_with_every_message(tmp_path: Path) -> None:
+    items = session(6)
+    write_session(tmp_path / "full.mcap", items)
+    data = (tmp_path / "full.mcap").read_bytes()
+    (tmp_path / "nofoot.mcap").write_bytes(data[:-12])
+    with McapLog(tmp_path / "nofoot.mcap") as log:
+        assert len(list(log.messages())) == len(items)
+        assert log.cut is not None and log.cut.last_good_ns == items[-1][2]
+
+
+def test_reader_corrupt_chunk_stops_at_crc(tmp_path: Path) -> None:
+    items = session(30)
+    write_session(tmp_path / "full.mcap", items, compression="none")
+    data = bytearray((tmp_path / "full.mcap").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (tmp_path / "bad.mcap").write_bytes(bytes(data))
+    with McapLog(tmp_path / "bad.mcap") as log:
+        got = list(log.messages())
+        assert log.cut is not None and "CRC" in log.cut.reason
+    assert [(m.key, m.payload) for m in got] == [(k, p) for k, p, _ in items[: len(got)]]
+
+
+def test_reader_not_mcap_raises_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "x.mcap").write_bytes(b"hello world, not a log")
+    with pytest.raises(McapLogError, match="not an MCAP file"):
+        McapLog(tmp_path / "x.mcap")
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    with pytest.raises(McapLogError, match="empty"):
+        McapLog(tmp_path / "empty.mcap")
+    with pytest.raises(McapLogError, match="cannot open"):
+        McapLog(tmp_path / "missing.mcap")
+
+
+def test_writer_rejects_bad_parameters(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="compression"):
+        LogWriter(tmp_path / "p.mcap", compression="gzip")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="max_bytes"):
+        LogWriter(tmp_path / "p.mcap", max_bytes=0)
+    writer = LogWriter(tmp_path / "p.mcap")
+    writer.finish()
+    writer.finish()  # twice is fine
+    with pytest.raises(ValueError, match="after finish"):
+        writer.write("lpc/emg", EmgSample(seq=1, t_ns=T0, channels=[0.0, 0.0]), T0)
