@@ -641,7 +641,12 @@ def fit_cylinder(
     points: np.ndarray, normals: np.ndarray, params: CloudParams, rng: np.random.Generator
 ) -> _Fit | FailedFit:
     """RANSAC cylinder from two points with normals: axis ``n1 x n2``, centre where the two
-    normal lines meet across the axis."""
+    normal lines meet across the axis.
+
+    The inliers also take in the end cap when one is in view (points on a plane across the
+    axis, within the radius, with normals along the axis): a can seen from above shows its lid,
+    and leaving it out would hand the lid to the cuboid's planes.
+    """
     n = len(points)
     if n < 3:
         return FailedFit("fewer than 3 points")
@@ -677,7 +682,27 @@ def fit_cylinder(
         if refined_inliers.sum() < inliers.sum():
             break
         model, inliers = refined, refined_inliers
-    return _Fit(model, inliers)
+    return _Fit(model, inliers | _cap_inliers(points, normals, model, inliers, params))
+
+
+def _cap_inliers(
+    points: np.ndarray,
+    normals: np.ndarray,
+    model: CylinderModel,
+    side: np.ndarray,
+    params: CloudParams,
+) -> np.ndarray:
+    along = (points - model.center) @ model.axis
+    candidates = (
+        ~side
+        & (np.abs(normals @ model.axis) >= np.cos(params.normal_tolerance_rad))
+        & (model.distances_to_axis(points) <= model.radius + params.fit_threshold_m)
+    )
+    if candidates.sum() < max(3, params.min_face_fraction * len(points)):
+        return np.zeros(len(points), dtype=bool)
+    # Only one end faces the camera, so the candidates' median finds its plane.
+    level = float(np.median(along[candidates]))
+    return candidates & (np.abs(along - level) <= params.fit_threshold_m)
 
 
 def _plane_inliers(

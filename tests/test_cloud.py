@@ -1,0 +1,356 @@
+"""Tests of lpc_core.cloud, the full-point-cloud benchmark method.
+
+Frames come from a small ray caster below (primitives seen by the 424x240 D435 stand-in, range
+noise 0.3 mm RMS, 1 mm quantisation), so these tests do not depend on lpc_core.scene.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lpc_core.cloud import (
+    CloudParams,
+    CylinderModel,
+    PlaneModel,
+    SphereModel,
+    crop_points,
+    estimate_normals,
+    euclidean_clusters,
+    find_support_plane,
+    fit_cuboid,
+    fit_cylinder,
+    fit_sphere,
+    nearest_segment,
+    reconstruct_cloud,
+    smallest_eigenvectors,
+    voxel_downsample,
+)
+from lpc_core.intrinsics import Intrinsics
+
+INTR = Intrinsics()
+PARAMS = CloudParams()
+
+# --------------------------------------------------------------------------- ray caster
+
+
+def _directions() -> np.ndarray:
+    rx, ry = INTR.pixel_rays()
+    return np.stack([rx, ry, np.ones_like(rx)], axis=-1)  # z = 1, so the hit distance is z
+
+
+def _hit_sphere(center: tuple[float, float, float], radius: float) -> np.ndarray:
+    d, c = _directions(), np.asarray(center)
+    a, b = (d * d).sum(-1), -2 * d @ c
+    disc = b * b - 4 * a * (c @ c - radius**2)
+    with np.errstate(invalid="ignore"):
+        t = (-b - np.sqrt(disc)) / (2 * a)
+    return np.where(disc >= 0, t, np.inf)
+
+
+def _hit_plane(normal: tuple[float, float, float], point: tuple[float, float, float]):
+    n = np.asarray(normal, dtype=float)
+    with np.errstate(divide="ignore"):
+        t = (n @ np.asarray(point)) / (_directions() @ n)
+    return np.where(t > 0, t, np.inf)
+
+
+def _hit_box(center, rotation: np.ndarray, size) -> np.ndarray:
+    half = np.asarray(size) / 2
+    origin = rotation.T @ -np.asarray(center, dtype=float)
+    d = _directions() @ rotation
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (-half - origin) / d, (half - origin) / d
+    near, far = np.minimum(t1, t2).max(-1), np.maximum(t1, t2).min(-1)
+    return np.where((far >= near) & (near > 0), near, np.inf)
+
+
+def _hit_cylinder(center, axis, radius: float, length: float) -> np.ndarray:
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    d = _directions()
+    o = -np.asarray(center, dtype=float)
+    d_perp = d - (d @ axis)[..., None] * axis
+    o_perp = o - (o @ axis) * axis
+    a, b = (d_perp**2).sum(-1), 2 * d_perp @ o_perp
+    disc = b * b - 4 * a * (o_perp @ o_perp - radius**2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (-b - np.sqrt(disc)) / (2 * a)
+        t = np.where((disc >= 0) & (np.abs(o @ axis + t * (d @ axis)) <= length / 2), t, np.inf)
+        for end in (-length / 2, length / 2):
+            tc = (end - o @ axis) / (d @ axis)
+            rim = o_perp + tc[..., None] * d_perp
+            t = np.where(((rim**2).sum(-1) <= radius**2) & (tc > 0), np.minimum(t, tc), t)
+    return t
+
+
+def _frame(*hits: np.ndarray, seed: int = 0, noise_m: float = 0.0003) -> np.ndarray:
+    z = np.minimum.reduce(hits)
+    z = z + np.random.default_rng(seed).normal(0.0, noise_m, z.shape)
+    return np.where(np.isfinite(z), np.rint(z / INTR.depth_scale), 0).astype(np.uint16)
+
+
+def _rotation(axis, angle: float) -> np.ndarray:
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def _segment(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The voxelised cloud of a frame holding one object and nothing else, with normals."""
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    return cloud, estimate_normals(cloud, PARAMS.normal_neighbours)
+
+
+def _angle_error_deg(a: float, b: float) -> float:
+    return float(np.degrees(abs((a - b + np.pi / 2) % np.pi - np.pi / 2)))
+
+
+# --------------------------------------------------------------------------- steps
+
+
+def test_voxel_downsample_counts_points_on_a_grid():
+    # A 1 mm lattice of 10x10x10 points, cell centres at 0.5 mm: eight points per 2 mm voxel.
+    axis = (np.arange(10) + 0.5) * 0.001
+    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3) + 0.1
+    centroids, counts = voxel_downsample(points, 0.002)
+    assert len(centroids) == 125
+    assert np.all(counts == 8)
+    assert counts.sum() == len(points)
+    offsets = (centroids - 0.1) / 0.001  # voxel centres sit at 1, 3, 5, 7, 9 mm
+    np.testing.assert_allclose(offsets, np.rint(offsets), atol=1e-6)
+    assert set(np.rint(offsets).ravel().astype(int)) == {1, 3, 5, 7, 9}
+
+
+def test_voxel_downsample_empty_and_bad_voxel():
+    centroids, counts = voxel_downsample(np.empty((0, 3)), 0.002)
+    assert centroids.shape == (0, 3) and counts.shape == (0,)
+    with pytest.raises(ValueError, match="voxel_m"):
+        voxel_downsample(np.zeros((3, 3)), 0.0)
+    with pytest.raises(ValueError, match="points"):
+        voxel_downsample(np.zeros((3, 2)), 0.002)
+
+
+def test_crop_points_keeps_only_the_crop_box():
+    depth = np.full((INTR.height, INTR.width), 200, dtype=np.uint16)
+    depth[:, :10] = 400  # beyond z 315 mm
+    points = crop_points(depth, INTR, PARAMS)
+    assert len(points) > 0
+    assert np.all(np.abs(points[:, :2]) <= 0.1 + 1e-12)
+    np.testing.assert_allclose(points[:, 2], 0.2)
+
+
+def test_smallest_eigenvectors_matches_eigh():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(500, 3, 3))
+    cov = a @ a.transpose(0, 2, 1)
+    got = smallest_eigenvectors(cov)
+    want = np.linalg.eigh(cov)[1][:, :, 0]
+    np.testing.assert_allclose(np.abs((got * want).sum(axis=1)), 1.0, atol=1e-6)
+
+
+def test_find_support_plane_removes_the_table_under_a_ball():
+    depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.03), _hit_plane((0, 0, 1), (0, 0, 0.23)))
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    mask = find_support_plane(cloud, PARAMS, np.random.default_rng(0))
+    assert mask is not None
+    on_table = cloud[:, 2] > 0.2285
+    assert mask[on_table].mean() > 0.98
+    assert mask[cloud[:, 2] < 0.22].mean() < 0.01  # the ball stays
+
+
+def test_find_support_plane_skips_a_box_face_with_the_table_behind_it():
+    # The box's front face is bigger than the visible table, but the table lies behind it.
+    box = _hit_box((0.0, 0.0, 0.2 + 0.02), np.eye(3), (0.13, 0.13, 0.04))
+    depth = _frame(box, _hit_plane((0, 0, 1), (0, 0, 0.28)))
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    front = cloud[:, 2] < 0.205
+    assert front.sum() > (cloud[:, 2] > 0.275).sum()
+    mask = find_support_plane(cloud, PARAMS, np.random.default_rng(0))
+    assert mask is not None
+    assert not mask[front].any()
+    assert mask[cloud[:, 2] > 0.275].mean() > 0.98
+
+
+def test_find_support_plane_none_for_a_lone_ball():
+    depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.03))
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    assert find_support_plane(cloud, PARAMS, np.random.default_rng(0)) is None
+
+
+def test_euclidean_clusters_separates_objects_30mm_apart():
+    # Two balls of 25 mm radius whose surfaces are 30 mm apart.
+    depth = _frame(_hit_sphere((-0.04, 0.0, 0.2), 0.025), _hit_sphere((0.04, 0.0, 0.2), 0.025))
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    labels = euclidean_clusters(cloud, PARAMS.cluster_tolerance_m)
+    big = np.flatnonzero(np.bincount(labels) >= 100)
+    assert len(big) == 2
+    left = labels == labels[np.argmin(cloud[:, 0])]
+    assert np.all(cloud[left, 0] < 0) and np.all(cloud[~left & np.isin(labels, big), 0] > 0)
+
+
+def test_nearest_segment_picks_the_one_on_the_axis_and_skips_small_ones():
+    depth = _frame(
+        _hit_sphere((-0.05, 0.0, 0.2), 0.025),  # beside the axis
+        _hit_sphere((0.03, 0.0, 0.25), 0.03),  # on the axis, farther
+        _hit_sphere((0.0, 0.0, 0.13), 0.002),  # on the axis and nearest, but tiny
+    )
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    labels = euclidean_clusters(cloud, PARAMS.cluster_tolerance_m)
+    mask = nearest_segment(cloud, labels, 100, PARAMS.cluster_tolerance_m)
+    assert mask is not None
+    assert np.all(cloud[mask, 2] > 0.215) and np.mean(cloud[mask, 0]) > 0
+    assert nearest_segment(cloud, labels, 100_000, PARAMS.cluster_tolerance_m) is None
+
+
+# --------------------------------------------------------------------------- models
+
+
+def test_plane_model_estimate_faces_away_from_the_camera():
+    rng = np.random.default_rng(0)
+    uv = rng.uniform(-0.05, 0.05, (200, 2))
+    model = PlaneModel.estimate(np.column_stack([uv, 0.2 + 0.1 * uv[:, 0]]))
+    assert model and model.offset < 0
+    assert model.residuals(np.array([[0.0, 0.0, 0.2]]))[0] < 1e-12
+    assert not PlaneModel.estimate(np.zeros((2, 3)))
+
+
+def test_sphere_model_estimate_fails_on_coplanar_points():
+    rng = np.random.default_rng(0)
+    flat = np.column_stack([rng.uniform(size=(20, 2)), np.zeros(20)])
+    failed = SphereModel.estimate(flat)
+    assert not failed and "coplanar" in failed.reason
+
+
+def test_cylinder_model_needs_normals():
+    failed = CylinderModel.estimate(np.zeros((5, 3)))
+    assert not failed and "normals" in failed.reason
+
+
+def test_fit_sphere_recovers_radius_from_a_noisy_frame():
+    cloud, normals = _segment(_frame(_hit_sphere((0.01, -0.005, 0.21), 0.032), seed=3))
+    fit = fit_sphere(cloud, normals, PARAMS, np.random.default_rng(0))
+    assert fit
+    assert abs(fit.model.radius - 0.032) < 0.001
+    np.testing.assert_allclose(fit.model.center, (0.01, -0.005, 0.21), atol=0.0015)
+    assert fit.inliers.mean() > 0.8
+
+
+@pytest.mark.parametrize("angle_deg", [-60.0, 0.0, 35.0, 90.0])
+def test_fit_cylinder_recovers_radius_and_axis(angle_deg):
+    a = np.radians(angle_deg)
+    axis = _rotation((-np.sin(a), np.cos(a), 0), np.radians(20)) @ (np.cos(a), np.sin(a), 0)
+    depth = _frame(_hit_cylinder((0.0, 0.0, 0.2), axis, 0.025, 0.2), seed=4)
+    cloud, normals = _segment(depth)
+    fit = fit_cylinder(cloud, normals, PARAMS, np.random.default_rng(1))
+    assert fit
+    assert abs(fit.model.radius - 0.025) < 0.001
+    assert np.degrees(np.arccos(min(1.0, abs(fit.model.axis @ axis)))) < 3.0
+    assert fit.inliers.mean() > 0.8
+
+
+def test_fit_cuboid_finds_three_perpendicular_faces():
+    rotation = _rotation((1, 1, 0), np.radians(35)) @ _rotation((0, 0, 1), np.radians(20))
+    depth = _frame(_hit_box((0.0, 0.0, 0.23), rotation, (0.06, 0.05, 0.07)), seed=5)
+    cloud, normals = _segment(depth)
+    fit = fit_cuboid(cloud, normals, PARAMS, np.random.default_rng(2))
+    assert fit and len(fit.faces) == 3
+    for face in fit.faces:  # each face normal is one of the box's axes
+        assert np.degrees(np.arccos(min(1.0, np.abs(rotation.T @ face.normal).max()))) < 3.0
+    assert fit.inliers.mean() > 0.9
+
+
+# --------------------------------------------------------------------------- whole frames
+
+
+def test_reconstruct_cloud_ball_on_a_table():
+    depth = _frame(_hit_sphere((0.005, 0.0, 0.2), 0.03), _hit_plane((0, -1, 1), (0, 0.0, 0.24)))
+    result = reconstruct_cloud(depth, INTR, seed=7)
+    assert result.shape == "sphere" and result.method == "cloud"
+    assert abs(result.grasp_width_m - 0.06) < 0.003
+    assert result.wrist_angle_rad is None
+    assert result.points == len(voxel_downsample(crop_points(depth, INTR, PARAMS), 0.002)[0])
+    assert result.extra["raw_points"] > result.points > result.extra["segment_points"]
+    assert result.extra["support_points"] > 1000
+
+
+@pytest.mark.parametrize("angle_deg", [-45.0, 10.0, 80.0])
+def test_reconstruct_cloud_cylinder_lying_on_a_table(angle_deg):
+    a = np.radians(angle_deg)
+    axis = np.array([np.cos(a), np.sin(a), 0.0])
+    depth = _frame(
+        _hit_cylinder((0.0, 0.0, 0.2), axis, 0.02, 0.14), _hit_plane((0, 0, 1), (0, 0, 0.22))
+    )
+    result = reconstruct_cloud(depth, INTR, seed=8)
+    assert result.shape == "cylinder"
+    assert abs(result.grasp_width_m - 0.04) < 0.003
+    assert _angle_error_deg(result.wrist_angle_rad, a) < 3.0
+
+
+def test_reconstruct_cloud_box_reports_the_pierced_face():
+    # Front face 40 x 120 mm, long side at 30 degrees in the image; the box is 50 mm deep.
+    rotation = _rotation((0, 0, 1), np.radians(30))
+    depth = _frame(
+        _hit_box((0.0, 0.0, 0.225), rotation, (0.12, 0.04, 0.05)),
+        _hit_plane((0, 0, 1), (0, 0, 0.25)),
+    )
+    result = reconstruct_cloud(depth, INTR, seed=9)
+    assert result.shape == "cuboid"
+    assert abs(result.grasp_width_m - 0.04) < 0.004
+    assert _angle_error_deg(result.wrist_angle_rad, np.radians(30)) < 3.0
+
+
+def test_reconstruct_cloud_keeps_a_lone_face_that_looks_like_a_support():
+    # Seen square on with nothing behind it, a box's face passes the support-plane test;
+    # removing it would leave nothing, so it stays and is fitted.
+    depth = _frame(_hit_box((0.0, 0.0, 0.22), np.eye(3), (0.05, 0.09, 0.04)))
+    result = reconstruct_cloud(depth, INTR, seed=4)
+    assert result.shape == "cuboid"
+    assert abs(result.grasp_width_m - 0.05) < 0.004
+    assert _angle_error_deg(result.wrist_angle_rad, np.pi / 2) < 3.0
+
+
+def test_reconstruct_cloud_can_with_its_lid_in_view():
+    # An upright can (axis along -y) seen 40 degrees from above: side and lid in view.
+    axis = _rotation((1, 0, 0), np.radians(40)) @ (0.0, -1.0, 0.0)
+    depth = _frame(_hit_cylinder((0.0, 0.03, 0.24), axis, 0.0375, 0.1), seed=6)
+    result = reconstruct_cloud(depth, INTR, seed=5)
+    assert result.shape == "cylinder"
+    assert abs(result.grasp_width_m - 0.075) < 0.003
+    assert result.extra["cylinder_fraction"] > 0.85
+
+
+def test_reconstruct_cloud_is_reproducible_for_a_seed():
+    depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.025), _hit_plane((0, 0, 1), (0, 0, 0.225)))
+    assert reconstruct_cloud(depth, INTR, seed=3) == reconstruct_cloud(depth, INTR, seed=3)
+
+
+def test_reconstruct_cloud_empty_frame_is_none_with_a_reason():
+    result = reconstruct_cloud(np.zeros((INTR.height, INTR.width), np.uint16), INTR)
+    assert result.shape == "none" and not result.ok
+    assert "crop box" in result.reason and result.points == 0
+
+
+def test_reconstruct_cloud_too_few_points_is_none_with_a_reason():
+    depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.004))  # a 8 mm bead: a few dozen voxels
+    result = reconstruct_cloud(depth, INTR)
+    assert result.shape == "none"
+    assert "at least 100 points" in result.reason
+    assert 0 < result.points < 100
+
+
+def test_reconstruct_cloud_rejects_wrong_dtype_and_shape():
+    with pytest.raises(ValueError, match="depth"):
+        reconstruct_cloud(np.zeros((INTR.height, INTR.width), np.float32), INTR)
+    with pytest.raises(ValueError, match="depth"):
+        reconstruct_cloud(np.zeros((10, 10), np.uint16), INTR)
+    with pytest.raises(ValueError, match="depth"):
+        reconstruct_cloud([[0]], INTR)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("voxel_m", 0.0), ("fit_points", 0), ("crop_z_max_m", 0.1), ("min_inlier_fraction", 2.0)],
+)
+def test_cloud_params_rejects_bad_values(field, value):
+    with pytest.raises(ValueError, match=field):
+        CloudParams(**{field: value})
