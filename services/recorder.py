@@ -1,0 +1,84 @@
+"""Recorder service: every ``lpc/**`` message to MCAP, in the order it arrived.
+
+One subscriber on ``lpc/**`` keeps arrival order across topics. ``log_time`` is the receive
+time, ``publish_time`` the message's ``t_ns``. A payload without a readable header is counted as
+rejected and kept raw on ``lpc/_rejected/<key>``. Files rotate past ``--max-mb``; the file is
+finished on SIGINT/SIGTERM, after the messages already received are written.
+
+Default compression, measured with ``python -m services.cli.bench_mcap write`` (203 KB depth
+frames, 1 MiB chunks, mcap 1.6, this 2-core machine): zstd about 1.7 ms per frame and 4.7x
+smaller, LZ4 0.7 ms and 2.3x, none 0.4 ms. zstd at 90 Hz costs about 15% of one core and
+writes about 4 MB/s instead of 18 MB/s raw, so it is the default; ``--compression lz4`` halves
+the CPU cost where the disk is fast and the CPU is short.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import sys
+
+from services.mcap_log import COMPRESSIONS, DEFAULT_COMPRESSION, LogWriter
+from services.runtime import Bus, run_service, service_parser
+
+QUEUE_CAPACITY = 1 << 16  # ~6 s of everything at 90 Hz depth: a slow disk stalls, never drops
+DRAIN_IDLE_S = 0.1  # at shutdown, write what arrives until the bus is quiet this long
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    max_bytes = None if args.max_mb is None else int(args.max_mb * 1024 * 1024)
+    writer = LogWriter(args.out, compression=args.compression, max_bytes=max_bytes)
+    sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY, decode=False)
+    bus.log("info", f"recording lpc/** to {args.out} ({args.compression})")
+    try:
+        while True:
+            key, payload, received_ns = await sub.receive()
+            _record(bus, writer, key, payload, received_ns)
+    finally:
+        # Cancelled by SIGINT/SIGTERM: keep what is already queued, then finish the file.
+        with contextlib.suppress(TimeoutError):
+            while True:
+                key, payload, received_ns = await asyncio.wait_for(sub.receive(), DRAIN_IDLE_S)
+                _record(bus, writer, key, payload, received_ns)
+        writer.finish()
+        dropped = sum(s.dropped for s in bus.health.received.values())
+        rejected = sum(s.rejected for s in bus.health.received.values())
+        files = ", ".join(str(p) for p in writer.paths)
+        bus.log(
+            "warning" if dropped else "info",
+            f"wrote {writer.messages} messages to {files}; dropped {dropped}, rejected {rejected}",
+        )
+
+
+def _record(bus: Bus, writer: LogWriter, key: str, payload: bytes, received_ns: int) -> None:
+    if not writer.write_received(key, payload, received_ns):
+        bus.health.received[key].rejected += 1
+        bus.reject(key, "no readable seq/t_ns header; kept raw on lpc/_rejected/" + key)
+    bus.health.counters["written"] += 1
+    bus.health.counters["files"] = len(writer.paths)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("recorder", __doc__ or "")
+    parser.add_argument("--out", required=True, metavar="PATH", help="the MCAP file to write")
+    parser.add_argument(
+        "--compression",
+        choices=sorted(COMPRESSIONS),
+        default=DEFAULT_COMPRESSION,
+        help=f"chunk compression (default {DEFAULT_COMPRESSION}, chosen by measurement)",
+    )
+    parser.add_argument(
+        "--max-mb",
+        type=float,
+        metavar="MB",
+        help="start a new file (PATH-001.mcap, ...) past this size (default: never)",
+    )
+    args = parser.parse_args(argv)
+    if args.max_mb is not None and args.max_mb <= 0:
+        parser.error("--max-mb must be positive")
+    return run_service("recorder", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
