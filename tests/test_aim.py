@@ -1,0 +1,249 @@
+"""The aim step: geometric cases of the cue, hysteresis, two objects, readiness."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lpc_core.aim import (
+    AimParams,
+    AimState,
+    aim_step,
+    capture_points,
+    convex_hull,
+    guide,
+    hull_distance,
+    tactor_placement,
+    tactor_shares,
+)
+from schemas import GraspTarget, ScanLine, ScanLines, to_wire
+
+Z = 0.200  # depth of the test objects, inside the 150-250 mm capture volume
+T0 = 1_700_000_000_000_000_000
+
+
+def patch(x0: float, x1: float, y0: float, y1: float, step: float = 0.001) -> np.ndarray:
+    """A flat rectangle of points at depth Z, corners included (mm-spaced grid)."""
+    xs = np.linspace(x0, x1, round((x1 - x0) / step) + 1)
+    ys = np.linspace(y0, y1, round((y1 - y0) / step) + 1)
+    gx, gy = np.meshgrid(xs, ys)
+    return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, Z)])
+
+
+def ray(theta_deg: float, r0: float, r1: float, step: float = 0.001) -> np.ndarray:
+    """Points of one scan line between radii r0 and r1 along direction theta."""
+    r = np.arange(r0, r1 + step / 2, step)
+    t = math.radians(theta_deg)
+    return np.column_stack([r * math.cos(t), r * math.sin(t), np.full(r.size, Z)])
+
+
+def scans(*lines: np.ndarray, t_ns: int = T0, seq: int = 1) -> ScanLines:
+    return ScanLines(
+        seq=seq,
+        t_ns=t_ns,
+        frame_seq=seq,
+        lines=[
+            ScanLine(angle_deg=45.0 * i, points=to_wire(p.astype(np.float32)))
+            for i, p in enumerate(lines)
+        ],
+    )
+
+
+def target(reconstructed: bool = True, t_ns: int = T0) -> GraspTarget:
+    return GraspTarget(seq=1, t_ns=t_ns, frame_seq=1, shape="cylinder", reconstructed=reconstructed)
+
+
+@pytest.mark.parametrize(
+    ("points", "tactor", "theta_deg"),
+    [
+        (patch(0.030, 0.040, -0.005, 0.005), 0, 0.0),  # object to the right: move right
+        (patch(-0.005, 0.005, 0.030, 0.040), 1, 90.0),  # below (y down): move down
+        (patch(-0.040, -0.030, -0.005, 0.005), 2, 180.0),  # left
+        (patch(-0.005, 0.005, -0.040, -0.030), 3, -90.0),  # above
+    ],
+)
+def test_guide_each_direction_drives_one_tactor(
+    points: np.ndarray, tactor: int, theta_deg: float
+) -> None:
+    g = guide(points, AimParams())
+    # Nearest hull point 30 mm away: rho = 30 / 100, amplitude 1 - rho on one tactor only.
+    assert g.state == "guiding"
+    assert g.rho == pytest.approx(0.30, abs=1e-6)
+    assert math.degrees(g.theta_rad) == pytest.approx(theta_deg, abs=1e-6)
+    expected = np.zeros(4)
+    expected[tactor] = 0.70
+    np.testing.assert_allclose(g.amplitudes, expected, atol=1e-6)
+
+
+def test_guide_diagonal_shares_equally() -> None:
+    # Nearest corner (20, 20) mm: d = 28.28 mm at 45 deg, half the amplitude on each neighbour.
+    g = guide(patch(0.020, 0.030, 0.020, 0.030), AimParams())
+    rho = math.hypot(0.020, 0.020) / 0.100
+    assert g.rho == pytest.approx(rho, abs=1e-6)
+    np.testing.assert_allclose(g.amplitudes, [(1 - rho) / 2, (1 - rho) / 2, 0, 0], atol=1e-6)
+
+
+def test_guide_thirty_degrees_shares_linearly() -> None:
+    # One scan line hits an object from 30 mm outward at 30 deg: shares 2/3 and 1/3.
+    g = guide(ray(30.0, 0.030, 0.045), AimParams())
+    assert g.rho == pytest.approx(0.30, abs=1e-6)
+    np.testing.assert_allclose(g.amplitudes, [0.7 * 2 / 3, 0.7 / 3, 0, 0], atol=1e-6)
+
+
+def test_guide_inside_hull_is_on_target_with_all_tactors() -> None:
+    g = guide(patch(-0.010, 0.020, -0.015, 0.010), AimParams())
+    assert g.state == "on_target"
+    assert g.signed_distance_m == pytest.approx(-0.010, abs=1e-9)  # nearest edge x = -10 mm
+    assert g.amplitudes == (1.0, 1.0, 1.0, 1.0)
+
+
+def test_guide_hysteresis_holds_on_target_near_the_edge() -> None:
+    params = AimParams(hysteresis_m=0.002)
+    just_outside = patch(0.001, 0.030, -0.010, 0.010)  # the axis 1 mm outside the hull
+    assert guide(just_outside, params, was_on_target=False).state == "guiding"
+    assert guide(just_outside, params, was_on_target=True).state == "on_target"
+    outside = patch(0.003, 0.030, -0.010, 0.010)  # beyond the hysteresis band
+    assert guide(outside, params, was_on_target=True).state == "guiding"
+
+
+def test_guide_two_objects_side_by_side_not_taken_for_one() -> None:
+    # Their joint hull contains the axis: the paper's method would say "on target".
+    points = np.concatenate(
+        [patch(-0.040, -0.015, -0.005, 0.005), patch(0.015, 0.040, -0.005, 0.005)]
+    )
+    g = guide(points, AimParams())
+    assert g.state == "guiding"
+    assert g.objects == 2
+    assert g.rho == pytest.approx(0.15, abs=1e-6)
+    assert math.degrees(g.theta_rad) % 180.0 == pytest.approx(0.0, abs=1e-6)
+
+
+def test_guide_two_objects_cue_leads_to_one_not_the_gap() -> None:
+    # Right and below: the merged hull's nearest point lies on the diagonal between them,
+    # 7.07 mm away at 45 deg. The cue must point at one object, 15 mm away.
+    points = np.concatenate(
+        [patch(0.015, 0.040, -0.005, 0.005), patch(-0.005, 0.005, 0.015, 0.040)]
+    )
+    g = guide(points, AimParams())
+    assert g.objects == 2
+    assert g.rho == pytest.approx(0.15, abs=1e-6)
+    assert math.degrees(g.theta_rad) in (pytest.approx(0.0, abs=1e-6), pytest.approx(90.0))
+    assert sorted(g.amplitudes) == pytest.approx([0, 0, 0, 0.85], abs=1e-6)
+
+
+def test_guide_keeps_the_chosen_object_of_two_at_equal_distance() -> None:
+    left = patch(-0.040, -0.015, -0.005, 0.005)
+    right = patch(0.015, 0.040, -0.005, 0.005)
+    points = np.concatenate([right, left])
+    for side in (left, right):
+        chosen = tuple(side[:, :2].mean(axis=0))
+        g = guide(points, AimParams(), chosen_xy=chosen)
+        assert g.chosen_xy == pytest.approx(chosen, abs=1e-9)
+
+
+def test_guide_objects_at_different_depths_are_separate() -> None:
+    # Overlapping in the image, 40 mm apart in depth: two objects.
+    near = patch(0.010, 0.030, -0.005, 0.005)
+    far = patch(0.020, 0.040, -0.005, 0.005) + np.array([0, 0, 0.040])
+    assert guide(np.concatenate([near, far]), AimParams()).objects == 2
+
+
+def test_guide_nothing_in_view_switches_all_off() -> None:
+    params = AimParams()
+    assert guide(np.empty((0, 3)), params).amplitudes == (0.0,) * 4
+    assert guide(patch(0.0, 0.002, 0.0, 0.002), params).state == "nothing"  # 9 points < 10
+    beyond = capture_points([patch(-0.01, 0.01, -0.01, 0.01) + np.array([0, 0, 0.2])], params)
+    assert len(beyond) == 0  # at z = 400 mm, outside the capture volume
+
+
+def test_guide_noisy_scan_line_recovers_direction() -> None:
+    rng = np.random.default_rng(6)
+    points = ray(-60.0, 0.025, 0.045)
+    points += rng.normal(0.0, 0.0003, points.shape)  # 0.3 mm, the D435's noise at 200 mm
+    g = guide(points, AimParams())
+    assert math.degrees(g.theta_rad) == pytest.approx(-60.0, abs=2.0)
+    assert g.rho == pytest.approx(0.25, abs=0.01)
+
+
+def test_convex_hull_degenerate_and_counter_clockwise() -> None:
+    assert convex_hull(np.array([[0.01, 0.02]] * 3)).shape == (1, 2)
+    segment = convex_hull(ray(45.0, 0.01, 0.03)[:, :2])
+    assert segment.shape == (2, 2)
+    square = convex_hull(patch(-0.01, 0.01, -0.01, 0.01)[:, :2])
+    assert square.shape == (4, 2)
+    x, y = square.T
+    assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # positive area: CCW
+
+
+def test_hull_distance_point_segment_polygon() -> None:
+    assert hull_distance(np.array([[0.03, 0.04]]))[0] == pytest.approx(0.05)
+    d, q = hull_distance(np.array([[0.02, -0.01], [0.02, 0.01]]))
+    assert d == pytest.approx(0.02) and q == pytest.approx([0.02, 0.0])
+    d, _ = hull_distance(convex_hull(patch(-0.01, 0.03, -0.02, 0.02)[:, :2]))
+    assert d == pytest.approx(-0.01)
+
+
+def test_tactor_placement_left_arm_mirrors_and_rotation_turns() -> None:
+    down = math.pi / 2
+    right_arm = tactor_shares(down, tactor_placement("right"))
+    left_arm = tactor_shares(down, tactor_placement("left"))
+    turned = tactor_shares(down, tactor_placement("right", rotation_deg=90.0))
+    assert np.argmax(right_arm) == 1
+    assert np.argmax(left_arm) == 3
+    assert np.argmax(turned) == 0
+    with pytest.raises(ValueError, match="arm"):
+        tactor_placement("middle")  # type: ignore[arg-type]
+
+
+def test_aim_params_reject_bad_values() -> None:
+    with pytest.raises(ValueError, match="width_m"):
+        AimParams(width_m=0.0)
+    with pytest.raises(ValueError, match="tactor_angles_rad"):
+        AimParams(tactor_angles_rad=(0.0, 1.0, 2.0, 3.0))
+
+
+def test_aim_step_emits_cue_and_command_with_capture_time() -> None:
+    state, out = aim_step(AimState(), scans(ray(0.0, 0.030, 0.045)), T0 + 5_000_000)
+    cue, command = out
+    assert cue.state == "guiding" and cue.frame_seq == 1
+    assert cue.t_ns == command.t_ns == T0
+    assert cue.theta_deg == pytest.approx(0.0, abs=1e-4)
+    assert command.amplitudes == pytest.approx([0.7, 0, 0, 0], abs=1e-6)
+    assert not command.pulse
+    assert state.seq == 1
+
+
+def test_aim_step_ready_pulses_only_with_a_fresh_reconstruction() -> None:
+    on = scans(patch(-0.01, 0.01, -0.01, 0.01))
+    state, out = aim_step(AimState(), on, T0)
+    assert out[0].state == "on_target" and not out[1].pulse
+    state, out = aim_step(state, target(reconstructed=False), T0)
+    assert out == []
+    state, out = aim_step(state, on, T0)
+    assert out[0].state == "on_target"
+    state, _ = aim_step(state, target(reconstructed=True), T0)
+    state, out = aim_step(state, on, T0)
+    assert out[0].state == "ready" and out[1].pulse
+    assert out[1].amplitudes == [1.0] * 4
+    late = scans(patch(-0.01, 0.01, -0.01, 0.01), t_ns=T0 + 2_000_000_000)
+    _, out = aim_step(state, late, T0)
+    assert out[0].state == "on_target"  # the reconstruction is 2 s old: not ready
+
+
+def test_aim_step_nothing_in_view_commands_all_off() -> None:
+    _, (cue, command) = aim_step(AimState(), scans(np.empty((0, 3))), T0)
+    assert cue.state == "nothing" and cue.objects == 0
+    assert command.amplitudes == [0.0] * 4
+
+
+def test_aim_step_bad_points_shape_raises_value_error() -> None:
+    bad = ScanLines(
+        seq=1,
+        t_ns=T0,
+        frame_seq=1,
+        lines=[ScanLine(angle_deg=0.0, points=to_wire(np.zeros((4, 2), np.float32)))],
+    )
+    with pytest.raises(ValueError, match="scan line 0"):
+        aim_step(AimState(), bad, T0)
