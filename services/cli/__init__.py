@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "echo": ("services.cli.echo", "print the messages of one key expression as JSON lines"),
     "schemas": ("services.cli.schemas", "print the JSON schema of every topic"),
     "bench": ("services.cli.bench", "benchmarks that print their figures"),
+    "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
 }
 
 
