@@ -48,10 +48,17 @@ def _recorder_argv(args: argparse.Namespace) -> list[str]:
     return ["--out", args.record]
 
 
+def _foxglove_argv(args: argparse.Namespace) -> list[str]:
+    return ["--port", str(args.foxglove_port)]
+
+
 # Start order: the recorder first (it must see everything), sources last. Stop order: reverse.
 SERVICES: dict[str, ServiceSpec] = {
     "recorder": ServiceSpec(
         "services.recorder", _recorder_argv, lambda args: args.record is not None
+    ),
+    "foxglove": ServiceSpec(
+        "services.foxglove_bridge", _foxglove_argv, lambda args: getattr(args, "foxglove", False)
     ),
     "scans": ServiceSpec("services.scans"),
     "camera": ServiceSpec("services.camera", _camera_argv),
@@ -105,6 +112,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-restart", action="store_true", help="do not restart a service that crashes"
     )
+    parser.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="also serve everything to Foxglove (WebSocket on 127.0.0.1; needs lpc[foxglove])",
+    )
+    parser.add_argument(
+        "--foxglove-port", type=int, default=8765, help="Foxglove WebSocket port (default 8765)"
+    )
 
 
 def _validate(args: argparse.Namespace) -> str | None:
@@ -123,6 +138,8 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--rate must be in (0, 1000] Hz"
     if not 1 <= args.port <= 65535:
         return "--port must be a TCP port number"
+    if not 0 <= getattr(args, "foxglove_port", 8765) <= 65535:
+        return "--foxglove-port must be a TCP port number"
     unknown = sorted(set(args.services or []) - set(SERVICES))
     if unknown:
         return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"
