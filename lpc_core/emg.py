@@ -147,8 +147,9 @@ def calibrate(
     """A profile from a rest recording (N, 2) and one maximal-contraction recording per channel.
 
     ``rest`` is the rest mean; ``maximal[c]`` the median of channel c's smoothed envelope over
-    the plateau of its own contraction (above half its peak), robust to spikes and ramps. The off-threshold is raised
-    to the rest mean + 3 SD (Hodges and Bui) when the rest noise demands it.
+    the plateau of its own contraction (above half its peak), robust to spikes and ramps. The
+    off-threshold is raised to the rest mean + 3 SD (Hodges and Bui) when the rest noise
+    demands it.
     """
     base = base or EmgProfile()
     rest = np.asarray(rest, dtype=float)
