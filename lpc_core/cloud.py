@@ -20,7 +20,7 @@ from functools import lru_cache
 from typing import Protocol, Self
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
@@ -59,8 +59,8 @@ class CloudParams:
     sphere_trials: int = 128
     cylinder_trials: int = 128
     face_trials: int = 96
-    score_sample: int = 512
-    fit_points: int = 1500  # the models are fitted on at most this many points of the segment
+    score_sample: int = 384
+    fit_points: int = 1000  # the models are fitted on at most this many points of the segment
     refine_iterations: int = 2
     perpendicular_tolerance_rad: float = float(np.radians(10.0))
     min_face_fraction: float = 0.05
@@ -431,16 +431,22 @@ def find_support_plane(
     return mask
 
 
-def euclidean_clusters(points: np.ndarray, tolerance_m: float) -> np.ndarray:
-    """Label of each point's cluster: points closer than ``tolerance_m`` share a cluster."""
+def euclidean_clusters(
+    points: np.ndarray, tolerance_m: float, tree: cKDTree | None = None
+) -> np.ndarray:
+    """Label of each point's cluster: points closer than ``tolerance_m`` share a cluster.
+
+    ``tree`` may pass a ``cKDTree`` already built on ``points``.
+    """
     if len(points) == 0:
         return np.empty(0, dtype=np.int64)
-    pairs = cKDTree(points).query_pairs(tolerance_m, output_type="ndarray")
-    graph = coo_matrix(
+    tree = cKDTree(points) if tree is None else tree
+    pairs = tree.query_pairs(tolerance_m, output_type="ndarray")
+    graph = csr_matrix(
         (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
         shape=(len(points), len(points)),
     )
-    _, labels = connected_components(graph, directed=False)
+    _, labels = connected_components(graph, directed=True, connection="weak")
     return labels
 
 
@@ -514,15 +520,20 @@ def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
 
 
 def estimate_normals(
-    points: np.ndarray, neighbours: int, at: np.ndarray | None = None
+    points: np.ndarray,
+    neighbours: int,
+    at: np.ndarray | None = None,
+    tree: cKDTree | None = None,
 ) -> np.ndarray:
     """Unit normals by PCA over nearest neighbours among ``points``, facing the camera.
 
-    Normals are computed at ``at`` (default: at every point of ``points``).
+    Normals are computed at ``at`` (default: at every point of ``points``); ``tree`` may pass
+    a ``cKDTree`` already built on ``points``.
     """
     query = points if at is None else at
     k = min(neighbours, len(points))
-    _, index = cKDTree(points).query(query, k=k)
+    tree = cKDTree(points) if tree is None else tree
+    _, index = tree.query(query, k=k)
     local = points[index]  # (N, k, 3)
     local = local - local.mean(axis=1, keepdims=True)
     normals = smallest_eigenvectors(local.transpose(0, 2, 1) @ local)
@@ -935,20 +946,18 @@ def reconstruct_cloud(
     keep = np.ones(used, dtype=bool)
     removed: list[np.ndarray] = []
     for _ in range(params.support_planes):
-        rest = np.flatnonzero(keep)
-        mask = find_support_plane(cloud[rest], params, rng)
+        left = np.flatnonzero(keep)
+        mask = find_support_plane(cloud[left], params, rng)
         if mask is None:
             break
-        removed.append(rest[mask])
-        keep[rest[mask]] = False
-    segment = None
+        removed.append(left[mask])
+        keep[left[mask]] = False
     # If removing the plane left nothing to grasp, the plane was the object: put it back.
     while True:
-        rest = np.flatnonzero(keep)
-        labels = euclidean_clusters(cloud[rest], params.cluster_tolerance_m)
-        found = nearest_segment(
-            cloud[rest], labels, params.min_segment_points, params.cluster_tolerance_m
-        )
+        rest = cloud[keep]
+        tree = cKDTree(rest) if len(rest) else None
+        labels = euclidean_clusters(rest, params.cluster_tolerance_m, tree)
+        found = nearest_segment(rest, labels, params.min_segment_points, params.cluster_tolerance_m)
         if found is not None or not removed:
             break
         keep[removed.pop()] = True
@@ -956,12 +965,13 @@ def reconstruct_cloud(
     extra["segments"] = float(labels.max() + 1) if len(labels) else 0.0
     if found is None:
         return _none(f"no segment with at least {params.min_segment_points} points", used, extra)
-    whole = cloud[rest[found]]
+    whole = rest[found]
     extra["segment_points"] = float(len(whole))
-    # A random subset keeps the fits' cost flat; normals still use the whole segment.
+    # A random subset keeps the fits' cost flat. Normals use every point left after the
+    # support plane (other segments are farther than the cluster tolerance anyway).
     segment = whole[np.sort(_sample(len(whole), params.fit_points, rng))]
     extra["fit_points"] = float(len(segment))
-    normals = estimate_normals(whole, params.normal_neighbours, at=segment)
+    normals = estimate_normals(rest, params.normal_neighbours, at=segment, tree=tree)
 
     fits = {
         "sphere": fit_sphere(segment, normals, params, rng),
