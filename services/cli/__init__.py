@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "schemas": ("services.cli.schemas", "print the JSON schema of every topic"),
     "bench": ("services.cli.bench", "benchmarks that print their figures"),
     "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
+    "export": ("services.cli.export", "re-log a recording in Foxglove's schemas (--foxglove)"),
 }
 
 
