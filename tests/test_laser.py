@@ -1,0 +1,327 @@
+"""The four-line method on scan lines ray-cast from analytic solids, with seeded D435-like noise.
+
+Each scan plane through the optical axis is sampled as the camera would: one ray per pixel step
+(1/f; sqrt(2)/f on the diagonals), depth noise 0.3 mm RMS, 1 mm depth quantisation, and the
+paper's capture volume (|x|, |y| <= 50 mm, 150 <= z <= 250 mm).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from lpc_core.laser import (
+    LaserParams,
+    principal_direction,
+    reconstruct_laser,
+    sort_around,
+    sphere_from_circles,
+)
+from lpc_core.reconstruction import wrap_half_turn
+
+Hit = Callable[[np.ndarray], np.ndarray]  # (n, 3) ray directions with z = 1 -> (n,) depth
+ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
+WIDTH_TOL_MM = 2.0
+ANGLE_TOL_DEG = 2.0
+
+
+@dataclass(frozen=True)
+class Lines:
+    angles_rad: np.ndarray
+    points: tuple[np.ndarray, ...]
+
+
+def scan(hit: Hit, seed: int = 0, noise_m: float = 0.0003, f: float = 213.0) -> Lines:
+    rng = np.random.default_rng(seed)
+    points = []
+    for phi in np.radians(ANGLES_DEG):
+        diagonal = abs(math.sin(2 * phi)) > 0.5
+        step = (math.sqrt(2) if diagonal else 1.0) / f
+        q = np.arange(-0.4, 0.4, step)
+        dirs = np.column_stack([q * math.cos(phi), q * math.sin(phi), np.ones_like(q)])
+        z = hit(dirs)
+        z = np.round((z + rng.normal(0, noise_m, z.shape)) * 1000) / 1000  # 1 mm depth unit
+        p = dirs * np.where(np.isfinite(z), z, 0.0)[:, None]
+        keep = (
+            np.isfinite(z)
+            & (z >= 0.15)
+            & (z <= 0.25)
+            & (np.abs(p[:, 0]) <= 0.05)
+            & (np.abs(p[:, 1]) <= 0.05)
+        )
+        points.append(p[keep])
+    return Lines(np.radians(ANGLES_DEG), tuple(points))
+
+
+def sphere(center: tuple[float, float, float], radius: float) -> Hit:
+    c = np.asarray(center)
+
+    def hit(d: np.ndarray) -> np.ndarray:
+        a = np.einsum("ij,ij->i", d, d)
+        b = d @ c
+        disc = b * b - a * (c @ c - radius**2)
+        with np.errstate(invalid="ignore"):
+            return np.where(disc >= 0, (b - np.sqrt(disc)) / a, np.inf)
+
+    return hit
+
+
+def cylinder(
+    center: tuple[float, float, float], axis: tuple[float, float, float], radius: float,
+    half_length: float = 0.2,
+) -> Hit:  # fmt: skip
+    c, a = np.asarray(center), np.asarray(axis) / np.linalg.norm(axis)
+
+    def hit(d: np.ndarray) -> np.ndarray:
+        dd = d - np.outer(d @ a, a)
+        cc = c - (c @ a) * a
+        qa = np.einsum("ij,ij->i", dd, dd)
+        qb = dd @ cc
+        disc = qb * qb - qa * (cc @ cc - radius**2)
+        with np.errstate(invalid="ignore"):
+            t = np.where(disc >= 0, (qb - np.sqrt(disc)) / qa, np.inf)
+            along = np.abs(t * (d @ a) - c @ a)
+        return np.where(along <= half_length, t, np.inf)
+
+    return hit
+
+
+def box(center: tuple[float, float, float], rotation: np.ndarray, size: tuple[float, ...]) -> Hit:
+    c, half = np.asarray(center), np.asarray(size) / 2
+
+    def hit(d: np.ndarray) -> np.ndarray:
+        o = rotation.T @ -c
+        dl = d @ rotation
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-half - o) / dl, (half - o) / dl
+        near = np.nanmax(np.minimum(t1, t2), axis=1)
+        far = np.nanmin(np.maximum(t1, t2), axis=1)
+        return np.where((near <= far) & (far > 0), near, np.inf)
+
+    return hit
+
+
+def plane(point: tuple[float, float, float], normal: tuple[float, float, float]) -> Hit:
+    p, n = np.asarray(point), np.asarray(normal)
+
+    def hit(d: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            t = (p @ n) / (d @ n)
+        return np.where(t > 0, t, np.inf)
+
+    return hit
+
+
+def union(*hits: Hit) -> Hit:
+    return lambda d: np.min([h(d) for h in hits], axis=0)
+
+
+def rotation_z(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def rotation_x(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def axial_error_deg(got_rad: float | None, want_rad: float) -> float:
+    assert got_rad is not None
+    return abs(math.degrees(wrap_half_turn(got_rad - want_rad)))
+
+
+def image_angle(axis: np.ndarray) -> float:
+    return wrap_half_turn(math.atan2(axis[1], axis[0]))
+
+
+# --------------------------------------------------------------------------- shapes
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_reconstruct_laser_sphere(seed: int) -> None:
+    result = reconstruct_laser(scan(sphere((0.003, -0.002, 0.225), 0.025), seed), seed=seed)
+    assert result.shape == "sphere", result.reason
+    assert result.grasp_width_mm == pytest.approx(50.0, abs=WIDTH_TOL_MM)
+    assert result.wrist_angle_rad is None
+    assert result.center_m is not None
+    assert np.allclose(result.center_m, (0.003, -0.002, 0.225), atol=0.002)
+    assert [ln.model for ln in result.lines] == ["circle"] * 4
+    assert 0.9 <= result.confidence <= 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_reconstruct_laser_upright_narrow_cylinder(seed: int) -> None:
+    # The paper measured its 40 mm cylinder at 60 +- 4.5 mm.
+    lines = scan(cylinder((0.002, 0.0, 0.205), (0.0, 1.0, 0.0), 0.020), seed)
+    result = reconstruct_laser(lines, seed=seed)
+    assert result.shape == "cylinder", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+    assert axial_error_deg(result.wrist_angle_rad, math.radians(90.0)) < ANGLE_TOL_DEG
+    # The vertical scan plane contains the axis: it sees a generator, a straight line.
+    assert result.lines[2].model == "line"
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_reconstruct_laser_tilted_cylinder(seed: int) -> None:
+    axis = np.array([math.cos(math.radians(30)), math.sin(math.radians(30)), 0.3])
+    lines = scan(cylinder((0.0, 0.003, 0.22), tuple(axis), 0.0375), seed)
+    result = reconstruct_laser(lines, seed=seed)
+    assert result.shape == "cylinder", result.reason
+    assert result.grasp_width_mm == pytest.approx(75.0, abs=WIDTH_TOL_MM)
+    assert axial_error_deg(result.wrist_angle_rad, image_angle(axis)) < ANGLE_TOL_DEG
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_reconstruct_laser_cuboid_face_at_angle(seed: int) -> None:
+    # A 40 x 120 mm face, turned 60 degrees in the image and tilted 20 degrees in depth.
+    rotation = rotation_x(20.0) @ rotation_z(60.0)
+    lines = scan(box((0.002, -0.001, 0.215), rotation, (0.040, 0.120, 0.030)), seed)
+    result = reconstruct_laser(lines, seed=seed)
+    assert result.shape == "cuboid", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+    assert axial_error_deg(result.wrist_angle_rad, image_angle(rotation[:, 1])) < ANGLE_TOL_DEG
+    assert [ln.model for ln in result.lines] == ["line"] * 4
+
+
+def test_reconstruct_laser_ignores_table_behind_sphere() -> None:
+    scene = union(sphere((0.0, 0.0, 0.19), 0.02), plane((0.0, 0.0, 0.235), (0.0, 0.3, -1.0)))
+    result = reconstruct_laser(scan(scene, 3), seed=3)
+    assert result.shape == "sphere", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+
+
+def test_reconstruct_laser_ignores_neighbouring_cylinder() -> None:
+    scene = union(
+        box((0.0, 0.0, 0.2), rotation_z(0.0), (0.04, 0.12, 0.03)),
+        cylinder((0.045, 0.0, 0.215), (0.0, 1.0, 0.0), 0.015),
+    )
+    result = reconstruct_laser(scan(scene, 4), seed=4)
+    assert result.shape == "cuboid", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+
+
+def test_reconstruct_laser_reports_too_few_points_on_a_line() -> None:
+    lines = scan(sphere((0.0, 0.0, 0.2), 0.02))
+    short = Lines(lines.angles_rad, (*lines.points[:2], lines.points[2][:5], lines.points[3]))
+    result = reconstruct_laser(short)
+    assert result.shape == "none"
+    assert "too few points on line 2" in result.reason
+    assert result.grasp_width_m is None and result.wrist_angle_rad is None
+
+
+def test_reconstruct_laser_reports_axis_missing_the_object() -> None:
+    result = reconstruct_laser(scan(sphere((0.035, 0.035, 0.2), 0.012)))
+    assert result.shape == "none"
+    assert result.reason
+
+
+def test_reconstruct_laser_is_deterministic_per_seed() -> None:
+    lines = scan(cylinder((0.0, 0.0, 0.2), (1.0, 0.2, 0.1), 0.025), 5)
+    assert reconstruct_laser(lines, seed=7) == reconstruct_laser(lines, seed=7)
+
+
+def test_reconstruct_laser_rejects_mismatched_lines() -> None:
+    lines = scan(sphere((0.0, 0.0, 0.2), 0.02))
+    with pytest.raises(ValueError, match="angles"):
+        reconstruct_laser(Lines(lines.angles_rad[:3], lines.points))
+
+
+def test_reconstruct_laser_paper_variant_sphere_and_cuboid() -> None:
+    paper = LaserParams(variant="paper")
+    ball = reconstruct_laser(scan(sphere((0.0, 0.0, 0.22), 0.03), 6), paper, seed=6)
+    assert ball.shape == "sphere", ball.reason
+    assert ball.grasp_width_mm == pytest.approx(60.0, abs=4.0)
+    face = reconstruct_laser(scan(box((0.0, 0.0, 0.2), rotation_z(0.0), (0.04, 0.12, 0.03)), 6),
+                             paper, seed=6)  # fmt: skip
+    assert face.shape == "cuboid", face.reason
+
+
+# --------------------------------------------------------------------------- Algorithm 1
+
+
+def test_principal_direction_finds_collinear_seeds() -> None:
+    # Eight seeds around a 40 x 100 rectangle: three on the right edge (x = 20).
+    seeds = np.array(
+        [[20, -30], [20, 0], [20, 30], [0, 50], [-20, 30], [-20, 0], [-20, -30], [0, -50]], float
+    )
+    first = principal_direction(seeds, math.radians(10))
+    assert first is not None
+    assert abs(first[0]) < 1e-12 and abs(first[1]) == pytest.approx(60.0)
+
+
+def test_principal_direction_first_versus_straightest() -> None:
+    # At seed 1 the turn is 8 degrees (within alpha_max); at seed 5 it is 0.
+    bend = math.radians(8)
+    seeds = np.array(
+        [
+            [0.0, 0.0],
+            [10.0, 0.0],
+            [10 + 10 * math.cos(bend), 10 * math.sin(bend)],
+            [15.0, 30.0],
+            [0.0, 40.0],
+            [-10.0, 30.0],
+            [-20.0, 20.0],
+            [-10.0, 5.0],
+        ]
+    )
+    seeds[4:7] = [[-5.0, 35.0], [-10.0, 30.0], [-15.0, 25.0]]
+    first = principal_direction(seeds, math.radians(10), pick="first")
+    straightest = principal_direction(seeds, math.radians(10), pick="straightest")
+    assert first is not None and straightest is not None
+    assert np.allclose(first, seeds[2] - seeds[0])
+    assert np.allclose(straightest, seeds[5] - seeds[3]) or np.allclose(
+        straightest, seeds[6] - seeds[4]
+    )
+
+
+def test_principal_direction_none_when_no_three_collinear() -> None:
+    octagon = np.array(
+        [[math.cos(a), math.sin(a)] for a in np.radians(np.arange(0, 360, 45) + 22.5)]
+    )
+    assert principal_direction(octagon, math.radians(10)) is None
+
+
+def test_principal_direction_rejects_too_few_seeds() -> None:
+    with pytest.raises(ValueError, match="seeds"):
+        principal_direction(np.zeros((2, 2)))
+
+
+def test_sort_around_orders_by_angle() -> None:
+    points = np.array([[0.0, 1.0], [1.0, 0.0], [-1.0, 0.0], [0.0, -1.0]])
+    order = sort_around(points, np.zeros(2))
+    assert points[order].tolist() == [[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]]
+
+
+def test_sphere_from_circles_exact() -> None:
+    center, radius = np.array([0.004, -0.006, 0.21]), 0.03
+    angles = np.radians([0.0, 45.0, 90.0, 135.0])
+    s_c = center[0] * np.cos(angles) + center[1] * np.sin(angles)
+    extreme = center + radius * np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    got = sphere_from_circles(angles, np.column_stack([s_c, np.full(4, center[2])]), extreme)
+    assert got is not None
+    assert np.allclose(got[0], center) and got[1] == pytest.approx(radius)
+    assert sphere_from_circles(angles[:1], np.zeros((1, 2)), extreme) is None
+
+
+# --------------------------------------------------------------------------- parameters
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("threshold_m", 0.0),
+        ("radius_limits_m", (0.05, 0.005)),
+        ("min_points_per_line", 2),
+        ("alpha_max_rad", -1.0),
+        ("min_solid_fraction", 1.5),
+        ("variant", "other"),
+    ],
+)
+def test_laser_params_reject_bad_values(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=field):
+        LaserParams(**{field: value})  # type: ignore[arg-type]

@@ -1,0 +1,130 @@
+"""3-D least-squares solids: recover known spheres, cylinders and planes from noisy patches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lpc_core.solids import (
+    CylinderSolid,
+    PlaneSolid,
+    SphereSolid,
+    best_cylinder_axis,
+    fit_circle_2d,
+    hemisphere_directions,
+    orthonormal_basis,
+)
+
+NOISE_M = 0.0003  # about the D435's range noise at 200 mm
+
+
+def _cap(center: np.ndarray, radius: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on the camera-facing half of a sphere, within 60 degrees of its front pole."""
+    polar = rng.uniform(0, np.radians(60), n)
+    azimuth = rng.uniform(0, 2 * np.pi, n)
+    unit = np.column_stack(
+        [np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), -np.cos(polar)]
+    )
+    return center + radius * unit + rng.normal(0, NOISE_M, (n, 3))
+
+
+def _half_cylinder(
+    center: np.ndarray, axis: np.ndarray, radius: float, n: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Points on the side of a cylinder facing the camera (at the origin), 60 mm long."""
+    axis = axis / np.linalg.norm(axis)
+    toward = -center - (-center @ axis) * axis
+    toward /= np.linalg.norm(toward)
+    side = np.cross(axis, toward)
+    along = rng.uniform(-0.03, 0.03, n)
+    angle = rng.uniform(-np.radians(70), np.radians(70), n)
+    radial = np.cos(angle)[:, None] * toward + np.sin(angle)[:, None] * side
+    return center + along[:, None] * axis + radius * radial + rng.normal(0, NOISE_M, (n, 3))
+
+
+def test_sphere_solid_recovers_cap() -> None:
+    rng = np.random.default_rng(1)
+    center = np.array([0.005, -0.01, 0.22])
+    sphere = SphereSolid.estimate(_cap(center, 0.025, 300, rng))
+    assert sphere
+    assert np.linalg.norm(sphere.center - center) < 0.001
+    assert sphere.radius == pytest.approx(0.025, abs=0.0005)
+
+
+def test_sphere_solid_rejects_coplanar_points() -> None:
+    rng = np.random.default_rng(2)
+    flat = np.column_stack([rng.uniform(-0.02, 0.02, (50, 2)), np.full(50, 0.2)])
+    assert not SphereSolid.estimate(flat)
+
+
+def test_sphere_solid_rejects_bad_shape() -> None:
+    with pytest.raises(ValueError, match="points"):
+        SphereSolid.estimate(np.zeros((10, 2)))
+
+
+@pytest.mark.parametrize(
+    "guess_offset_deg", [0.0, 10.0, 25.0], ids=["exact", "10deg-off", "25deg-off"]
+)
+def test_cylinder_solid_recovers_axis_and_radius(guess_offset_deg: float) -> None:
+    rng = np.random.default_rng(3)
+    axis = np.array([np.cos(0.5), np.sin(0.5), 0.2])
+    axis /= np.linalg.norm(axis)
+    center = np.array([0.0, 0.005, 0.21])
+    points = _half_cylinder(center, axis, 0.02, 300, rng)
+    e1, _ = orthonormal_basis(axis)
+    guess = np.cos(np.radians(guess_offset_deg)) * axis + np.sin(np.radians(guess_offset_deg)) * e1
+    cylinder = CylinderSolid.estimate(points, guess, iterations=10)
+    assert cylinder
+    assert np.degrees(np.arccos(min(1.0, abs(cylinder.axis @ axis)))) < 1.0
+    assert cylinder.radius == pytest.approx(0.02, abs=0.0005)
+    assert np.median(cylinder.residuals(points)) < 2 * NOISE_M
+
+
+def test_cylinder_solid_rejects_zero_axis() -> None:
+    with pytest.raises(ValueError, match="axis"):
+        CylinderSolid.estimate(np.random.default_rng(0).normal(size=(10, 3)), np.zeros(3))
+
+
+def test_best_cylinder_axis_finds_axis_within_grid_spacing() -> None:
+    rng = np.random.default_rng(4)
+    axis = np.array([0.0, 1.0, 0.0])
+    points = _half_cylinder(np.array([0.0, 0.0, 0.2]), axis, 0.03, 200, rng)
+    found, count = best_cylinder_axis(points, hemisphere_directions(200), 0.0015)
+    assert np.degrees(np.arccos(min(1.0, abs(found @ axis)))) < 15.0
+    assert count > 150
+
+
+def test_plane_solid_normal_faces_camera() -> None:
+    rng = np.random.default_rng(5)
+    normal = np.array([0.3, -0.2, -1.0])
+    normal /= np.linalg.norm(normal)
+    e1, e2 = orthonormal_basis(normal)
+    uv = rng.uniform(-0.02, 0.02, (100, 2))
+    points = np.array([0, 0, 0.2]) + uv[:, :1] * e1 + uv[:, 1:] * e2
+    plane = PlaneSolid.estimate(points + rng.normal(0, NOISE_M, points.shape))
+    assert plane
+    assert plane.normal @ normal > 0.999
+    assert plane.normal[2] < 0
+
+
+def test_plane_solid_rejects_collinear_points() -> None:
+    t = np.linspace(0, 0.05, 20)
+    assert not PlaneSolid.estimate(np.column_stack([t, 2 * t, 0.2 + t]))
+
+
+def test_fit_circle_2d_exact_and_degenerate() -> None:
+    angle = np.linspace(0, 2, 12)
+    uv = np.column_stack([0.01 + 0.03 * np.cos(angle), -0.02 + 0.03 * np.sin(angle)])
+    got = fit_circle_2d(uv)
+    assert got is not None
+    assert np.allclose(got[0], [0.01, -0.02], atol=1e-9) and got[1] == pytest.approx(0.03)
+    assert fit_circle_2d(np.column_stack([angle, 2 * angle])) is None
+
+
+def test_hemisphere_directions_are_unit_and_face_forward() -> None:
+    dirs = hemisphere_directions(50)
+    assert dirs.shape == (50, 3)
+    assert np.allclose(np.linalg.norm(dirs, axis=1), 1.0)
+    assert (dirs[:, 2] >= 0).all()
+    with pytest.raises(ValueError, match="count"):
+        hemisphere_directions(0)
