@@ -1,0 +1,78 @@
+"""Aim guidance: ``lpc/scans`` and ``lpc/grasp/target`` in; ``lpc/tactors/command`` and
+``lpc/aim/cue`` out, one of each per frame."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from lpc_core.aim import AimParams, AimState, aim_step, tactor_placement
+from schemas import AimCue, TactorCommand
+from services.drivers.tactors import load_profile
+from services.runtime import Bus, run_service, service_parser
+
+
+def params_from(args: argparse.Namespace) -> AimParams:
+    """Flags win over the user profile's ``tactors`` section, which wins over the defaults."""
+    section = load_profile(args.profile)
+    arm = args.arm or section.get("arm", "right")
+    rotation = args.rotation_deg if args.rotation_deg is not None else section.get("rotation_deg")
+    return AimParams(
+        tactor_angles_rad=tactor_placement(arm, float(rotation or 0.0)),
+        cluster_gap_m=args.gap_mm / 1000.0,
+        hysteresis_m=args.hysteresis_mm / 1000.0,
+    )
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    state = AimState(params=params_from(args))
+    commands = bus.publisher("lpc/tactors/command")
+    cues = bus.publisher("lpc/aim/cue")
+
+    async def follow_targets() -> None:
+        # The second subscription only updates the shared state; frames drive the outputs.
+        nonlocal state
+        async for target in bus.subscribe("lpc/grasp/target"):
+            state, _ = aim_step(state, target, bus.clock.now_ns())
+
+    targets = asyncio.create_task(follow_targets())
+    try:
+        async for scans in bus.subscribe("lpc/scans"):
+            try:
+                state, outputs = aim_step(state, scans, bus.clock.now_ns())
+            except ValueError as exc:
+                bus.reject("lpc/scans", str(exc))
+                continue
+            # The tactor command first: it is the one on the latency path.
+            for out in outputs:
+                if isinstance(out, TactorCommand):
+                    commands.put(out)
+            for out in outputs:
+                if isinstance(out, AimCue):
+                    cues.put(out)
+    finally:
+        targets.cancel()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("aim", __doc__ or "")
+    parser.add_argument("--profile", metavar="FILE", help="user profile JSON (tactor placement)")
+    parser.add_argument("--arm", choices=("left", "right"), help="arm wearing the tactors")
+    parser.add_argument("--rotation-deg", type=float, help="rotation of the tactor sleeve (deg)")
+    parser.add_argument(
+        "--gap-mm", type=float, default=10.0, help="gap that separates two objects (mm)"
+    )
+    parser.add_argument(
+        "--hysteresis-mm", type=float, default=2.0, help="on-target hysteresis band (mm)"
+    )
+    args = parser.parse_args(argv)
+    try:
+        params_from(args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return run_service("aim", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,102 @@
+"""Tactor bridge: ``lpc/tactors/command`` in, bytes on the tactor controller's serial line out.
+
+All off on shutdown, on a stale cue and on serial errors; the port is reopened when it comes
+back. Without ``--tactor-port`` a simulated controller on a pseudo-terminal stands in.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import collections
+import contextlib
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+from lpc_core.tactor_bridge import PORT_OPENED, TICK, BridgeParams, BridgeState, bridge_step
+from schemas import TactorCommand
+from services.drivers.tactors import TactorLink, load_profile, open_driver, tactor_profile
+from services.runtime import Bus, run_service, service_parser
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    params = BridgeParams(
+        stale_ns=int(args.stale_ms * 1e6),
+        stale_from=args.stale_from,
+        min_interval_ns=int(1e9 / args.max_rate_hz),
+        profile=tactor_profile(load_profile(args.profile)),
+    )
+    link = TactorLink(lambda: open_driver(args.driver, args.tactor_port, baudrate=args.baud))
+    serial_thread = ThreadPoolExecutor(1, thread_name_prefix="tactor-serial")
+    loop = asyncio.get_running_loop()
+    inbox: collections.deque[TactorCommand] = collections.deque()
+    arrived = asyncio.Event()
+
+    async def pump() -> None:
+        async for command in bus.subscribe("lpc/tactors/command"):
+            inbox.append(command)
+            arrived.set()
+
+    pumping = asyncio.create_task(pump())
+    state = BridgeState(params=params)
+    was_up = False
+    try:
+        while True:
+            if await loop.run_in_executor(serial_thread, link.reopen, bus.clock.now_ns()):
+                bus.log("info", f"tactor port {link.driver.port} open ({args.driver})")
+                inbox.appendleft(PORT_OPENED)  # type: ignore[arg-type]
+            events = [inbox.popleft() for _ in range(len(inbox))] or [TICK]
+            for event in events:
+                state, outputs = bridge_step(state, event, bus.clock.now_ns())
+                for output in outputs:
+                    await loop.run_in_executor(serial_thread, link.write, output)
+            if was_up and not link.up:
+                bus.log("warning", f"tactor port lost, retrying: {link.last_error}")
+            was_up = link.up
+            for name, value in link.counters.items():
+                bus.health.counters[f"tactor_{name}"] = value
+            wake = [t for t in (state.wake_ns, None if link.up else link.retry_at_ns) if t]
+            timeout = (min(wake) - bus.clock.now_ns()) / 1e9 if wake else 1.0
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(arrived.wait(), max(timeout, 0.0))
+            arrived.clear()
+    finally:
+        pumping.cancel()
+        serial_thread.shutdown(wait=True)
+        link.close()  # all off, then close
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("tactor_bridge", __doc__ or "")
+    parser.add_argument(
+        "--driver", choices=("eai", "line", "sim"), default="eai", help="protocol (default eai)"
+    )
+    parser.add_argument(
+        "--tactor-port", metavar="PORT", help="serial port (default: a simulated controller)"
+    )
+    parser.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    parser.add_argument("--profile", metavar="FILE", help="user profile JSON (gain limits)")
+    parser.add_argument(
+        "--stale-ms", type=float, default=100.0, help="all off when the cue is older (ms)"
+    )
+    parser.add_argument(
+        "--stale-from",
+        choices=("capture", "receipt"),
+        default="capture",
+        help="age a cue from its frame's capture time (default) or from its arrival",
+    )
+    parser.add_argument(
+        "--max-rate-hz", type=float, default=200.0, help="at most this many writes a second"
+    )
+    args = parser.parse_args(argv)
+    if not args.stale_ms > 0 or not 0 < args.max_rate_hz <= 10_000:
+        parser.error("--stale-ms and --max-rate-hz must be positive")
+    try:
+        tactor_profile(load_profile(args.profile))
+    except ValueError as exc:
+        parser.error(str(exc))
+    return run_service("tactor_bridge", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
