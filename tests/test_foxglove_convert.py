@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import base64
+import json
 import math
+import re
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -393,3 +396,37 @@ def test_convert_payloads_build_the_sdk_messages_of_the_same_name() -> None:
             assert sdk.encode()
             seen.add(out.schema)
     assert seen == set(name for name in fc.FOXGLOVE_SCHEMAS if name.startswith("foxglove."))
+
+
+LAYOUT = Path(__file__).resolve().parents[1] / "deploy" / "foxglove-layout.json"
+
+
+def test_layout_uses_only_topics_and_fields_the_conversion_produces() -> None:
+    produced = {
+        out.topic: fc.schema_for(out.schema, type(message))
+        for key, message in one_of_each().items()
+        for out in fc.convert(key, message)
+    }
+    layout = json.loads(LAYOUT.read_text())
+    references: list[str] = []
+
+    def walk(node: Any) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if k.startswith("/"):
+                    references.append(k)
+                walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                walk(v)
+        elif isinstance(node, str) and node.startswith("/"):
+            references.append(node)
+
+    walk(layout)
+    assert len(references) > 10
+    for reference in references:
+        topic, _, path = reference.partition(".")
+        assert topic in produced, reference
+        field = re.match(r"[A-Za-z_]\w*", path)
+        if field:
+            assert field.group(0) in produced[topic]["properties"], reference
