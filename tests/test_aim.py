@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
+import zenoh
 
 from lpc_core.aim import (
     AimParams,
@@ -18,7 +20,8 @@ from lpc_core.aim import (
     tactor_placement,
     tactor_shares,
 )
-from schemas import GraspTarget, ScanLine, ScanLines, to_wire
+from schemas import GraspTarget, ScanLine, ScanLines, decode, encode, to_wire
+from tests.conftest import spawn_service, wait_for
 
 Z = 0.200  # depth of the test objects, inside the 150-250 mm capture volume
 T0 = 1_700_000_000_000_000_000
@@ -247,3 +250,46 @@ def test_aim_step_bad_points_shape_raises_value_error() -> None:
     )
     with pytest.raises(ValueError, match="scan line 0"):
         aim_step(AimState(), bad, T0)
+
+
+def test_aim_service_publishes_command_and_cue_per_frame(
+    endpoint: str, rendezvous: zenoh.Session
+) -> None:
+    got: dict[str, list] = {"lpc/tactors/command": [], "lpc/aim/cue": []}
+    lock = threading.Lock()
+
+    def on_sample(sample) -> None:
+        key = str(sample.key_expr)
+        with lock:
+            got[key].append(decode(key, sample.payload.to_bytes()))
+
+    subs = [rendezvous.declare_subscriber(k, on_sample) for k in got]
+    proc = spawn_service("services.aim", endpoint)
+    try:
+        right = scans(ray(0.0, 0.030, 0.045), t_ns=T0)
+
+        def guided() -> bool:
+            rendezvous.put("lpc/scans", encode(right))
+            with lock:
+                return any(c.t_ns == T0 for c in got["lpc/tactors/command"])
+
+        wait_for(guided, 30.0, "a tactor command for the frame")
+        on = scans(patch(-0.01, 0.01, -0.01, 0.01), t_ns=T0 + 1)
+        rendezvous.put("lpc/grasp/target", encode(target(reconstructed=True, t_ns=T0)))
+
+        def ready() -> bool:
+            rendezvous.put("lpc/scans", encode(on))
+            with lock:
+                return any(c.pulse for c in got["lpc/tactors/command"])
+
+        wait_for(ready, 10.0, "a pulsing command once reconstructed")
+        with lock:
+            first = next(c for c in got["lpc/tactors/command"] if c.t_ns == T0)
+            cues = list(got["lpc/aim/cue"])
+        assert first.amplitudes == pytest.approx([0.7, 0, 0, 0], abs=1e-6)
+        assert any(c.state == "guiding" and c.t_ns == T0 for c in cues)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+        for sub in subs:
+            sub.undeclare()
