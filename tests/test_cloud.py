@@ -324,6 +324,23 @@ def test_reconstruct_cloud_is_reproducible_for_a_seed():
     assert reconstruct_cloud(depth, INTR, seed=3) == reconstruct_cloud(depth, INTR, seed=3)
 
 
+def test_reconstruct_cloud_from_a_depth_frame_message():
+    # What the reconstructor service does with --method cloud: decode, then call.
+    from lpc_core.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
+    from schemas import DepthFrame, decode, encode, to_wire
+
+    depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.025), _hit_plane((0, 0, 1), (0, 0, 0.225)))
+    message = DepthFrame(
+        seq=41, t_ns=1, intrinsics=intrinsics_to_message(INTR), depth=to_wire(depth)
+    )
+    frame = decode("lpc/camera/depth", encode(message))
+    result = reconstruct_cloud(
+        depth_image(frame), intrinsics_from_message(frame.intrinsics), seed=frame.seq
+    )
+    assert result == reconstruct_cloud(depth, INTR, seed=41)
+    assert result.shape == "sphere"
+
+
 def test_reconstruct_cloud_empty_frame_is_none_with_a_reason():
     result = reconstruct_cloud(np.zeros((INTR.height, INTR.width), np.uint16), INTR)
     assert result.shape == "none" and not result.ok
