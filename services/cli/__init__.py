@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "echo": ("services.cli.echo", "print the messages of one key expression as JSON lines"),
     "schemas": ("services.cli.schemas", "print the JSON schema of every topic"),
     "bench": ("services.cli.bench", "benchmarks that print their figures"),
+    "tactors": ("services.cli.tactors", "pulse each tactor in turn to fit a user (tactors test)"),
     "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
     "export": ("services.cli.export", "re-log a recording in Foxglove's schemas (--foxglove)"),
 }
