@@ -60,7 +60,7 @@ class EmgProfile:
     co_contraction: float = 0.55
     quick_ms: float = 80.0
     release_ms: float = 30.0
-    max_trigger_ms: float = 600.0
+    max_trigger_ms: float = 450.0
     lockout_ms: float = 300.0
     gain: float = 1.5
     user: str = ""

@@ -290,13 +290,16 @@ def _decide(state: UserState, now_ns: int) -> UserState:
     hand = state.hand
     mode = state.controller
 
+    if mode != "direct" and any(state.sustain):
+        # Control left the user's hands: stop pushing (and the held command ends).
+        return _sustain(state, 0.0, 0.0, task="rest", task_since_ns=now_ns, contact_mm=None)
     if mode in ("stopped", "idle", "aiming"):
         if state.task != "rest" and not busy:
             return _sustain(state, 0.0, 0.0, task="rest", task_since_ns=now_ns, contact_mm=None)
         return state
     if mode == "ready":
         # The pulse is felt; pre-shape after a reaction time, and again if it was missed.
-        if busy or in_state_s < u.reaction_s:
+        if busy or in_state_s < u.reaction_s or any(state.sustained):
             return state
         if state.task != "preshape" or in_task_s > u.retry_s:
             return _begin(state, "preshape", now_ns, quick_flexion(t_s))
@@ -332,13 +335,16 @@ def _direct(state: UserState, now_ns: int, hand: ProsthesisState | None) -> User
             return state
         if u.exercise_wrist:
             # Switch to rotation, turn a little, switch back: the second degree of freedom.
+            # Gestures fire on release, so the person relaxes between them (and waits out the
+            # lock-out after the previous gesture).
             return _begin(
                 state,
                 "rotate",
                 now_ns,
-                co_contraction(t_s + 0.3),
-                slow_hold(t_s + 1.2, u.rotate_s, flexor=0.35),
-                co_contraction(t_s + 2.8),
+                co_contraction(t_s + 0.5),
+                slow_hold(t_s + 1.4, u.rotate_s, flexor=0.35),
+                co_contraction(t_s + 3.0),
+                Segment(t_s + 3.4, hold_s=0.5),  # relax before the next command
             )
         return _sustain(state, u.close_level, 0.0, task="close", task_since_ns=now_ns)
     if task == "rotate":
