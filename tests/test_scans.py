@@ -1,0 +1,163 @@
+"""Tests for lpc_core.scans: the capture-volume crop and the four scan lines, on analytic scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lpc_core.intrinsics import D435_424X240, Intrinsics
+from lpc_core.scans import ScanLines, ScanParams, capture_points, cut_scan_lines
+from lpc_core.scene import NoiseModel, Plane, Scene, render_depth, sphere_object
+
+INTR = D435_424X240
+PARAMS = ScanParams()
+
+
+def _render(scene: Scene, intr: Intrinsics = INTR) -> np.ndarray:
+    return render_depth(scene, intr, np.eye(4), np.random.default_rng(0), NoiseModel.exact())
+
+
+def _wall(z: float) -> Scene:
+    return Scene((), Plane(np.array([0.0, 0.0, z]), np.array([0.0, 0.0, -1.0])))
+
+
+def _ball(r: float, z: float = 0.2) -> Scene:
+    return Scene((sphere_object("ball", (0.0, 0.0, z), r),), None)
+
+
+def _off_plane(lines: ScanLines, i: int) -> np.ndarray:
+    phi = lines.angles_rad[i]
+    p = lines.points[i]
+    return np.abs(-math.sin(phi) * p[:, 0] + math.cos(phi) * p[:, 1])
+
+
+def test_cut_wall_counts_match_pixel_geometry() -> None:
+    # A wall at z0 facing the camera: on each line only the pixels exactly on the image line
+    # through the principal point are within ±0.5 mm (the next pixel off the line is
+    # z0 / fx = 0.94 mm away, or z0 / (fx sqrt 2) = 0.66 mm on the diagonals), and the
+    # ±50 mm crop keeps |column offset| <= 0.05 fx / z0 = 53.25 px: 2 * 53 + 1 points.
+    z0 = 0.2
+    lines = cut_scan_lines(_render(_wall(z0)), INTR)
+    expected = 2 * math.floor(0.05 * INTR.fx / z0) + 1
+    assert list(lines.counts) == [expected] * 4
+    assert lines.total_points == 4 * expected
+    assert lines.ok and bool(np.all(lines.line_ok))
+    for i in range(4):
+        assert np.all(_off_plane(lines, i) <= PARAMS.band_m + 1e-12)
+        assert np.allclose(lines.points[i][:, 2], z0)
+    # The full crop: every pixel with |offset| <= 53 in both directions.
+    assert lines.capture_count == expected**2
+    assert len(capture_points(_render(_wall(z0)), INTR)) == expected**2
+
+
+def test_cut_sphere_points_on_surface_and_counts() -> None:
+    # Ball of radius r at depth c on the optical axis. Its silhouette's half-angle is
+    # asin(r / c); the pixels k steps from the centre along a line lie inside it when
+    # k * step / fx < tan(asin(r / c)), step = 1 on the axes and sqrt 2 on the diagonals.
+    r, c = 0.03, 0.2
+    lines = cut_scan_lines(_render(_ball(r, c)), INTR)
+    tan_half = math.tan(math.asin(r / c))
+    on_axis = 2 * math.floor(INTR.fx * tan_half) + 1
+    diagonal = 2 * math.floor(INTR.fx * tan_half / math.sqrt(2.0)) + 1
+    assert list(lines.counts) == [on_axis, diagonal, on_axis, diagonal]
+    centre = np.array([0.0, 0.0, c])
+    for i in range(4):
+        p = lines.points[i]
+        assert np.all(_off_plane(lines, i) <= PARAMS.band_m + 1e-12)
+        # Each point is the quantised depth along its own pixel ray: the true surface depth
+        # on that ray is within half a depth unit.
+        d = p / p[:, 2:3]
+        dd = np.sum(d * d, axis=1)
+        b = d @ centre
+        z_true = (b - np.sqrt(b * b - dd * (centre @ centre - r * r))) / dd
+        assert np.max(np.abs(p[:, 2] - z_true)) <= 0.5e-3 + 1e-9
+        # Distance to the centre is 1-Lipschitz along the ray: within 0.5 mm * |d| of r.
+        radial = np.abs(np.linalg.norm(p - centre, axis=1) - r)
+        assert np.all(radial <= 0.5e-3 * np.sqrt(dd) + 1e-9)
+
+
+def test_cut_points_sorted_by_s_and_plane_coords() -> None:
+    lines = cut_scan_lines(_render(_ball(0.04, 0.21)), INTR)
+    for i in range(4):
+        sz = lines.plane_coords(i)
+        phi = lines.angles_rad[i]
+        p = lines.points[i]
+        assert sz.shape == (len(p), 2)
+        assert np.allclose(sz[:, 0], p[:, 0] * math.cos(phi) + p[:, 1] * math.sin(phi))
+        assert np.allclose(sz[:, 1], p[:, 2])
+        assert np.all(np.diff(sz[:, 0]) >= 0)
+        assert len(lines.pixels[i]) == len(p)
+
+
+def test_cut_pixels_index_the_depth_image() -> None:
+    depth = _render(_ball(0.03))
+    lines = cut_scan_lines(depth, INTR)
+    for i in range(4):
+        z_units = depth.reshape(-1)[lines.pixels[i]]
+        assert np.allclose(z_units * INTR.depth_scale, lines.points[i][:, 2])
+
+
+def test_cut_min_points_marks_short_lines_but_keeps_them() -> None:
+    # A 3 mm ball at 200 mm spans about 3 px per line: fewer than min_points = 10.
+    lines = cut_scan_lines(_render(_ball(0.003)), INTR)
+    assert lines.total_points > 0
+    assert np.all(lines.counts < PARAMS.min_points)
+    assert not lines.ok and not np.any(lines.line_ok)
+    loose = cut_scan_lines(_render(_ball(0.003)), INTR, ScanParams(min_points=1))
+    assert loose.ok
+
+
+def test_cut_outside_volume_and_invalid_depth_give_no_points() -> None:
+    assert cut_scan_lines(_render(_wall(0.30)), INTR).total_points == 0  # beyond z 250 mm
+    assert cut_scan_lines(_render(_wall(0.12)), INTR).total_points == 0  # nearer than 150 mm
+    empty = cut_scan_lines(np.zeros((240, 424), np.uint16), INTR)
+    assert empty.total_points == 0 and empty.capture_count == 0
+    assert all(p.shape == (0, 3) for p in empty.points)
+    assert len(capture_points(np.zeros((240, 424), np.uint16), INTR)) == 0
+
+
+def test_cut_volume_edges_are_inclusive() -> None:
+    for z0 in (0.150, 0.250):
+        assert cut_scan_lines(_render(_wall(z0)), INTR).total_points > 0
+
+
+def test_cut_other_params_follow_geometry() -> None:
+    # A wider band keeps three rows/columns on the axis-aligned lines at 200 mm
+    # (the neighbours are 0.94 mm away).
+    params = ScanParams(band_m=0.001, angles_deg=(0.0, 90.0))
+    lines = cut_scan_lines(_render(_wall(0.2)), INTR, params)
+    assert list(lines.counts) == [3 * 107, 3 * 107]
+    assert np.allclose(np.degrees(lines.angles_rad), [0.0, 90.0])
+
+
+def test_capture_points_inside_volume() -> None:
+    depth = render_depth(
+        _ball(0.03), INTR, np.eye(4), np.random.default_rng(3), NoiseModel(shadow=False)
+    )
+    pts = capture_points(depth, INTR)
+    assert len(pts) > 2000
+    assert np.all(np.abs(pts[:, :2]) <= 0.05) and np.all((pts[:, 2] >= 0.15) & (pts[:, 2] <= 0.25))
+    assert cut_scan_lines(depth, INTR).capture_count == len(pts)
+
+
+def test_cut_invalid_input_raises_value_error_naming_depth() -> None:
+    good = np.zeros((240, 424), np.uint16)
+    with pytest.raises(ValueError, match="depth"):
+        cut_scan_lines(good.astype(np.float32), INTR)
+    with pytest.raises(ValueError, match="depth"):
+        cut_scan_lines(good[:, :400], INTR)
+    with pytest.raises(ValueError, match="depth"):
+        cut_scan_lines(good.tolist(), INTR)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="depth"):
+        capture_points(good[None], INTR)
+
+
+def test_scan_params_validation() -> None:
+    with pytest.raises(ValueError, match="band_m"):
+        ScanParams(band_m=-1.0)
+    with pytest.raises(ValueError, match="z_limits_m"):
+        ScanParams(z_limits_m=(0.25, 0.15))
+    with pytest.raises(ValueError, match="min_points"):
+        ScanParams(min_points=-1)
