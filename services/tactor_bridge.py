@@ -49,7 +49,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             for event in events:
                 state, outputs = bridge_step(state, event, bus.clock.now_ns())
                 for output in outputs:
-                    await loop.run_in_executor(serial_thread, link.write, output)
+                    # A few bytes into the port's kernel buffer: written on the loop, bounded
+                    # by the driver's write timeout, saving a thread hand-off per frame.
+                    link.write(output)
             if was_up and not link.up:
                 bus.log("warning", f"tactor port lost, retrying: {link.last_error}")
             was_up = link.up

@@ -6,7 +6,9 @@ import argparse
 import importlib
 
 # name -> (module, one-line help); each module defines add_arguments(parser) and run(args).
-BENCHES: dict[str, tuple[str, str]] = {}
+BENCHES: dict[str, tuple[str, str]] = {
+    "latency": ("services.cli.bench_latency", "depth frame capture to bytes on the tactor line"),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -61,6 +61,12 @@ SERVICES: dict[str, ServiceSpec] = {
         "services.foxglove_bridge", _foxglove_argv, lambda args: getattr(args, "foxglove", False)
     ),
     "scans": ServiceSpec("services.scans"),
+    # No --tactor-port: the bridge drives a simulated controller on a pseudo-terminal.
+    "tactor_bridge": ServiceSpec(
+        "services.tactor_bridge",
+        lambda args: ["--tactor-port", p] if (p := getattr(args, "tactor_port", None)) else [],
+    ),
+    "aim": ServiceSpec("services.aim"),
     "camera": ServiceSpec("services.camera", _camera_argv),
 }
 
