@@ -55,6 +55,7 @@ class ObjectTruth(Struct, frozen=True, kw_only=True):
     shape: ShapeName
     grasp_width_mm: float
     wrist_angle_deg: float | None = None
+    pierced: bool = False
 
 
 class DepthFrame(Message, frozen=True, kw_only=True, tag="depth"):

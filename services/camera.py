@@ -66,11 +66,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     start_ns += missed * period_ns
                     due += missed * period_ns
                 await bus.clock.sleep_until(due)
-                t_ns = bus.clock.now_ns()
                 if args.source == "sim":
-                    reading = source.render((t_ns - start_ns) / 1e9, seq)
+                    reading = source.render((due - start_ns) / 1e9, seq)
                 else:
                     _, reading = source.next_frame()
+                # Stamped when the frame is complete, as a camera stamps its frames.
+                t_ns = bus.clock.now_ns()
             depth.put(_frame(seq, t_ns, reading, intrinsics, args.source))
             seq += 1
     except EndOfStream:
