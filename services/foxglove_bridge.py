@@ -18,6 +18,7 @@ from typing import Any
 import msgspec
 
 from lpc_core.foxglove_convert import convert, schema_for
+from schemas import BadMessage, decode
 from services.runtime import Bus, run_service, service_parser
 
 DEFAULT_HOST = "127.0.0.1"
@@ -38,13 +39,20 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     feeds: dict[str, list[Any]] = {}  # lpc key -> the channels its messages go to
     encode = msgspec.json.Encoder().encode
     sent = bus.health.published["foxglove"]
-    sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY)
+    # Decoded here, not by the runtime, so that unwatched keys cost no decoding.
+    sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY, decode=False)
     try:
         while True:
-            key, message, _ = await sub.receive()
+            key, payload, _ = await sub.receive()
             known = feeds.get(key)
             if known and not any(channel.has_sinks() for channel in known):
                 bus.health.counters["unwatched"] += 1
+                continue
+            try:
+                message = decode(key, payload)
+            except (BadMessage, KeyError) as exc:
+                bus.health.received[key].rejected += 1
+                bus.reject(key, str(exc))
                 continue
             try:
                 outputs = convert(key, message)
