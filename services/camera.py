@@ -48,6 +48,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     bus.log("info", f"source {args.source} {source.intrinsics.width}x{source.intrinsics.height}")
     period_ns = round(1e9 / args.rate)
     start_ns = bus.clock.now_ns()
+    first_recorded_ns = 0
     seq = 0
     try:
         while True:
@@ -60,16 +61,19 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             else:
                 due = start_ns + seq * period_ns
                 now = bus.clock.now_ns()
-                if now - due > period_ns:  # fell behind: skip the missed slots, count them
+                # Fell behind: skip the missed slots and count them.
+                if args.source == "sim" and now - due > period_ns:
                     missed = (now - due) // period_ns
                     bus.health.counters["late_frames"] += int(missed)
                     start_ns += missed * period_ns
                     due += missed * period_ns
-                await bus.clock.sleep_until(due)
                 if args.source == "sim":
+                    await bus.clock.sleep_until(due)
                     reading = source.render((due - start_ns) / 1e9, seq)
-                else:
-                    _, reading = source.next_frame()
+                else:  # keep the recording's own frame spacing
+                    recorded_ns, reading = source.next_frame()
+                    first_recorded_ns = first_recorded_ns or recorded_ns
+                    await bus.clock.sleep_until(start_ns + recorded_ns - first_recorded_ns)
                 # Stamped when the frame is complete, as a camera stamps its frames.
                 t_ns = bus.clock.now_ns()
             depth.put(_frame(seq, t_ns, reading, intrinsics, args.source))
