@@ -20,8 +20,7 @@ from functools import lru_cache
 from typing import Protocol, Self
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from lpc_core.intrinsics import Intrinsics
@@ -46,8 +45,11 @@ class CloudParams:
     support_threshold_m: float = 0.003
     support_min_points: int = 150
     support_max_behind_fraction: float = 0.03
-    # Euclidean clustering and the choice of segment.
-    cluster_tolerance_m: float = 0.0045
+    # Clusters: connected cells of this size (26-neighbourhood). Points closer than a cell
+    # along every axis always join; gaps wider than 2 sqrt(3) cells (14 mm) always split.
+    cluster_cell_m: float = 0.004
+    # The optical axis "pierces" a segment or a face that comes this close to it.
+    pierce_tolerance_m: float = 0.0045
     min_segment_points: int = 100
     # Normals by local PCA over this many neighbours (the point itself included).
     normal_neighbours: int = 10
@@ -68,8 +70,8 @@ class CloudParams:
     def __post_init__(self) -> None:
         positive = (
             "crop_xy_m", "crop_z_min_m", "crop_z_max_m", "voxel_m", "support_threshold_m",
-            "cluster_tolerance_m", "fit_threshold_m", "normal_tolerance_rad", "radius_min_m",
-            "radius_max_m",
+            "cluster_cell_m", "pierce_tolerance_m", "fit_threshold_m", "normal_tolerance_rad",
+            "radius_min_m", "radius_max_m",
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -430,23 +432,26 @@ def find_support_plane(
     return mask
 
 
-def euclidean_clusters(
-    points: np.ndarray, tolerance_m: float, tree: cKDTree | None = None
-) -> np.ndarray:
-    """Label of each point's cluster: points closer than ``tolerance_m`` share a cluster.
+def grid_clusters(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """Label of each point's cluster: connected components of the occupied cells of a grid.
 
-    ``tree`` may pass a ``cKDTree`` already built on ``points``.
+    Two points whose coordinates differ by at most ``cell_m`` along every axis fall in the same
+    or touching cells and so share a cluster; points more than ``2 sqrt(3) cell_m`` apart with
+    nothing between them never do. Labelling the occupancy grid (``scipy.ndimage.label``,
+    26-neighbourhood) costs a fraction of a k-d tree's pair search on the same cloud.
     """
+    points = _as_points(points)
+    if not np.isfinite(cell_m) or cell_m <= 0:
+        raise ValueError(f"cell_m must be a positive finite number, got {cell_m}")
     if len(points) == 0:
         return np.empty(0, dtype=np.int64)
-    tree = cKDTree(points) if tree is None else tree
-    pairs = tree.query_pairs(tolerance_m, output_type="ndarray")
-    graph = csr_matrix(
-        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
-        shape=(len(points), len(points)),
-    )
-    _, labels = connected_components(graph, directed=True, connection="weak")
-    return labels
+    columns = np.ascontiguousarray(points.T)
+    cells = np.floor(columns / cell_m).astype(np.int64)
+    cells -= cells.min(axis=1)[:, None]
+    occupied = np.zeros(tuple(cells.max(axis=1) + 1), dtype=bool)
+    occupied[cells[0], cells[1], cells[2]] = True
+    grid, _ = ndimage.label(occupied, structure=np.ones((3, 3, 3), dtype=bool))
+    return grid[cells[0], cells[1], cells[2]].astype(np.int64) - 1
 
 
 def nearest_segment(
@@ -519,20 +524,15 @@ def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
 
 
 def estimate_normals(
-    points: np.ndarray,
-    neighbours: int,
-    at: np.ndarray | None = None,
-    tree: cKDTree | None = None,
+    points: np.ndarray, neighbours: int, at: np.ndarray | None = None
 ) -> np.ndarray:
     """Unit normals by PCA over nearest neighbours among ``points``, facing the camera.
 
-    Normals are computed at ``at`` (default: at every point of ``points``); ``tree`` may pass
-    a ``cKDTree`` already built on ``points``.
+    Normals are computed at ``at`` (default: at every point of ``points``).
     """
     query = points if at is None else at
     k = min(neighbours, len(points))
-    tree = cKDTree(points) if tree is None else tree
-    _, index = tree.query(query, k=k)
+    _, index = cKDTree(points).query(query, k=k)
     local = points[index]  # (N, k, 3)
     local = local - local.mean(axis=1, keepdims=True)
     normals = smallest_eigenvectors(local.transpose(0, 2, 1) @ local)
@@ -841,14 +841,14 @@ def _cuboid_geometry(
 
     The optical axis enters a convex solid through the face whose plane it meets last (as in
     the slab test), so the pierced face is, of the faces whose plane the axis meets within
-    ``cluster_tolerance_m`` of their own points, the one met furthest; when the axis meets
+    ``pierce_tolerance_m`` of their own points, the one met furthest; when the axis meets
     none (the benchmark forgives loose aiming), the face whose points come closest to the
     axis. Its edges follow the other faces' normals when there are any, else its smallest
     bounding rectangle; the principal axis runs along its longer side and the grasp width is
     its shorter side, measured on the whole segment (``whole``), not only on the subset the
     faces were fitted on, so that the extreme points are not lost to sampling.
     """
-    tolerance_m = params.cluster_tolerance_m
+    tolerance_m = params.pierce_tolerance_m
     ranking = []
     for face, inliers in zip(fit.faces, fit.face_inliers, strict=True):
         face_points = points[inliers]
@@ -954,9 +954,8 @@ def reconstruct_cloud(
     # If removing the plane left nothing to grasp, the plane was the object: put it back.
     while True:
         rest = cloud[keep]
-        tree = cKDTree(rest) if len(rest) else None
-        labels = euclidean_clusters(rest, params.cluster_tolerance_m, tree)
-        found = nearest_segment(rest, labels, params.min_segment_points, params.cluster_tolerance_m)
+        labels = grid_clusters(rest, params.cluster_cell_m)
+        found = nearest_segment(rest, labels, params.min_segment_points, params.pierce_tolerance_m)
         if found is not None or not removed:
             break
         keep[removed.pop()] = True
@@ -966,11 +965,10 @@ def reconstruct_cloud(
         return _none(f"no segment with at least {params.min_segment_points} points", used, extra)
     whole = rest[found]
     extra["segment_points"] = float(len(whole))
-    # A random subset keeps the fits' cost flat. Normals use every point left after the
-    # support plane (other segments are farther than the cluster tolerance anyway).
+    # A random subset keeps the fits' cost flat; normals still use the whole segment.
     segment = whole[np.sort(_sample(len(whole), params.fit_points, rng))]
     extra["fit_points"] = float(len(segment))
-    normals = estimate_normals(rest, params.normal_neighbours, at=segment, tree=tree)
+    normals = estimate_normals(whole, params.normal_neighbours, at=segment)
 
     fits = {
         "sphere": fit_sphere(segment, normals, params, rng),
@@ -1020,12 +1018,13 @@ __all__ = [
     "SphereModel",
     "crop_points",
     "estimate_normals",
-    "euclidean_clusters",
     "find_support_plane",
     "fit_cuboid",
     "fit_cylinder",
     "fit_sphere",
+    "grid_clusters",
     "nearest_segment",
     "reconstruct_cloud",
+    "smallest_eigenvectors",
     "voxel_downsample",
 ]

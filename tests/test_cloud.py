@@ -16,11 +16,11 @@ from lpc_core.cloud import (
     SphereModel,
     crop_points,
     estimate_normals,
-    euclidean_clusters,
     find_support_plane,
     fit_cuboid,
     fit_cylinder,
     fit_sphere,
+    grid_clusters,
     nearest_segment,
     reconstruct_cloud,
     smallest_eigenvectors,
@@ -177,15 +177,29 @@ def test_find_support_plane_none_for_a_lone_ball():
     assert find_support_plane(cloud, PARAMS, np.random.default_rng(0)) is None
 
 
-def test_euclidean_clusters_separates_objects_30mm_apart():
+def test_grid_clusters_separates_objects_30mm_apart():
     # Two balls of 25 mm radius whose surfaces are 30 mm apart.
     depth = _frame(_hit_sphere((-0.04, 0.0, 0.2), 0.025), _hit_sphere((0.04, 0.0, 0.2), 0.025))
     cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
-    labels = euclidean_clusters(cloud, PARAMS.cluster_tolerance_m)
+    labels = grid_clusters(cloud, PARAMS.cluster_cell_m)
     big = np.flatnonzero(np.bincount(labels) >= 100)
     assert len(big) == 2
     left = labels == labels[np.argmin(cloud[:, 0])]
     assert np.all(cloud[left, 0] < 0) and np.all(cloud[~left & np.isin(labels, big), 0] > 0)
+
+
+def test_grid_clusters_joins_within_a_cell_and_splits_beyond_two_diagonals():
+    cell = 0.004
+    # Along a line: steps of 3.9 mm always join; a 14 mm gap (> 2 sqrt(3) cells) never does.
+    x = np.concatenate([np.arange(10) * 0.0039, 0.0351 + 0.014 + np.arange(10) * 0.0039])
+    for shift in (0.0, 0.0013, 0.0027):
+        points = np.column_stack([x + shift, np.full(20, 0.01), np.full(20, 0.2)])
+        labels = grid_clusters(points, cell)
+        assert len(set(labels[:10])) == 1 and len(set(labels[10:])) == 1
+        assert labels[0] != labels[10]
+    assert grid_clusters(np.empty((0, 3)), cell).shape == (0,)
+    with pytest.raises(ValueError, match="cell_m"):
+        grid_clusters(np.zeros((2, 3)), 0.0)
 
 
 def test_nearest_segment_picks_the_one_on_the_axis_and_skips_small_ones():
@@ -195,11 +209,11 @@ def test_nearest_segment_picks_the_one_on_the_axis_and_skips_small_ones():
         _hit_sphere((0.0, 0.0, 0.13), 0.002),  # on the axis and nearest, but tiny
     )
     cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
-    labels = euclidean_clusters(cloud, PARAMS.cluster_tolerance_m)
-    mask = nearest_segment(cloud, labels, 100, PARAMS.cluster_tolerance_m)
+    labels = grid_clusters(cloud, PARAMS.cluster_cell_m)
+    mask = nearest_segment(cloud, labels, 100, PARAMS.pierce_tolerance_m)
     assert mask is not None
     assert np.all(cloud[mask, 2] > 0.215) and np.mean(cloud[mask, 0]) > 0
-    assert nearest_segment(cloud, labels, 100_000, PARAMS.cluster_tolerance_m) is None
+    assert nearest_segment(cloud, labels, 100_000, PARAMS.pierce_tolerance_m) is None
 
 
 # --------------------------------------------------------------------------- models
