@@ -17,13 +17,46 @@ from typing import Any
 
 import msgspec
 
-from lpc_core.foxglove_convert import convert, schema_for
+from lpc_core.foxglove_convert import Output, convert, schema_for
 from schemas import BadMessage, decode
 from services.runtime import Bus, run_service, service_parser
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
 QUEUE_CAPACITY = 256  # ~1 s of everything; a slow viewer drops (counted) rather than lags
+
+
+class Channels:
+    """One Foxglove channel per output topic, made on first use, and the channels each lpc key
+    feeds (so that a key nobody watches can be skipped)."""
+
+    def __init__(self, foxglove: Any, context: Any) -> None:
+        self._foxglove = foxglove
+        self._context = context
+        self._by_topic: dict[str, Any] = {}
+        self._feeds: dict[str, list[Any]] = {}
+
+    def watched(self, key: str) -> bool:
+        feeds = self._feeds.get(key)
+        return feeds is None or any(channel.has_sinks() for channel in feeds)
+
+    def log(self, key: str, outputs: list[tuple[Output, bytes]], source: type, t_ns: int) -> None:
+        feeds = []
+        for out, data in outputs:
+            channel = self._by_topic.get(out.topic)
+            if channel is None:
+                schema = json.dumps(schema_for(out.schema, source)).encode()
+                channel = self._by_topic[out.topic] = self._foxglove.Channel(
+                    out.topic,
+                    schema=self._foxglove.Schema(
+                        name=out.schema, encoding="jsonschema", data=schema
+                    ),
+                    message_encoding="json",
+                    context=self._context,
+                )
+            channel.log(data, log_time=t_ns)
+            feeds.append(channel)
+        self._feeds[key] = feeds
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
@@ -35,8 +68,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     except RuntimeError as exc:
         raise RuntimeError(f"cannot serve Foxglove on {args.host}:{args.port}: {exc}") from exc
     bus.log("info", f"serving Foxglove WebSocket on ws://{args.host}:{server.port}")
-    channels: dict[str, Any] = {}
-    feeds: dict[str, list[Any]] = {}  # lpc key -> the channels its messages go to
+    channels = Channels(foxglove, context)
     encode = msgspec.json.Encoder().encode
     sent = bus.health.published["foxglove"]
     # Decoded here, not by the runtime, so that unwatched keys cost no decoding.
@@ -44,8 +76,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     try:
         while True:
             key, payload, _ = await sub.receive()
-            known = feeds.get(key)
-            if known and not any(channel.has_sinks() for channel in known):
+            if not channels.watched(key):
                 bus.health.counters["unwatched"] += 1
                 continue
             try:
@@ -55,28 +86,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 bus.reject(key, str(exc))
                 continue
             try:
-                outputs = convert(key, message)
-                payloads = [(out, encode(out.payload)) for out in outputs]
+                outputs = [(out, encode(out.payload)) for out in convert(key, message)]
             except Exception as exc:  # one bad message must never stop the viewer's stream
                 bus.reject(key, f"conversion failed: {type(exc).__name__}: {exc}")
                 continue
             now = bus.clock.now_ns()
-            targets = []
-            for out, payload in payloads:
-                channel = channels.get(out.topic)
-                if channel is None:
-                    schema = schema_for(out.schema, type(message))
-                    channel = channels[out.topic] = foxglove.Channel(
-                        out.topic,
-                        schema=foxglove.Schema(
-                            name=out.schema, encoding="jsonschema", data=json.dumps(schema).encode()
-                        ),
-                        message_encoding="json",
-                        context=context,
-                    )
-                channel.log(payload, log_time=now)
-                targets.append(channel)
-            feeds[key] = targets
+            channels.log(key, outputs, type(message), now)
             sent.count += 1
             sent.stamps.append(now)
             sent.latencies_ms.append((now - message.t_ns) / 1e6)

@@ -97,7 +97,8 @@ async def collect(port: int, topics: set[str]) -> FoxgloveClient:
 
 
 class Feeder:
-    """Publishes one message of every topic, and one bad depth frame, every 20 ms."""
+    """Publishes one message of every topic, a depth frame that cannot be shown and a payload
+    that does not decode, every 20 ms."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
@@ -120,6 +121,7 @@ class Feeder:
             for key, payload in payloads:
                 self.session.put(key, payload)
             self.session.put("lpc/camera/depth", self.bad)
+            self.session.put("lpc/emg", b"\xc1 not msgpack")
 
     def __enter__(self) -> Feeder:
         self.thread.start()
@@ -160,9 +162,12 @@ def test_bridge_serves_every_topic_to_a_websocket_client(
             }
             client = asyncio.run(collect(port, expected))
             wait_for(
-                lambda: any(c.get("rejected:lpc/camera/depth", 0) > 0 for c in health),
+                lambda: any(
+                    c.get("rejected:lpc/camera/depth", 0) > 0 and c.get("rejected:lpc/emg", 0) > 0
+                    for c in health
+                ),
                 DEADLINE_S,
-                "the bad depth frame counted as rejected",
+                "the bad depth frame and the bad EMG payload counted as rejected",
             )
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
