@@ -272,7 +272,9 @@ def reconstruction_scene(rec: Reconstruction) -> dict[str, Any]:
             rotation = _frame_from_axis(axis, ray)
             solid["cubes"].append(
                 {
-                    "pose": _pose(center + rotation[:, 2] * width / 2, _quat(rotation)),
+                    "pose": _pose(
+                        center + rotation[:, 2] * width / 2, quaternion_from_matrix(rotation)
+                    ),
                     "size": _vec((SOLID_LENGTH_M, width, width)),
                     "color": color,
                 }
@@ -439,10 +441,6 @@ def _frame_from_axis(axis: np.ndarray, toward: np.ndarray) -> np.ndarray:
         z = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
     z = z / np.linalg.norm(z)
     return np.column_stack([axis, np.cross(z, axis), z])
-
-
-def _quat(rotation: np.ndarray) -> dict[str, float]:
-    return quaternion_from_matrix(rotation)
 
 
 def _unit_or_none(vector: list[float] | None) -> np.ndarray | None:

@@ -308,6 +308,18 @@ def test_aim_scene_arrow_points_toward_the_target_as_far_as_the_hull() -> None:
     assert sizes[1] > sizes[0] == sizes[2] == sizes[3]
 
 
+@pytest.mark.parametrize("theta_deg", [0.0, 90.0, 180.0, 270.0, 200.0])
+def test_aim_scene_arrow_direction_follows_theta_all_round(theta_deg: float) -> None:
+    cue = msgspec.structs.replace(one_of_each()["lpc/aim/cue"], theta_deg=theta_deg)
+    (arrow,) = fc.aim_scene(cue)["entities"][0]["arrows"]
+    theta = math.radians(theta_deg)
+    np.testing.assert_allclose(
+        rotate(arrow["pose"]["orientation"], np.array([1.0, 0.0, 0.0])),
+        [math.cos(theta), math.sin(theta), 0.0],
+        atol=1e-12,
+    )
+
+
 def test_log_entry_maps_levels() -> None:
     (out,) = fc.convert("lpc/log/scans", one_of_each()["lpc/log/scans"])
     assert (out.topic, out.schema) == ("/lpc/log", "foxglove.Log")
