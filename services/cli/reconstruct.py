@@ -49,9 +49,16 @@ def _paper(depth: np.ndarray, intrinsics: Intrinsics, seed: int) -> Reconstructi
     return reconstruct_laser(cut_scan_lines(depth, intrinsics), LaserParams(variant="paper"), seed)
 
 
+def _cloud(depth: np.ndarray, intrinsics: Intrinsics, seed: int) -> Reconstruction:
+    from lpc_core.cloud import reconstruct_cloud
+
+    return reconstruct_cloud(depth, intrinsics, seed=seed)
+
+
 METHODS: dict[str, Method] = {
     "laser": _laser,  # the four-line method with lpc's 3-D solids (lpc_core.laser)
     "paper": _paper,  # the four-line method as the paper describes it
+    "cloud": _cloud,  # the full-point-cloud benchmark (lpc_core.cloud)
 }
 
 
