@@ -12,10 +12,12 @@ Rules, in order:
   from the first pulsing command, so the pattern starts with a buzz.
 - The user's gain limits map an amplitude ``a > 0`` to ``gain_min + a (gain_max - gain_min)``
   per tactor, so the weakest cue is still felt and the strongest never hurts.
-- Writes are rate-limited: at most one per ``min_interval_ns``. A change that comes sooner is
-  held and written when the interval has passed (the newest wins). An unchanged output is
-  written again every ``refresh_ns``, which refreshes a controller that lost a frame and feeds
-  a board's watchdog.
+- Writes are rate-limited by a token bucket: one token per ``min_interval_ns``, at most
+  ``burst`` saved. A bucket rather than a fixed gap, so that two frames bunched together by
+  scheduling jitter both go out at once, while a flood still cannot exceed the rate. A change
+  that finds the bucket empty is held and written when the next token comes (the newest
+  wins). An unchanged output is written again every ``refresh_ns``, which refreshes a
+  controller that lost a frame and feeds a board's watchdog.
 
 ``BridgeState.wake_ns`` says when the step next needs a ``Tick`` even if no command arrives.
 """
@@ -56,6 +58,7 @@ class BridgeParams:
     stale_ns: int = 100_000_000
     stale_from: Literal["capture", "receipt"] = "capture"
     min_interval_ns: int = 5_000_000
+    burst: int = 3
     refresh_ns: int = 200_000_000
     pulse_on_ns: int = 150_000_000
     pulse_period_ns: int = 300_000_000
@@ -67,6 +70,8 @@ class BridgeParams:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.min_interval_ns < 0:
             raise ValueError(f"min_interval_ns must not be negative, got {self.min_interval_ns}")
+        if self.burst < 1:
+            raise ValueError(f"burst must be at least 1, got {self.burst}")
         if self.pulse_on_ns > self.pulse_period_ns:
             raise ValueError("pulse_on_ns must not exceed pulse_period_ns")
         if self.stale_from not in ("capture", "receipt"):
@@ -95,6 +100,8 @@ class BridgeState:
     pulse_since_ns: int | None = None
     written: TactorOutput | None = None  # None: unknown, nothing written since the port opened
     written_ns: int | None = None
+    tokens: float | None = None  # None: a full bucket
+    tokens_ns: int = 0
     wake_ns: int | None = None
 
 
@@ -118,12 +125,20 @@ def desired_output(state: BridgeState, now_ns: int) -> TactorOutput:
     return TactorOutput(p.profile.levels(command.amplitudes), command.frequency_hz)
 
 
+def _tokens(state: BridgeState, now_ns: int) -> float:
+    p = state.params
+    if state.tokens is None or p.min_interval_ns == 0:
+        return float(p.burst)
+    return min(float(p.burst), state.tokens + (now_ns - state.tokens_ns) / p.min_interval_ns)
+
+
 def _next_wake(state: BridgeState, desired: TactorOutput, now_ns: int) -> int | None:
     p = state.params
     times: list[int] = []
     if state.written_ns is not None:
-        if desired != state.written:
-            times.append(state.written_ns + p.min_interval_ns)
+        if desired != state.written:  # held by the rate limit: wake when a token is back
+            missing = max(0.0, 1.0 - _tokens(state, now_ns))
+            times.append(now_ns + max(1, int(missing * p.min_interval_ns + 0.5)))
         times.append(state.written_ns + p.refresh_ns)
     expires = _expires_ns(state)
     if expires is not None and expires >= now_ns:
@@ -155,11 +170,11 @@ def bridge_step(
     desired = desired_output(state, now_ns)
     outputs: list[TactorOutput] = []
     last = state.written_ns
-    due = last is None or (
-        now_ns - last >= p.min_interval_ns
-        and (desired != state.written or now_ns - last >= p.refresh_ns)
-    )
-    if due:
+    tokens = _tokens(state, now_ns)
+    wanted = last is None or desired != state.written or now_ns - last >= p.refresh_ns
+    if wanted and (tokens >= 1.0 - 1e-9 or last is None):
         outputs.append(desired)
+        tokens = max(0.0, tokens - 1.0)
         state = replace(state, written=desired, written_ns=now_ns)
+    state = replace(state, tokens=tokens, tokens_ns=now_ns)
     return replace(state, wake_ns=_next_wake(state, desired, now_ns)), outputs

@@ -63,13 +63,28 @@ def test_bridge_step_command_already_stale_on_arrival_is_off() -> None:
 
 
 def test_bridge_step_rate_limit_holds_then_writes_newest() -> None:
-    state, _ = bridge_step(BridgeState(), command(0.2, 0, 0, 0), T0)
+    state = BridgeState(params=BridgeParams(burst=1))  # one write per 5 ms, no saving up
+    state, _ = bridge_step(state, command(0.2, 0, 0, 0), T0)
     state, outputs = bridge_step(state, command(0.4, 0, 0, 0, t_ns=T0 + 1 * MS), T0 + 1 * MS)
     assert outputs == []
     state, outputs = bridge_step(state, command(0.6, 0, 0, 0, t_ns=T0 + 2 * MS), T0 + 2 * MS)
     assert outputs == [] and state.wake_ns == T0 + 5 * MS
     state, outputs = bridge_step(state, TICK, state.wake_ns)
     assert outputs == [out(0.6, 0, 0, 0)]
+
+
+def test_bridge_step_rate_limit_lets_a_short_burst_through() -> None:
+    # Frames bunched by jitter pass at once; a flood is cut to the token rate (5 ms).
+    state, written = BridgeState(), []
+    for i in range(6):
+        t = T0 + i * MS // 2
+        state, outputs = bridge_step(state, command(0.1 * (i + 1), 0, 0, 0, t_ns=t), t)
+        written += outputs
+    assert [o.levels[0] for o in written] == pytest.approx([0.1, 0.2, 0.3])
+    # Three tokens spent by 1 ms; the bucket refills one token per 5 ms from there.
+    assert state.wake_ns == T0 + 5 * MS
+    state, outputs = bridge_step(state, TICK, state.wake_ns)
+    assert [o.levels[0] for o in outputs] == pytest.approx([0.6])
 
 
 def test_bridge_step_refreshes_unchanged_output() -> None:
