@@ -313,6 +313,15 @@ def test_reconstruct_cloud_box_reports_the_pierced_face():
     assert _angle_error_deg(result.wrist_angle_rad, np.radians(30)) < 3.0
 
 
+def test_reconstruct_cloud_forgives_aiming_beside_the_object():
+    # The benchmark needs the object only near the axis: a ball 45 mm to the side is taken.
+    depth = _frame(_hit_sphere((0.045, -0.01, 0.2), 0.02), _hit_plane((0, 0, 1), (0, 0, 0.22)))
+    result = reconstruct_cloud(depth, INTR, seed=2)
+    assert result.shape == "sphere"
+    assert abs(result.grasp_width_m - 0.04) < 0.003
+    np.testing.assert_allclose(result.center_m, (0.045, -0.01, 0.2), atol=0.002)
+
+
 def test_reconstruct_cloud_keeps_a_lone_face_that_looks_like_a_support():
     # Seen square on with nothing behind it, a box's face passes the support-plane test;
     # removing it would leave nothing, so it stays and is fitted.

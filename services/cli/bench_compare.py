@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lpc_core.cloud import reconstruct_cloud
 from lpc_core.intrinsics import Intrinsics
 from lpc_core.reconstruction import SHAPES, Reconstruction
 
@@ -154,6 +153,8 @@ def _laser(view: View, intrinsics: Intrinsics) -> tuple[Reconstruction, float, f
 
 
 def _cloud(view: View, intrinsics: Intrinsics) -> tuple[Reconstruction, float]:
+    from lpc_core.cloud import reconstruct_cloud  # scipy loads only when the bench runs
+
     start = time.process_time()
     result = reconstruct_cloud(view.depth, intrinsics, seed=view.seq)
     return result, time.process_time() - start
