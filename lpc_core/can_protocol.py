@@ -23,9 +23,10 @@ lpc layout (classic CAN, 11-bit identifiers, 1 Mbit/s, integers big-endian)
     byte  6    uint8   flags: bit 0 moving, bit 1 fault, bit 2 stopped by the hand's watchdog
     byte  7            reserved, 0
 
-``0x221``, ``0x222`` EMG, hand -> controller, DLC 8, with each STATUS when the hand has
+``0x221``, ``0x222`` EMG, hand -> controller, DLC 8, just before each STATUS when the hand has
 electrodes: four uint16 raw envelopes each, channels 0-3 then 4-7 (a Michelangelo-style
-socket reports eight channels, 0-856).
+socket reports eight channels, 0-856). STATUS closes a cycle, so a receiver pairs it with the
+EMG frames that preceded it.
 
 RoboLimb profile (public facts, as the Touch Bionics manual and open drivers use them)
 -------------------------------------------------------------------------------------
@@ -112,13 +113,21 @@ def decode_command(frame: Frame) -> tuple[HandCommand, int]:
 
 
 def encode_status(status: HandStatus) -> list[Frame]:
-    """The STATUS frame, followed by the EMG frames when the status carries EMG."""
+    """The EMG frames when the status carries EMG, then the STATUS frame that closes the cycle."""
     flags = (
         (FLAG_MOVING if status.moving else 0)
         | (FLAG_FAULT if status.fault else 0)
         | (FLAG_WATCHDOG if status.watchdog else 0)
     )
-    frames = [
+    frames: list[Frame] = []
+    if status.emg:
+        if len(status.emg) > 4 * len(EMG_IDS):
+            raise ValueError(f"emg carries at most {4 * len(EMG_IDS)} channels")
+        channels = [_clip_int(x, 0, 65535) for x in status.emg]
+        channels += [0] * (-len(channels) % 4)
+        for i in range(len(channels) // 4):
+            frames.append(Frame(EMG_IDS[i], _EMG.pack(*channels[4 * i : 4 * i + 4])))
+    frames.append(
         Frame(
             STATUS_ID,
             _STATUS.pack(
@@ -129,14 +138,7 @@ def encode_status(status: HandStatus) -> list[Frame]:
                 flags,
             ),
         )
-    ]
-    if status.emg:
-        if len(status.emg) > 4 * len(EMG_IDS):
-            raise ValueError(f"emg carries at most {4 * len(EMG_IDS)} channels")
-        channels = [_clip_int(x, 0, 65535) for x in status.emg]
-        channels += [0] * (-len(channels) % 4)
-        for i in range(len(channels) // 4):
-            frames.append(Frame(EMG_IDS[i], _EMG.pack(*channels[4 * i : 4 * i + 4])))
+    )
     return frames
 
 

@@ -75,9 +75,9 @@ def test_status_clips_to_the_field_ranges() -> None:
 def test_status_with_emg_adds_emg_frames() -> None:
     status = HandStatus(wrist_angle_deg=0.0, aperture_mm=50.0, emg=(1, 2, 856, 4, 5))
     frames = encode_status(status)
-    assert [f.arbitration_id for f in frames] == [STATUS_ID, *EMG_IDS]
-    assert decode_emg(frames[1]) == (0, (1, 2, 856, 4))
-    assert decode_emg(frames[2]) == (4, (5, 0, 0, 0))
+    assert [f.arbitration_id for f in frames] == [*EMG_IDS, STATUS_ID]  # STATUS closes a cycle
+    assert decode_emg(frames[0]) == (0, (1, 2, 856, 4))
+    assert decode_emg(frames[1]) == (4, (5, 0, 0, 0))
 
 
 def test_frame_rejects_extended_ids_and_long_data() -> None:

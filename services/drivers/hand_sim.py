@@ -1,0 +1,200 @@
+"""A simulated hand on a CAN bus: the other end of the hand driver, for tests and ``lpc up``.
+
+It opens its own python-can bus on the same channel as the driver (python-can's virtual bus
+connects buses of one process; socketcan's ``vcan0`` connects processes), listens for velocity
+commands in the ``lpc`` or ``robolimb`` profile, advances ``lpc_core.hand`` in real time and
+sends status at 100 Hz. Like real hands it has its own fail-safe: with no command for
+``hand_watchdog_s`` it stops and flags it (PSYONIC's hand leaves API mode after 300 ms).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import can
+
+from lpc_core import can_protocol as cp
+from lpc_core.hand import HandCommand, HandParams, HandState, HandStatus, hand_step
+from services.drivers.errors import DeviceUnavailable
+from services.drivers.hand import DEFAULT_CHANNEL
+
+PERIOD_S = 0.01
+
+
+class SimulatedHand:
+    """A hand model behind a CAN bus, in a thread. ``start()``/``stop()``; ``stop`` is safe twice.
+
+    ``object_mm`` sets the width of an object between the fingers (``None``: nothing to grip);
+    ``emg`` optionally supplies the socket electrodes' raw values for each status.
+    """
+
+    def __init__(
+        self,
+        profile: str = "lpc",
+        interface: str = "virtual",
+        channel: str = DEFAULT_CHANNEL,
+        *,
+        params: HandParams | None = None,
+        aperture_mm: float = 80.0,
+        wrist_deg: float = 0.0,
+        object_mm: float | None = None,
+        emg: Callable[[], Sequence[float]] | None = None,
+        hand_watchdog_s: float = 0.3,
+        **kwargs: Any,
+    ) -> None:
+        if profile not in ("lpc", "robolimb"):
+            raise ValueError(f"profile must be 'lpc' or 'robolimb', got {profile!r}")
+        try:
+            self._bus = can.Bus(
+                interface=interface, channel=channel, receive_own_messages=False, **kwargs
+            )
+        except (can.CanError, ImportError, OSError, ValueError) as exc:
+            raise DeviceUnavailable(
+                f"simulated hand cannot open {interface}:{channel}: {exc}"
+            ) from exc
+        self.profile = profile
+        self.object_mm = object_mm
+        self.emg = emg
+        self.hand_watchdog_s = hand_watchdog_s
+        self._state = HandState(
+            params=params or HandParams(), aperture_mm=aperture_mm, wrist_deg=wrist_deg
+        )
+        self._command = HandCommand()
+        self._digits: dict[int, tuple[int, int]] = {}  # robolimb: digit -> (action, velocity)
+        self._last_command = time.monotonic()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="sim-hand", daemon=True)
+        self.commands_received = 0
+        self.frames_rejected = 0
+        self.status_sent = 0
+        self.silenced = False  # tests: stop sending status (a hand that went quiet)
+
+    # ------------------------------------------------------------------ control
+
+    def start(self) -> SimulatedHand:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        with contextlib.suppress(can.CanError, OSError):
+            self._bus.shutdown()
+
+    def __enter__(self) -> SimulatedHand:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def state(self) -> HandState:
+        with self._lock:
+            return self._state
+
+    @property
+    def command(self) -> HandCommand:
+        with self._lock:
+            return self._command
+
+    # ------------------------------------------------------------------ loop
+
+    def _run(self) -> None:
+        next_tick = time.monotonic()
+        while not self._stop.is_set():
+            timeout = max(next_tick - time.monotonic(), 0.0)
+            try:
+                message = self._bus.recv(timeout=timeout)
+            except (can.CanError, OSError):
+                if self._stop.wait(0.05):
+                    return
+                continue
+            if message is not None:
+                self._receive(message)
+                continue
+            next_tick += PERIOD_S
+            if time.monotonic() - next_tick > 0.1:
+                next_tick = time.monotonic()  # fell far behind (a stalled machine): resync
+            self._tick()
+
+    def _receive(self, message: can.Message) -> None:
+        if message.is_error_frame or message.is_extended_id:
+            return
+        frame = cp.Frame(message.arbitration_id, bytes(message.data))
+        try:
+            if self.profile == "lpc":
+                if frame.arbitration_id != cp.COMMAND_ID:
+                    return
+                command, _ = cp.decode_command(frame)
+            else:
+                if not 0x101 <= frame.arbitration_id <= 0x106:
+                    return
+                digit, action, velocity = cp.decode_robolimb_digit(frame)
+                self._digits[digit] = (action, velocity)
+                command = self._robolimb_command()
+        except cp.FrameError:
+            self.frames_rejected += 1
+            return
+        with self._lock:
+            self._command = command
+            self._last_command = time.monotonic()
+            self.commands_received += 1
+
+    def _robolimb_command(self) -> HandCommand:
+        # The model has one grasp axis: the fingers' mean signed speed drives it.
+        lo, hi = cp.ROBOLIMB_VELOCITY
+        speeds = []
+        for digit in cp.ROBOLIMB_FINGERS:
+            action, velocity = self._digits.get(digit, (cp.STOP, lo))
+            sign = {cp.STOP: 0.0, cp.CLOSE: 1.0, cp.OPEN: -1.0}[action]
+            speeds.append(sign * (velocity - lo) / (hi - lo))
+        return HandCommand(grasp=max(-1.0, min(1.0, sum(speeds) / len(speeds))))
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            stale = now - self._last_command > self.hand_watchdog_s
+            command = HandCommand() if stale else self._command
+            state = dataclasses.replace(self._state, object_mm=self.object_mm)
+            state, status = hand_step(state, command, time.monotonic_ns())
+            self._state = state
+        if self.silenced:
+            return
+        if self.emg is not None:
+            status = dataclasses.replace(status, emg=tuple(self.emg()))
+        status = dataclasses.replace(status, watchdog=stale)
+        for frame in self._frames(status, command):
+            with contextlib.suppress(can.CanError, OSError):
+                self._bus.send(
+                    can.Message(
+                        arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False
+                    ),
+                    timeout=0.005,
+                )
+        self.status_sent += 1
+
+    def _frames(self, status: HandStatus, command: HandCommand) -> list[cp.Frame]:
+        if self.profile == "lpc":
+            return cp.encode_status(status)
+        p = self._state.params
+        frames = []
+        for digit in (*cp.ROBOLIMB_FINGERS[::-1],):  # little .. thumb: the thumb closes a cycle
+            if status.grip_force_pct > 0:
+                code, current = 3, status.grip_force_pct / 100.0 * 1.2
+            elif status.aperture_mm >= p.aperture_max_mm and command.grasp <= 0:
+                code, current = 4, 0.0
+            elif command.grasp > 0.02:
+                code, current = 1, 0.2
+            elif command.grasp < -0.02:
+                code, current = 2, 0.2
+            else:
+                code, current = 0, 0.0
+            frames.append(cp.encode_robolimb_feedback(digit, code, current))
+        return frames

@@ -1,0 +1,102 @@
+"""Prosthesis bridge: ``lpc/prosthesis/command`` to the hand over CAN, the hand's status to
+``lpc/prosthesis/state``. A watchdog sends zero velocity when no fresh command has come for
+50 ms; a command older than that when it arrives is dropped and counted. Bus errors are
+logged and counted, and the bridge reopens the bus with backoff. ``--sim-hand`` runs the
+simulated hand on the same bus (required with python-can's in-process virtual bus)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from lpc_core.hand import HandCommand, HandStatus
+from schemas import ProsthesisState
+from services.drivers.hand import BACKENDS, DEFAULT_CHANNEL, HandLink, open_hand
+from services.drivers.hand_sim import SimulatedHand
+from services.runtime import Bus, run_service, service_parser
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    loop = asyncio.get_running_loop()
+    states = bus.publisher("lpc/prosthesis/state")
+    watchdog_ns = int(args.watchdog_ms * 1e6)
+    seq = 0
+
+    def publish(status: HandStatus) -> None:
+        nonlocal seq
+        seq += 1
+        states.put(
+            ProsthesisState(
+                seq=seq,
+                t_ns=bus.clock.now_ns(),
+                wrist_angle_deg=status.wrist_angle_deg,
+                aperture_mm=status.aperture_mm,
+                grip_force_pct=status.grip_force_pct,
+                emg=list(status.emg),
+                hand=f"{args.profile}:{'sim' if args.sim_hand else args.interface}",
+            )
+        )
+        if seq % 100 == 0:
+            bus.health.counters.update(link.counters)
+
+    sim = None
+    if args.sim_hand:
+        sim = SimulatedHand(args.profile, args.interface, args.channel, object_mm=args.object_mm)
+        sim.start()
+    link = HandLink(
+        lambda: open_hand(args.profile, interface=args.interface, channel=args.channel),
+        on_status=lambda status: loop.call_soon_threadsafe(publish, status),
+        on_event=lambda level, text: loop.call_soon_threadsafe(bus.log, level, text),
+        watchdog_s=args.watchdog_ms / 1000.0,
+    ).start()
+    follow = asyncio.create_task(_follow_grasps(bus, sim, args.object_mm)) if sim else None
+    try:
+        async for command in bus.subscribe("lpc/prosthesis/command"):
+            age_ns = bus.clock.now_ns() - command.t_ns
+            if age_ns > watchdog_ns:
+                bus.health.counters["stale_commands"] += 1
+                continue
+            link.command(HandCommand(grasp=command.grasp, wrist=command.wrist))
+    finally:
+        if follow is not None:
+            follow.cancel()
+        link.stop()
+        if sim is not None:
+            sim.stop()
+        bus.health.counters.update(link.counters)
+
+
+async def _follow_grasps(bus: Bus, sim: SimulatedHand, default_mm: float | None) -> None:
+    # Simulation only: the object between the fingers is the one the hand was pre-shaped for.
+    async for state in bus.subscribe("lpc/controller/state"):
+        if state.state == "preshaping" and state.target_width_mm is not None:
+            sim.object_mm = state.target_width_mm
+        elif state.state == "idle" and state.previous == "direct":
+            sim.object_mm = default_mm
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("prosthesis_bridge", __doc__ or "")
+    parser.add_argument("--profile", choices=sorted(BACKENDS), default="lpc", help="frame layout")
+    parser.add_argument(
+        "--interface", default="virtual", help="python-can interface (virtual, socketcan, ...)"
+    )
+    parser.add_argument("--channel", default=DEFAULT_CHANNEL, help="CAN channel (e.g. can0)")
+    parser.add_argument("--watchdog-ms", type=float, default=50.0, help="zero velocity after")
+    parser.add_argument("--sim-hand", action="store_true", help="run the simulated hand too")
+    parser.add_argument(
+        "--object-mm", type=float, default=60.0, help="simulated object width (default 60 mm)"
+    )
+    args = parser.parse_args(argv)
+    if not 5 <= args.watchdog_ms <= 1000:
+        parser.error("--watchdog-ms must be in [5, 1000]")
+    if args.interface == "virtual" and not args.sim_hand:
+        print(
+            "[prosthesis_bridge] warning: virtual bus without --sim-hand: no hand", file=sys.stderr
+        )
+    return run_service("prosthesis_bridge", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,311 @@
+"""The hand drivers, the simulated hand and the bridge's watchdog, on python-can's virtual bus;
+and the bridge service over the real Zenoh bus."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+
+import can
+import pytest
+import zenoh
+
+from lpc_core import can_protocol as cp
+from lpc_core.hand import HandCommand, HandStatus
+from schemas import ProsthesisCommand, decode, encode
+from services.drivers.errors import DeviceUnavailable, OperationError
+from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand
+from services.drivers.hand_sim import SimulatedHand
+from tests.conftest import spawn_service, wait_for
+
+_channels = itertools.count()
+
+
+@pytest.fixture
+def channel() -> str:
+    """A virtual CAN channel of its own per test."""
+    return f"lpc-test-{next(_channels)}-{time.monotonic_ns()}"
+
+
+class Recorder:
+    """A passive listener on the virtual bus: every frame with python-can's timestamp."""
+
+    def __init__(self, channel: str) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.frames: list[can.Message] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            message = self.bus.recv(timeout=0.01)
+            if message is not None:
+                self.frames.append(message)
+
+    def commands(self) -> list[tuple[float, HandCommand]]:
+        return [
+            (m.timestamp, cp.decode_command(cp.Frame(m.arbitration_id, bytes(m.data)))[0])
+            for m in list(self.frames)
+            if m.arbitration_id == cp.COMMAND_ID
+        ]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self.bus.shutdown()
+
+
+# --------------------------------------------------------------------------- drivers
+
+
+@pytest.mark.parametrize("profile", sorted(BACKENDS))
+def test_driver_contract_on_the_virtual_bus(profile: str, channel: str) -> None:
+    with SimulatedHand(profile, channel=channel, aperture_mm=80.0) as sim:
+        driver = open_hand(profile, channel=channel)
+        try:
+            statuses: list[HandStatus] = []
+            deadline = time.monotonic() + 5.0
+            while len(statuses) < 30 and time.monotonic() < deadline:
+                driver.send(HandCommand(grasp=-1.0), timeout=0.01)
+                status = driver.recv(timeout=0.05)
+                if status is not None:
+                    statuses.append(status)
+            assert len(statuses) == 30
+            assert sim.commands_received > 0 and sim.command.grasp < -0.9
+            assert statuses[-1].aperture_mm > 80.0  # opening, as commanded
+        finally:
+            driver.shutdown()
+            driver.shutdown()  # safe twice
+        with pytest.raises(OperationError, match="shut down"):
+            driver.send(HandCommand())
+
+
+def test_driver_recv_times_out_with_none(channel: str) -> None:
+    with LpcHand(channel=channel) as driver:
+        t0 = time.monotonic()
+        assert driver.recv(timeout=0.02) is None
+        assert time.monotonic() - t0 < 1.0
+
+
+def test_driver_counts_error_frames_and_skips_garbage(channel: str) -> None:
+    peer = can.Bus(interface="virtual", channel=channel)
+    try:
+        with LpcHand(channel=channel) as driver:
+            peer.send(can.Message(is_error_frame=True, arbitration_id=0x40, dlc=8))
+            peer.send(
+                can.Message(arbitration_id=cp.STATUS_ID, data=b"\x00\x01", is_extended_id=False)
+            )
+            status = HandStatus(wrist_angle_deg=10.0, aperture_mm=55.0, grip_force_pct=20)
+            for frame in cp.encode_status(status):
+                peer.send(
+                    can.Message(
+                        arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False
+                    )
+                )
+            got = driver.recv(timeout=1.0)
+            assert got is not None and got.aperture_mm == 55.0
+            assert driver.error_frames == 1
+            assert "needs 8 bytes" in driver.last_error
+    finally:
+        peer.shutdown()
+
+
+def test_driver_carries_emg_from_the_hand(channel: str) -> None:
+    with (
+        SimulatedHand("lpc", channel=channel, emg=lambda: (12, 800, 3)),
+        LpcHand(channel=channel) as driver,
+    ):
+        status = None
+        deadline = time.monotonic() + 2.0
+        while status is None and time.monotonic() < deadline:
+            status = driver.recv(timeout=0.1)
+        assert status is not None and status.emg[:3] == (12.0, 800.0, 3.0)
+
+
+def test_open_hand_unknown_profile_or_interface_is_unavailable(channel: str) -> None:
+    with pytest.raises(DeviceUnavailable, match="unknown hand profile"):
+        open_hand("michelangelo", channel=channel)
+    with pytest.raises(DeviceUnavailable):
+        open_hand("lpc", interface="no-such-interface", channel=channel)
+
+
+def test_simulated_hand_stops_on_its_own_watchdog(channel: str) -> None:
+    with (
+        SimulatedHand("lpc", channel=channel, hand_watchdog_s=0.1) as sim,
+        LpcHand(channel=channel) as driver,
+    ):
+        driver.send(HandCommand(wrist=1.0))
+        wait_for(lambda: sim.state.wrist_speed > 10.0, 5.0, "the wrist to turn")
+        # No more commands: the hand stops by itself and says so.
+        status = None
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            status = driver.recv(timeout=0.1)
+            if status is not None and status.watchdog and not status.moving:
+                break
+        assert status is not None and status.watchdog and not status.moving
+
+
+# --------------------------------------------------------------------------- the link's watchdog
+
+
+def test_link_watchdog_sends_zero_velocity_after_50_ms(channel: str) -> None:
+    recorder = Recorder(channel)
+    link = HandLink(lambda: LpcHand(channel=channel), on_status=lambda s: None, watchdog_s=0.05)
+    link.start()
+    try:
+        wait_for(lambda: link.connected, 5.0, "the link to connect")
+        assert link.command(HandCommand(grasp=0.5, wrist=-0.25))
+        wait_for(
+            lambda: (
+                any(c.grasp == 0.0 for _, c in recorder.commands()[1:])
+                and any(c.grasp > 0 for _, c in recorder.commands())
+            ),
+            5.0,
+            "a zero command after the moving one",
+        )
+        commands = recorder.commands()
+        moving = max(t for t, c in commands if c.grasp > 0)
+        zero = min(t for t, c in commands if c.grasp == 0.0 and t > moving)
+        # The watchdog never fires early: 50 ms after the command at the earliest.
+        assert zero - moving >= 0.05 - 0.002
+        print(f"watchdog: zero velocity {1000 * (zero - moving):.1f} ms after the last command")
+        assert link.counters["watchdog_stops"] >= 1
+    finally:
+        link.stop()
+        link.stop()
+        recorder.close()
+
+
+def test_link_fresh_commands_hold_off_the_watchdog(channel: str) -> None:
+    recorder = Recorder(channel)
+    sent: list[float] = []
+    link = HandLink(lambda: LpcHand(channel=channel), on_status=lambda s: None, watchdog_s=0.05)
+    link.start()
+    try:
+        wait_for(lambda: link.connected, 5.0, "the link to connect")
+        start = time.monotonic()
+        while time.monotonic() - start < 0.5:  # a 100 Hz command stream, as the controller's
+            link.command(HandCommand(grasp=0.3))
+            sent.append(time.time())
+            time.sleep(0.01)
+        wait_for(lambda: len(recorder.commands()) >= len(sent), 5.0, "every command recorded")
+        commands = recorder.commands()
+        first_moving = min(t for t, c in commands if c.grasp > 0)
+        # Every zero command after the stream began followed a gap of at least 50 ms since the
+        # previous command: a loaded machine may delay the stream, never the logic.
+        for t, c in commands:
+            if c.grasp == 0.0 and first_moving < t < sent[-1]:
+                before = [s for s in sent if s < t]
+                assert t - before[-1] >= 0.05 - 0.002
+    finally:
+        link.stop()
+        recorder.close()
+
+
+class FlakyHand(LpcHand):
+    """A driver whose bus goes away after a few receives (a bus-off, an unplugged adapter)."""
+
+    opened = 0
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        FlakyHand.opened += 1
+        self._receives = 0
+
+    def recv(self, timeout: float | None = None) -> HandStatus | None:
+        self._receives += 1
+        if FlakyHand.opened == 1 and self._receives > 5:
+            raise OperationError("bus-off (simulated)")
+        return super().recv(timeout)
+
+
+def test_link_reports_bus_errors_and_reconnects(channel: str) -> None:
+    attempts = {"n": 0}
+    events: list[tuple[str, str]] = []
+    statuses: list[HandStatus] = []
+
+    def opener() -> LpcHand:
+        attempts["n"] += 1
+        if attempts["n"] <= 2:
+            raise DeviceUnavailable("can0 is down (simulated)")
+        return FlakyHand(channel=channel)
+
+    FlakyHand.opened = 0
+    with SimulatedHand("lpc", channel=channel):
+        link = HandLink(opener, statuses.append, lambda lv, text: events.append((lv, text)))
+        link.start()
+        try:
+            wait_for(lambda: FlakyHand.opened >= 2 and len(statuses) > 5, 10.0, "a reconnection")
+        finally:
+            link.stop()
+    texts = [text for _, text in events]
+    assert any("cannot open the hand" in t for t in texts)
+    assert any("bus-off (simulated)" in t and "reconnecting" in t for t in texts)
+    assert any(t == "hand connected again" for t in texts)
+    assert link.counters["errors"] >= 3 and link.counters["reconnects"] >= 1
+
+
+def test_link_rejects_a_bad_watchdog() -> None:
+    with pytest.raises(ValueError, match="watchdog_s"):
+        HandLink(lambda: LpcHand(), on_status=lambda s: None, watchdog_s=0.0)
+
+
+# --------------------------------------------------------------------------- over the bus
+
+
+def test_bridge_service_moves_the_hand_and_stops_it(
+    rendezvous: zenoh.Session, endpoint: str
+) -> None:
+    states: list = []
+    sub = rendezvous.declare_subscriber(
+        "lpc/prosthesis/state",
+        lambda s: states.append(decode("lpc/prosthesis/state", s.payload.to_bytes())),
+    )
+    process = spawn_service("services.prosthesis_bridge", endpoint, "--sim-hand")
+    try:
+        wait_for(lambda: len(states) > 10, 20.0, "status from the bridge")
+        start = states[-1].aperture_mm
+        pub = rendezvous.declare_publisher("lpc/prosthesis/command")
+        seq = itertools.count(1)
+
+        def command(grasp: float) -> None:
+            pub.put(
+                encode(
+                    ProsthesisCommand(seq=next(seq), t_ns=time.time_ns(), grasp=grasp, wrist=0.0)
+                )
+            )
+
+        deadline = time.monotonic() + 10.0
+        while states[-1].aperture_mm > start - 10.0 and time.monotonic() < deadline:
+            command(0.5)
+            time.sleep(0.01)
+        assert states[-1].aperture_mm <= start - 10.0  # closed by at least 10 mm
+        # Commands stop: the watchdog stops the hand (aperture settles within a few mm).
+        wait_for(
+            lambda: (
+                len(states) > 20 and abs(states[-1].aperture_mm - states[-10].aperture_mm) < 0.01
+            ),
+            5.0,
+            "the hand to stop",
+        )
+        # A stale command (200 ms old) is dropped, not executed.
+        settled = states[-1].aperture_mm
+        pub.put(
+            encode(
+                ProsthesisCommand(
+                    seq=next(seq), t_ns=time.time_ns() - 200_000_000, grasp=1.0, wrist=0.0
+                )
+            )
+        )
+        n = len(states)
+        wait_for(lambda: len(states) > n + 20, 5.0, "more status")
+        assert states[-1].aperture_mm == pytest.approx(settled, abs=0.1)  # a 1.0 command: mm
+        assert states[-1].hand == "lpc:sim"
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+        sub.undeclare()
+    assert process.returncode == 0
