@@ -786,6 +786,8 @@ def fit_cuboid(
     if first is None:
         return FailedFit("no plane hypothesis")
     face, inliers = _refine_face(points, normals, *first, params, fixed_normal=False)
+    if inliers.sum() < 3:
+        return FailedFit("the best plane lost its inliers when refined")
     faces, face_inliers = [face], [inliers]
     taken = inliers.copy()
     min_face = max(3, int(np.ceil(params.min_face_fraction * n)))
