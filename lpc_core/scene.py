@@ -34,6 +34,8 @@ TruthShape = Literal["sphere", "cylinder", "cuboid"]
 _EPS_T = 1e-9
 """Hits closer than this (metres along a unit-z ray) are treated as the ray's own origin."""
 
+_EYE3 = np.eye(3)
+
 _AXIS_ALONG_VIEW = 0.1
 """A principal axis whose image-plane projection is shorter than this (unit axis, i.e. within
 ~5.7 degrees of the optical axis) has no defined wrist angle."""
@@ -59,9 +61,10 @@ def _unit(value: object, name: str) -> np.ndarray:
 
 def _rotation(value: object, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64)
-    if arr.shape != (3, 3) or not np.allclose(arr @ arr.T, np.eye(3), atol=1e-6):
+    if arr.shape != (3, 3) or not float(np.abs(arr @ arr.T - _EYE3).max()) <= 1e-6:
         raise ValueError(f"{name} must be a 3x3 rotation matrix")
-    if np.linalg.det(arr) < 0:
+    (a, b, c), (d, e, f), (g, h, i) = arr.tolist()
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
         raise ValueError(f"{name} must be a proper rotation (det +1)")
     return arr
 
@@ -76,9 +79,9 @@ def _positive(value: float, name: str) -> float:
 def check_pose(pose: object, name: str = "camera_pose") -> np.ndarray:
     """Validate a 4x4 rigid transform and return it as float64."""
     arr = np.asarray(pose, dtype=np.float64)
-    if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
+    if arr.shape != (4, 4) or not np.isfinite(arr).all():
         raise ValueError(f"{name} must be a finite 4x4 matrix")
-    if not np.allclose(arr[3], (0.0, 0.0, 0.0, 1.0)):
+    if arr[3].tolist() != [0.0, 0.0, 0.0, 1.0]:
         raise ValueError(f"{name} must have a last row of (0, 0, 0, 1)")
     _rotation(arr[:3, :3], name)
     return arr
@@ -412,6 +415,11 @@ class Cuboid:
                 t_far = np.fmin(t_far, np.fmax(t1, t2))
         return t_near, t_far, face
 
+    def interval(self, rays: Rays) -> tuple[np.ndarray, np.ndarray]:
+        """(entry, exit) ray parameters of the box; entry > exit where the ray misses."""
+        t_near, t_far, _ = self._slabs(rays, track_face=False)
+        return t_near, t_far
+
     def entered_face(self, rays: Rays) -> tuple[np.ndarray, np.ndarray]:
         """(t, local axis index of the face each ray enters by)."""
         t_near, t_far, face = self._slabs(rays, track_face=True)
@@ -448,9 +456,9 @@ class Ellipsoid:
             raise ValueError(f"semi_axes must be positive, got {self.semi_axes!r}")
         object.__setattr__(self, "semi_axes", semi)
 
-    def intersect(self, rays: Rays) -> np.ndarray:
+    def _roots(self, rays: Rays) -> tuple[np.ndarray, np.ndarray]:
         # (t d - c)^T M (t d - c) = 1 with M = R diag(1/s²) R^T: a quadratic in t whose
-        # coefficients are quadratic / linear forms of d.
+        # coefficients are quadratic / linear forms of d. NaN where the ray misses.
         rs = self.rotation / self.semi_axes
         m = rs @ rs.T
         c = self.center
@@ -458,7 +466,15 @@ class Ellipsoid:
         b = rays.lin(m @ c)
         cc = float(c @ m @ c) - 1.0
         with np.errstate(invalid="ignore", divide="ignore"):
-            t = (b - np.sqrt(b * b - a * cc)) / a
+            sq = np.sqrt(b * b - a * cc)
+            return (b - sq) / a, (b + sq) / a
+
+    def interval(self, rays: Rays) -> tuple[np.ndarray, np.ndarray]:
+        """(entry, exit) ray parameters; NaN where the ray misses."""
+        return self._roots(rays)
+
+    def intersect(self, rays: Rays) -> np.ndarray:
+        t = self._roots(rays)[0]
         return np.where(t > _EPS_T, t, np.inf)
 
     def transformed(self, pose: np.ndarray) -> Ellipsoid:
@@ -560,50 +576,52 @@ def _march_implicit(
     f_local: Callable[[np.ndarray], np.ndarray],
     center: np.ndarray,
     rotation: np.ndarray,
-    bound_radius: float,
+    bound: Cuboid | Ellipsoid,
     rays: Rays,
     steps: int,
 ) -> np.ndarray:
     """First root of an implicit surface (f <= 0 inside, local frame) along each ray: sample
-    ``steps`` points across the bounding sphere, then bisect the first sign change."""
+    ``steps`` points across the convex ``bound``, then bisect the first sign change.
+
+    A feature thinner than the chord / ``steps`` can be stepped over at grazing incidence.
+    """
     shape = rays.shape
+    t_near, t_far = bound.interval(rays)
+    t_near = np.broadcast_to(t_near, shape).reshape(-1)
+    t_far = np.broadcast_to(t_far, shape).reshape(-1)
+    out = np.full(t_near.size, np.inf)
+    hits = np.flatnonzero((t_near <= t_far) & (t_far > _EPS_T))
+    if hits.size == 0:
+        return out.reshape(shape)
     d = np.stack(
         [
-            np.broadcast_to(np.asarray(c, dtype=np.float64), shape)
+            np.broadcast_to(np.asarray(c, dtype=np.float64), shape).reshape(-1)[hits]
             for c in (rays.dx, rays.dy, rays.dz)
         ],
         axis=-1,
-    ).reshape(-1, 3)
-    a = np.einsum("ij,ij->i", d, d)
-    b = d @ center
-    cc = float(center @ center) - bound_radius**2
-    with np.errstate(invalid="ignore"):
-        sq = np.sqrt(b * b - a * cc)
-    t_in = np.maximum((b - sq) / a, _EPS_T)
-    t_out = (b + sq) / a
-    out = np.full(len(d), np.inf)
-    rays_in = np.flatnonzero(np.isfinite(sq) & (t_out > t_in))
-    if rays_in.size == 0:
-        return out.reshape(shape)
-    dr = d[rays_in]
+    )
+    t_in = np.maximum(t_near[hits], _EPS_T)
     frac = np.linspace(0.0, 1.0, steps)
-    ts = t_in[rays_in, None] + (t_out - t_in)[rays_in, None] * frac[None, :]
+    ts = t_in[:, None] + (t_far[hits] - t_in)[:, None] * frac[None, :]
 
     def f_at(t: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         return f_local((t[..., None] * dirs - center) @ rotation)
 
-    inside = f_at(ts, dr[:, None, :]) <= 0.0
+    inside = f_at(ts, d[:, None, :]) <= 0.0
     first = np.argmax(inside, axis=1)
-    rows = np.flatnonzero(inside.any(axis=1) & (first > 0))
+    found = inside.any(axis=1)
+    at_entry = np.flatnonzero(found & (first == 0))
+    out[hits[at_entry]] = ts[at_entry, 0]
+    rows = np.flatnonzero(found & (first > 0))
     lo = ts[rows, first[rows] - 1]
     hi = ts[rows, first[rows]]
-    dk = dr[rows]
-    for _ in range(30):
+    dk = d[rows]
+    for _ in range(24):
         mid = 0.5 * (lo + hi)
         inner = f_at(mid, dk) <= 0.0
         hi = np.where(inner, mid, hi)
         lo = np.where(inner, lo, mid)
-    out[rays_in[rows]] = hi
+    out[hits[rows]] = hi
     return out.reshape(shape)
 
 
@@ -615,7 +633,7 @@ class Superellipsoid:
     rotation: np.ndarray
     semi_axes: np.ndarray
     exponent: float = 4.0
-    steps: int = 96
+    steps: int = 48
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _vec3(self.center, "center"))
@@ -628,12 +646,21 @@ class Superellipsoid:
             raise ValueError(f"exponent must be >= 2 (convex), got {self.exponent}")
 
     def _f(self, p: np.ndarray) -> np.ndarray:
-        return np.sum(np.abs(p / self.semi_axes) ** self.exponent, axis=-1) - 1.0
+        e = self.exponent
+        if e == int(e) and int(e) % 2 == 0:
+            # Even integer powers by repeated products: much faster than a general pow.
+            q2 = np.square(p / self.semi_axes)
+            q = q2
+            for _ in range(int(e) // 2 - 1):
+                q = q * q2
+        else:
+            q = np.abs(p / self.semi_axes) ** e
+        return np.sum(q, axis=-1) - 1.0
 
     def intersect(self, rays: Rays) -> np.ndarray:
-        return _march_implicit(
-            self._f, self.center, self.rotation, self.bounds()[1], rays, self.steps
-        )
+        # The solid lies within its box of semi-axes.
+        box = Cuboid(self.center, self.rotation, 2.0 * self.semi_axes)
+        return _march_implicit(self._f, self.center, self.rotation, box, rays, self.steps)
 
     def transformed(self, pose: np.ndarray) -> Superellipsoid:
         rot = pose[:3, :3]
@@ -657,7 +684,7 @@ class BumpyEllipsoid:
     rotation: np.ndarray
     semi_axes: np.ndarray
     amplitude: float = 0.06
-    steps: int = 96
+    steps: int = 48
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _vec3(self.center, "center"))
@@ -679,9 +706,9 @@ class BumpyEllipsoid:
         return r - 1.0 - self.amplitude * g
 
     def intersect(self, rays: Rays) -> np.ndarray:
-        return _march_implicit(
-            self._f, self.center, self.rotation, self.bounds()[1], rays, self.steps
-        )
+        # |g| <= 1.5, so the solid lies within the ellipsoid scaled by 1 + 1.5 amplitude.
+        shell = Ellipsoid(self.center, self.rotation, self.semi_axes * (1.0 + 1.5 * self.amplitude))
+        return _march_implicit(self._f, self.center, self.rotation, shell, rays, self.steps)
 
     def transformed(self, pose: np.ndarray) -> BumpyEllipsoid:
         rot = pose[:3, :3]
@@ -1140,9 +1167,11 @@ class NoiseModel:
 
     - Range noise: Gaussian on z with RMS ``z**2 * subpixel_px / (fx * baseline_m)``
       (0.17 mm at 150 mm, 0.47 mm at 250 mm for fx = 213 px).
-    - Flying pixels: a pixel whose 4-neighbour differs in depth by more than
-      ``flying_jump_rel * z`` is on a depth edge; with ``flying_probability`` it takes a depth
-      between its own and that neighbour's (mix uniform in ``flying_mix``).
+    - Flying pixels: a pixel whose disparity (fx B / z, what stereo matching measures)
+      differs from a 4-neighbour's by more than ``flying_jump_px`` is on a depth edge; with
+      ``flying_probability`` it takes a depth between its own and that neighbour's (mix
+      uniform in ``flying_mix``). A plane, even at grazing view, has a disparity step well
+      under a pixel per pixel, so only real discontinuities fly.
     - Holes: each pixel is dropped (0) with probability ``hole_fraction``.
     - Shadow: pixels whose point is hidden from the second imager, ``baseline_m`` along +x,
       are 0 (a band to the left of near objects).
@@ -1153,7 +1182,7 @@ class NoiseModel:
     subpixel_px: float = 0.08
     baseline_m: float = 0.05
     range_noise: bool = True
-    flying_jump_rel: float = 0.05
+    flying_jump_px: float = 2.0
     flying_probability: float = 0.5
     flying_mix: tuple[float, float] = (0.15, 0.85)
     hole_fraction: float = 0.003
@@ -1162,7 +1191,7 @@ class NoiseModel:
     max_range_m: float = 4.0
 
     def __post_init__(self) -> None:
-        for name in ("subpixel_px", "baseline_m", "flying_jump_rel", "max_range_m"):
+        for name in ("subpixel_px", "baseline_m", "flying_jump_px", "max_range_m"):
             _positive(getattr(self, name), name)
         for name in ("flying_probability", "hole_fraction"):
             value = getattr(self, name)
@@ -1282,22 +1311,23 @@ def exact_depth(
     return _render_exact(scene, intrinsics, camera_pose, dtype)[0]
 
 
-def _flying_pixels(z: np.ndarray, noise: NoiseModel, rng: np.random.Generator) -> None:
-    """Blend pixels on a depth edge toward their neighbour across it (in place).
+def _flying_pixels(
+    z: np.ndarray, disparity: np.ndarray, noise: NoiseModel, rng: np.random.Generator
+) -> None:
+    """Blend pixels on a disparity edge toward their neighbour across it (z in place).
 
-    |a - b| > rel * max(a, b)  <=>  a < (1 - rel) b  or  b < (1 - rel) a; pairs with a missing
-    end (inf) are dropped afterwards, on the short candidate list.
+    Pairs with a missing end (disparity 0) are dropped on the short candidate list.
     """
     width = z.shape[1]
     flat = z.reshape(-1)
-    kz = flat * (1.0 - noise.flying_jump_rel)
-    with np.errstate(invalid="ignore"):
-        right = np.flatnonzero((flat[:-1] < kz[1:]) | (flat[1:] < kz[:-1]))
-        right = right[right % width != width - 1]
-        down = np.flatnonzero((flat[:-width] < kz[width:]) | (flat[width:] < kz[:-width]))
+    disp = disparity.reshape(-1)
+    jump = noise.flying_jump_px
+    right = np.flatnonzero(np.abs(disp[:-1] - disp[1:]) > jump)
+    right = right[right % width != width - 1]
+    down = np.flatnonzero(np.abs(disp[:-width] - disp[width:]) > jump)
     p = np.concatenate([right, right + 1, down, down + width])
     q = np.concatenate([right + 1, right, down + width, down])
-    keep = np.isfinite(flat[p]) & np.isfinite(flat[q])
+    keep = (disp[p] > 0) & (disp[q] > 0)
     p, q = p[keep], q[keep]
     if p.size == 0:
         return
@@ -1308,20 +1338,26 @@ def _flying_pixels(z: np.ndarray, noise: NoiseModel, rng: np.random.Generator) -
     flat[p] = source_p + mix * (source_q - source_p)
 
 
-def _shadow_mask(z: np.ndarray, fx: float, baseline_m: float, first_col: int = 0) -> np.ndarray:
-    """Pixels hidden from a second imager displaced by ``baseline_m`` along +x.
+def _shadow_mask(disparity: np.ndarray) -> np.ndarray:
+    """Pixels hidden from a second imager displaced by the baseline along +x.
 
-    A point at column u and depth z appears in the second view at u - f B / z. Along a row, a
-    pixel is hidden when some pixel to its right lands further left in that view (it is nearer
-    and covers it): a reverse running minimum per row. ``first_col`` is the column of z[:, 0].
+    A point at column u with disparity d = f B / z appears in the second view at u - d.
+    Along a row, a pixel is hidden when some pixel to its right lands further left in that
+    view (it is nearer and covers it): a reverse running minimum per row.
     """
-    cols = np.arange(first_col, first_col + z.shape[1], dtype=z.dtype)[None, :]
-    with np.errstate(divide="ignore"):
-        seen_at = cols - (fx * baseline_m) / z
+    cols = np.arange(disparity.shape[1], dtype=disparity.dtype)[None, :]
+    seen_at = cols - disparity
     running = np.minimum.accumulate(seen_at[:, ::-1], axis=1)[:, ::-1]
-    hidden = np.zeros(z.shape, dtype=bool)
+    hidden = np.zeros(disparity.shape, dtype=bool)
     np.less(running[:, 1:], seen_at[:, :-1], out=hidden[:, :-1])
     return hidden
+
+
+@lru_cache(maxsize=4)
+def _range_noise_table(scale: float, dtype: str) -> np.ndarray:
+    table = (_normal_quantiles() * scale).astype(dtype)
+    table.setflags(write=False)
+    return table
 
 
 def _apply_noise(
@@ -1331,19 +1367,22 @@ def _apply_noise(
     noise: NoiseModel,
     shadow_extent: tuple[int, int, int] | None,
 ) -> np.ndarray:
-    """Noise ``z`` (metres, modified in place) into uint16 depth units.
+    """Noise ``z`` (metres, inf = no return; modified in place) into uint16 depth units.
 
     rng draws, in this order: flying-pixel choices and mixes, range noise, holes.
     """
     hidden = None
-    if noise.shadow and shadow_extent is not None:
-        v0, v1, u1 = shadow_extent
-        hidden = _shadow_mask(z[v0:v1, :u1], intrinsics.fx, noise.baseline_m)
-    if noise.flying_probability > 0:
-        _flying_pixels(z, noise, rng)
+    if noise.shadow or noise.flying_probability > 0:
+        with np.errstate(divide="ignore"):
+            disparity = (intrinsics.fx * noise.baseline_m) / z
+        if noise.shadow and shadow_extent is not None:
+            v0, v1, u1 = shadow_extent
+            hidden = _shadow_mask(disparity[v0:v1, :u1])
+        if noise.flying_probability > 0:
+            _flying_pixels(z, disparity, noise, rng)
     if noise.range_noise:
         scale = noise.subpixel_px / (intrinsics.fx * noise.baseline_m)
-        table = (_normal_quantiles() * scale).astype(z.dtype)
+        table = _range_noise_table(scale, str(z.dtype))
         g = table[rng.integers(0, 65536, size=z.shape, dtype=np.uint16)]
         with np.errstate(invalid="ignore"):
             g *= z
@@ -1356,7 +1395,9 @@ def _apply_noise(
         valid[v0:v1, :u1] &= ~hidden
     units = np.multiply(z, 1.0 / intrinsics.depth_scale, out=z)
     np.rint(units, out=units)
-    out = np.where(valid, units, 0).astype(np.uint16)
+    with np.errstate(invalid="ignore"):
+        out = units.astype(np.uint16)  # NaN / inf cast to junk, zeroed just below
+    out *= valid
     if noise.hole_fraction > 0:
         n_holes = int(rng.binomial(out.size, noise.hole_fraction))
         out.reshape(-1)[rng.choice(out.size, n_holes, replace=False)] = 0
