@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("services.cli.bench", "benchmarks that print their figures"),
     "tactors": ("services.cli.tactors", "pulse each tactor in turn to fit a user (tactors test)"),
     "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
+    "replay": ("services.cli.replay", "re-run the pipeline on a recording; --check compares"),
     "export": ("services.cli.export", "re-log a recording in Foxglove's schemas (--foxglove)"),
 }
 

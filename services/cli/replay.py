@@ -1,0 +1,327 @@
+"""``lpc replay FILE.mcap``: run the pipeline's step functions in-process on a recording.
+
+The recorded inputs (depth or scans, EMG, prosthesis state) are merged by log time, then file
+order, and handed to the same step functions the services run, with the recorded clock (see
+``lpc_core.replay``). ``--out`` writes the inputs and the new outputs to an MCAP file (itself
+replayable: replaying it reproduces it byte for byte). ``--check`` compares the new outputs
+with the recorded ones, topic by topic, prints the first differences and exits 1 if any.
+
+The file is read once: recorded outputs are indexed ``--horizon`` seconds of log time ahead
+of the inputs handed to the step functions, which is how the replay knows which frames the
+live services handled and when their outputs arrived.
+
+Exit status: 0 when the replay ran (and the check passed); 1 when the check found differences;
+2 when the file cannot be replayed. A file cut short is replayed up to its last good chunk and
+the cut is reported (status 0); if nothing before the cut is readable, status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections import Counter, defaultdict, deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from lpc_core.replay import Recorded, Replay, check, default_nodes, volatile_fields
+from schemas import BadMessage, decode
+from services.mcap_log import (
+    COMPRESSIONS,
+    DEFAULT_COMPRESSION,
+    Cut,
+    LoggedMessage,
+    LogWriter,
+    McapLog,
+    McapLogError,
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", metavar="FILE.mcap", help="the recording to replay")
+    parser.add_argument("--out", metavar="OUT.mcap", help="write the inputs and new outputs here")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="compare the new outputs with the recorded ones; exit 1 on any difference",
+    )
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument(
+        "--speed", type=float, metavar="X", help="pace the replay at X times the recorded rate"
+    )
+    pace.add_argument("--fast", action="store_true", help="as fast as possible (the default)")
+    parser.add_argument(
+        "--all-frames",
+        action="store_true",
+        help="handle every recorded frame, not only those the live services handled",
+    )
+    parser.add_argument(
+        "--compression",
+        choices=sorted(COMPRESSIONS),
+        default=DEFAULT_COMPRESSION,
+        help=f"compression of --out (default {DEFAULT_COMPRESSION})",
+    )
+    parser.add_argument(
+        "--horizon",
+        type=float,
+        default=2.0,
+        metavar="S",
+        help="how far ahead, in log time, an input's recorded outputs may come (default 2 s)",
+    )
+    parser.add_argument(
+        "--max-differences", type=int, default=20, metavar="N", help="print at most N (20)"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.speed is not None and not args.speed > 0:
+        return _fail("--speed must be positive")
+    if not args.horizon >= 0:
+        return _fail("--horizon must be >= 0")
+    path = Path(args.file)
+    try:
+        log = McapLog(path)
+    except McapLogError as exc:
+        return _fail(str(exc))
+    with log:
+        return _replay(args, path, log)
+
+
+def _fail(text: str) -> int:
+    print(f"lpc replay: error: {text}", file=sys.stderr)
+    return 2
+
+
+def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
+    nodes = default_nodes()
+    frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
+    replay = Replay(nodes, log.topics(), frames, all_frames=args.all_frames)
+    if not replay.inputs:
+        if log.cut is not None:
+            return _fail(f"{path}: {log.cut.describe()}; no replay input before the cut")
+        wanted = sorted({r.key for n in nodes for r in n.routes if not r.key.startswith("<")})
+        return _fail(f"{path} holds none of the replay inputs ({', '.join(wanted)})")
+
+    reader = _ReadAhead(log, replay, frames, args)
+    out_tmp = Path(f"{args.out}.partial") if args.out else None
+    writer = LogWriter(out_tmp, compression=args.compression) if out_tmp else None
+    replayed: dict[str, list[Any]] = defaultdict(list)
+    counts: Counter[str] = Counter()
+    first_ns = last_ns = 0
+    started = time.perf_counter()
+    try:
+        for event in replay.run(reader.inputs()):
+            first_ns = first_ns or event.log_time
+            last_ns = event.log_time
+            source = event.source
+            if source is not None:
+                counts["<inputs>"] += 1
+                if writer is not None:
+                    writer.write_raw(
+                        event.key,
+                        source.payload,
+                        log_time=source.log_time,
+                        publish_time=event.message.t_ns,
+                        sequence=event.message.seq,
+                    )
+                continue
+            counts[event.key] += 1
+            if writer is not None:
+                writer.write(event.key, event.message, event.log_time)
+            if args.check:
+                replayed[event.key].append(event.message)
+    finally:
+        if writer is not None:
+            writer.finish()
+    elapsed = time.perf_counter() - started
+    if out_tmp is not None:
+        os.replace(out_tmp, args.out)
+    _report_run(args, path, replay, reader, counts, (last_ns - first_ns) / 1e9, elapsed)
+
+    cut = log.cut
+    if cut is not None:
+        if counts["<inputs>"] == 0:
+            return _fail(f"{path}: {cut.describe()}; nothing before the cut to replay")
+        print(f"warning: {path}: {cut.describe()}; replayed the readable part", file=sys.stderr)
+    if not args.check:
+        return 0
+    return _report_check(args, replay, reader, replayed, cut)
+
+
+def _report_run(
+    args: argparse.Namespace,
+    path: Path,
+    replay: Replay,
+    reader: _ReadAhead,
+    counts: Counter[str],
+    span_s: float,
+    elapsed_s: float,
+) -> None:
+    inputs = counts["<inputs>"]
+    outputs = sum(counts.values()) - inputs
+    speed = f"{span_s / elapsed_s:.1f}x real time" if elapsed_s > 0 else "-"
+    print(
+        f"replayed {span_s:.3f} s of {path} in {elapsed_s:.3f} s ({speed}): "
+        f"{inputs} inputs ({', '.join(sorted(replay.inputs))}), {outputs} outputs"
+    )
+    for key in sorted(replay.outputs):
+        print(f"  {key:<24} {counts[key]:>7}")
+    print(
+        f"  nodes: {', '.join(n.name for n in replay.plan.nodes)}; "
+        f"inputs the live services skipped: {dict(replay.gated) or 0}"
+    )
+    for name, n in replay.errors.items():
+        print(f"  {name} refused {n} messages; first: {replay.first_error[name]}")
+    for key, n in reader.undecodable.items():
+        print(f"  skipped {n} undecodable {key} inputs")
+    if reader.late:
+        print(
+            f"warning: {reader.late} recorded outputs came more than {args.horizon} s after "
+            "their input; replay again with a larger --horizon",
+            file=sys.stderr,
+        )
+    if args.out:
+        print(f"wrote {args.out}")
+
+
+class _FrameOf(msgspec.Struct):
+    """Just enough of an output message to name its frame."""
+
+    frame_seq: int | None = None
+
+
+_FRAME_DECODER = msgspec.msgpack.Decoder(_FrameOf)
+
+
+class _ReadAhead:
+    """One pass over the log. Recorded outputs are indexed ``horizon`` seconds of log time
+    before the inputs they follow are handed out, so the replay knows, when it reaches a
+    frame, whether the live service handled it and when its output arrived; the file is read
+    and decompressed once."""
+
+    def __init__(
+        self,
+        log: McapLog,
+        replay: Replay,
+        frames: dict[str, dict[int, tuple[int, int]]],
+        args: argparse.Namespace,
+    ) -> None:
+        self.log = log
+        self.replay = replay
+        self.frames = frames
+        self.check = args.check
+        self.speed = args.speed
+        self.horizon_ns = int(args.horizon * 1e9)
+        self.keep_payload = bool(args.out)
+        self.recorded: dict[str, list[tuple[int, int, Any]]] = defaultdict(list)
+        self.bad_recorded: Counter[str] = Counter()
+        self.undecodable: Counter[str] = Counter()
+        self.late = 0
+        self._start: tuple[float, int] | None = None
+
+    def inputs(self) -> Iterator[Recorded]:
+        inputs, outputs = self.replay.inputs, self.replay.outputs
+        pending: deque[LoggedMessage] = deque()
+        for m in self.log.messages():
+            if m.key in outputs:
+                self._index(m)
+            elif m.key in inputs:
+                pending.append(m)
+            while pending and pending[0].log_time + self.horizon_ns <= m.log_time:
+                item = self._input(pending.popleft())
+                if item is not None:
+                    yield item
+        while pending:
+            item = self._input(pending.popleft())
+            if item is not None:
+                yield item
+
+    def _index(self, m: LoggedMessage) -> None:
+        try:
+            frame = _FRAME_DECODER.decode(m.payload).frame_seq
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            frame = None
+        if frame is not None and frame not in self.frames[m.key]:
+            self.frames[m.key][frame] = (m.log_time, m.order)
+            if frame in self.replay.offered.get(m.key, ()):
+                self.late += 1  # its input was already handled, or skipped
+        if self.check:
+            try:
+                self.recorded[m.key].append((m.log_time, m.order, decode(m.key, m.payload)))
+            except (BadMessage, KeyError):
+                self.bad_recorded[m.key] += 1
+
+    def _input(self, m: LoggedMessage) -> Recorded | None:
+        try:
+            message = decode(m.key, m.payload)
+        except (BadMessage, KeyError):
+            self.undecodable[m.key] += 1
+            return None
+        if self.speed is not None:
+            self._pace(m.log_time)
+        payload = m.payload if self.keep_payload else b""
+        return Recorded(m.key, message, m.log_time, m.order, payload)
+
+    def _pace(self, log_time: int) -> None:
+        # Recording time and wall time kept apart: sleep until this input is due.
+        if self._start is None:
+            self._start = (time.perf_counter(), log_time)
+        wall0, log0 = self._start
+        delay = wall0 + (log_time - log0) / 1e9 / self.speed - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+
+
+def _report_check(
+    args: argparse.Namespace,
+    replay: Replay,
+    reader: _ReadAhead,
+    replayed: dict[str, list[Any]],
+    cut: Cut | None,
+) -> int:
+    compared = sorted(k for k in replay.outputs if k in reader.recorded)
+    if not compared:
+        print(
+            f"check: {args.file} holds none of the outputs "
+            f"({', '.join(sorted(replay.outputs))}); nothing to compare"
+        )
+        return 1
+    recorded = {
+        k: [m for *_, m in sorted(reader.recorded[k], key=lambda r: r[:2])] for k in compared
+    }
+    result = check(
+        recorded,
+        {k: replayed.get(k, []) for k in compared},
+        volatile=volatile_fields(replay.plan.nodes),
+        offered=replay.offered,
+        cut=cut is not None,
+        all_frames=args.all_frames,
+        limit=args.max_differences,
+    )
+    for key, n in reader.bad_recorded.items():
+        print(f"check: {n} recorded {key} messages do not decode; not compared")
+    summary = ", ".join(f"{k} {result.compared[k]}" for k in compared)
+    missing = sorted(replay.outputs - set(compared))
+    if missing:
+        summary += f"; not in the recording: {', '.join(missing)}"
+    if result.ok:
+        print(f"check: no differences ({summary})")
+        return 0
+    print(f"check: {result.total} differences ({summary}); the first {len(result.differences)}:")
+    for diff in result.differences:
+        print(f"  {diff.describe()}")
+    return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lpc replay", description=__doc__)
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,387 @@
+"""Deterministic replay: the pure engine with scripted nodes, the check, and ``lpc replay`` on
+real MCAP files with the pipeline's own step functions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import pytest
+
+from lpc_core import scene as sc
+from lpc_core.intrinsics import Intrinsics
+from lpc_core.pipeline import ScansState, intrinsics_to_message, scans_step
+from lpc_core.replay import (
+    TICK,
+    Node,
+    Recorded,
+    Replay,
+    Route,
+    Tick,
+    check,
+    default_nodes,
+    first_difference,
+    plan,
+)
+from lpc_core.scans import ScanParams
+from schemas import (
+    AimCue,
+    DepthFrame,
+    EmgSample,
+    GraspTarget,
+    ProsthesisState,
+    ScanLines,
+    to_wire,
+)
+from services.cli import main as lpc
+from services.cli import replay as replay_cli
+from services.mcap_log import LogWriter, McapLog
+
+T0 = 1_700_000_000_000_000_000
+MS = 1_000_000
+
+# --------------------------------------------------------------------------- scripted nodes
+
+
+@dataclass
+class Tape:
+    """A scripted node's state: every (what, seq, now_ns) it handled."""
+
+    seen: list[tuple[str, int, int]] = field(default_factory=list)
+
+
+def scan_of(frame: DepthFrame, seq: int) -> ScanLines:
+    return ScanLines(seq=seq, t_ns=frame.t_ns, frame_seq=frame.seq, lines=[])
+
+
+def fake_scans(state: Tape, frame: DepthFrame, now_ns: int) -> tuple[Tape, ScanLines]:
+    state.seen.append(("depth", frame.seq, now_ns))
+    return state, scan_of(frame, len(state.seen))
+
+
+def fake_aim(state: Tape, message: Any, now_ns: int) -> tuple[Tape, list[Any]]:
+    if isinstance(message, EmgSample):
+        state.seen.append(("emg", message.seq, now_ns))
+        return state, []
+    state.seen.append(("scans", message.frame_seq, now_ns))
+    cue = AimCue(
+        seq=len(state.seen), t_ns=message.t_ns, frame_seq=message.frame_seq, state="nothing"
+    )
+    return state, [cue]
+
+
+def scripted_nodes() -> tuple[Node, ...]:
+    return (
+        Node(
+            "scans",
+            Tape,
+            (Route("lpc/camera/depth", fake_scans, gated=True),),
+            ("lpc/scans",),
+            gate="lpc/scans",
+        ),
+        Node(
+            "aim",
+            Tape,
+            (Route("lpc/scans", fake_aim, gated=True), Route("lpc/emg", fake_aim)),
+            ("lpc/aim/cue",),
+            gate="lpc/aim/cue",
+        ),
+    )
+
+
+def depth(seq: int, t: int) -> DepthFrame:
+    intrinsics = intrinsics_to_message(
+        Intrinsics(width=2, height=1, fx=1.0, fy=1.0, ppx=1.0, ppy=0.5)
+    )
+    return DepthFrame(
+        seq=seq, t_ns=t, intrinsics=intrinsics, depth=to_wire(np.zeros((1, 2), np.uint16))
+    )
+
+
+def emg(seq: int, t: int) -> EmgSample:
+    return EmgSample(seq=seq, t_ns=t, channels=[0.0, 0.0])
+
+
+def test_plan_depth_makes_recorded_scans_an_output() -> None:
+    nodes = scripted_nodes()
+    p = plan(nodes, {"lpc/camera/depth", "lpc/scans", "lpc/emg"})
+    assert p.inputs == {"lpc/camera/depth", "lpc/emg"}
+    assert p.outputs == {"lpc/scans", "lpc/aim/cue"}
+    p = plan(nodes, {"lpc/scans", "lpc/aim/cue"})
+    assert [n.name for n in p.nodes] == ["aim"]
+    assert p.inputs == {"lpc/scans"} and p.outputs == {"lpc/aim/cue"}
+    assert plan(nodes, {"lpc/health/x"}).inputs == frozenset()
+
+
+def test_replay_merges_by_log_time_then_file_order_with_recorded_clock() -> None:
+    inputs = [
+        Recorded("lpc/emg", emg(0, T0), T0 + 1 * MS, 0),
+        Recorded("lpc/camera/depth", depth(0, T0), T0 + 2 * MS, 1),
+        Recorded("lpc/emg", emg(1, T0), T0 + 2 * MS, 2),  # same log time: file order decides
+        Recorded("lpc/emg", emg(2, T0), T0 + 3 * MS, 3),
+    ]
+    replay = Replay(scripted_nodes(), {"lpc/camera/depth", "lpc/emg"})
+    events = list(replay.run(inputs))
+    assert [(e.key, e.log_time) for e in events] == [
+        ("lpc/emg", T0 + 1 * MS),
+        ("lpc/camera/depth", T0 + 2 * MS),
+        ("lpc/scans", T0 + 2 * MS),  # nothing recorded: delivered at once, before what follows
+        ("lpc/aim/cue", T0 + 2 * MS),
+        ("lpc/emg", T0 + 2 * MS),
+        ("lpc/emg", T0 + 3 * MS),
+    ]
+    assert replay.states["aim"].seen == [
+        ("emg", 0, T0 + 1 * MS),
+        ("scans", 0, T0 + 2 * MS),
+        ("emg", 1, T0 + 2 * MS),
+        ("emg", 2, T0 + 3 * MS),
+    ]
+    assert events[1].source is inputs[1] and events[2].source is None
+
+
+def test_replay_gating_handles_only_frames_handled_live() -> None:
+    inputs = [
+        Recorded("lpc/camera/depth", depth(i, T0 + i * 11 * MS), T0 + i * 11 * MS, i)
+        for i in range(6)
+    ]
+    recorded = {
+        "lpc/scans": {0: (T0 + 1 * MS, 100), 2: (T0 + 23 * MS, 101), 5: (T0 + 56 * MS, 102)}
+    }
+    keys = {"lpc/camera/depth", "lpc/scans"}
+    replay = Replay(scripted_nodes(), keys, recorded)
+    outputs = [e for e in replay.run(inputs) if e.key == "lpc/scans"]
+    assert [e.message.frame_seq for e in outputs] == [0, 2, 5]
+    assert replay.gated == {"scans": 3}
+    assert replay.offered["lpc/scans"] == set(range(6))
+    every = Replay(scripted_nodes(), keys, recorded, all_frames=True)
+    assert len([e for e in every.run(inputs) if e.key == "lpc/scans"]) == 6
+
+
+def test_replay_delivers_outputs_at_their_recorded_time() -> None:
+    # Live, the scans of frame 0 reached the recorder 5 ms after the depth, after two EMG
+    # samples; the aim step must see them in that order again.
+    inputs = [
+        Recorded("lpc/camera/depth", depth(0, T0), T0, 0),
+        Recorded("lpc/emg", emg(0, T0), T0 + 2 * MS, 1),
+        Recorded("lpc/emg", emg(1, T0), T0 + 4 * MS, 2),
+        Recorded("lpc/emg", emg(2, T0), T0 + 6 * MS, 4),
+    ]
+    recorded = {"lpc/scans": {0: (T0 + 5 * MS, 3)}}
+    replay = Replay(scripted_nodes(), {"lpc/camera/depth", "lpc/emg", "lpc/scans"}, recorded)
+    events = list(replay.run(inputs))
+    assert [(e.key, e.log_time) for e in events] == [
+        ("lpc/camera/depth", T0),
+        ("lpc/emg", T0 + 2 * MS),
+        ("lpc/emg", T0 + 4 * MS),
+        ("lpc/scans", T0 + 5 * MS),
+        ("lpc/aim/cue", T0 + 5 * MS),
+        ("lpc/emg", T0 + 6 * MS),
+    ]
+    assert replay.states["aim"].seen[2] == ("scans", 0, T0 + 5 * MS)
+
+
+def test_replay_ticks_a_node_between_messages() -> None:
+    @dataclass(frozen=True)
+    class Beat:
+        t_ns: int
+
+    def heart(state: list[int], message: Any, now_ns: int) -> tuple[list[int], None]:
+        return [*state, now_ns if isinstance(message, Beat) else -message.seq], None
+
+    node = Node(
+        "heart", list, (Route("lpc/emg", heart), Route(TICK, heart)), (), tick=Tick(10 * MS, Beat)
+    )
+    inputs = [Recorded("lpc/emg", emg(i, T0), T0 + i * 25 * MS, i) for i in (1, 2)]
+    replay = Replay([node], {"lpc/emg"})
+    list(replay.run(inputs))
+    assert replay.states["heart"] == [-1, T0 + 35 * MS, T0 + 45 * MS, -2]
+
+
+def test_replay_refused_message_is_counted_and_state_kept() -> None:
+    def picky(state: int, message: EmgSample, now_ns: int) -> tuple[int, None]:
+        if message.seq == 1:
+            raise ValueError("seq 1 is bad")
+        return state + 1, None
+
+    node = Node("picky", int, (Route("lpc/emg", picky),), ())
+    replay = Replay([node], {"lpc/emg"})
+    list(replay.run(Recorded("lpc/emg", emg(i, T0), T0 + i, i) for i in range(3)))
+    assert replay.states["picky"] == 2
+    assert replay.errors == {"picky": 1}
+    assert "seq 1 is bad" in replay.first_error["picky"]
+
+
+# --------------------------------------------------------------------------- the check
+
+
+def target(frame: int, width: float, seq: int = 1) -> GraspTarget:
+    return GraspTarget(
+        seq=seq, t_ns=T0 + frame, frame_seq=frame, shape="sphere", grasp_width_mm=width
+    )
+
+
+def test_first_difference_names_the_field() -> None:
+    a = ScanLines(seq=1, t_ns=T0, frame_seq=3, lines=[], capture_points=10)
+    assert first_difference(a, msgspec.structs.replace(a, seq=2), {"seq"}) is None
+    changed = msgspec.structs.replace(a, capture_points=11)
+    assert first_difference(a, changed) == ("capture_points", "10", "11")
+    assert first_difference(target(1, 40.0), target(1, 41.5)) == ("grasp_width_mm", "40.0", "41.5")
+
+
+def test_check_matches_by_frame_and_skips_volatile_fields() -> None:
+    recorded = {
+        "lpc/grasp/target": [target(1, 40.0, seq=7), target(2, 40.0, seq=8), target(3, 40.0, seq=9)]
+    }
+    replayed = {"lpc/grasp/target": [target(1, 40.0), target(2, 42.0), target(4, 40.0)]}
+    volatile = {"lpc/grasp/target": frozenset({"seq"})}
+    result = check(recorded, replayed, volatile=volatile)
+    assert not result.ok and result.total == 3
+    got = [(d.where, d.path) for d in result.differences]
+    assert got == [("frame 2", "grasp_width_mm"), ("frame 3", ""), ("frame 4", "")]
+    assert "recorded 40.0, replayed 42.0" in result.differences[0].describe()
+    # Frames whose input the recording lacks are not held against the replay.
+    offered = {"lpc/grasp/target": {1, 2, 4}}
+    assert check(recorded, replayed, volatile=volatile, offered=offered).total == 2
+    same = check(recorded, {"lpc/grasp/target": recorded["lpc/grasp/target"]}, volatile=volatile)
+    assert same.ok and same.compared["lpc/grasp/target"] == 3
+
+
+# --------------------------------------------------------------------------- lpc replay
+
+INTRINSICS = Intrinsics(width=424, height=240, fx=213.0, fy=213.0, ppx=212.0, ppy=120.0)
+
+
+@pytest.fixture(scope="module")
+def depth_images() -> list[np.ndarray]:
+    """Four renders of a 40 mm ball on a table, approached from 230 to 200 mm."""
+    ball = sc.sphere_object("ball", (0.0, 0.0, 0.04), 0.04)
+    scene = sc.Scene(objects=(ball,), support=sc.table())
+    return [
+        sc.render_depth(
+            scene, INTRINSICS, sc.aim_pose(ball, 0.23 - 0.01 * i), np.random.default_rng(i)
+        )
+        for i in range(4)
+    ]
+
+
+def record_session(
+    path: Path, images: list[np.ndarray], n_frames: int = 24, params: ScanParams | None = None
+) -> None:
+    """A live-like session: depth at 90 Hz, EMG and hand state at 100 Hz, and the scans of
+    two frames in three (the live service skipped the rest) reaching the recorder 2 ms late."""
+    state = ScansState(params=params or ScanParams())
+    events: list[tuple[int, str, Any]] = []
+    for i in range(n_frames):
+        t = T0 + i * 11_111_111
+        frame = DepthFrame(
+            seq=i,
+            t_ns=t,
+            intrinsics=intrinsics_to_message(INTRINSICS),
+            depth=to_wire(images[i % len(images)]),
+        )
+        events.append((t + 300_000, "lpc/camera/depth", frame))
+        if i % 3 != 2:
+            state, scans = scans_step(state, frame, t)
+            events.append((t + 2 * MS, "lpc/scans", scans))
+    for i in range(n_frames * 100 // 90):
+        t = T0 + i * 10 * MS
+        events.append((t + 100_000, "lpc/emg", emg(i, t)))
+        hand = ProsthesisState(seq=i, t_ns=t, wrist_angle_deg=0.0, aperture_mm=80.0)
+        events.append((t + 200_000, "lpc/prosthesis/state", hand))
+    events.sort(key=lambda e: e[0])
+    with LogWriter(path) as writer:
+        for t, key, message in events:
+            writer.write(key, message, t)
+
+
+def test_replay_cli_check_passes_and_output_replays_byte_identical(
+    tmp_path: Path, depth_images: list[np.ndarray], capsys: pytest.CaptureFixture[str]
+) -> None:
+    record_session(tmp_path / "rec.mcap", depth_images)
+    assert (
+        lpc(
+            [
+                "replay",
+                str(tmp_path / "rec.mcap"),
+                "--check",
+                "--fast",
+                "--out",
+                str(tmp_path / "out1.mcap"),
+            ]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "check: no differences (lpc/scans 16" in out
+    assert "inputs the live services skipped: {'scans': 8}" in out
+    # The replay's own output is a recording: replaying it reproduces it byte for byte.
+    assert (
+        lpc(
+            ["replay", str(tmp_path / "out1.mcap"), "--check", "--out", str(tmp_path / "out2.mcap")]
+        )
+        == 0
+    )
+    assert "check: no differences" in capsys.readouterr().out
+    assert (tmp_path / "out1.mcap").read_bytes() == (tmp_path / "out2.mcap").read_bytes()
+    with McapLog(tmp_path / "out1.mcap") as log:
+        keys = log.topics()
+    assert {"lpc/camera/depth", "lpc/emg", "lpc/prosthesis/state", "lpc/scans"} <= keys
+    assert {n.outputs[0] for n in default_nodes()} <= keys
+
+
+def test_replay_cli_catches_a_changed_algorithm(
+    tmp_path: Path,
+    depth_images: list[np.ndarray],
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    record_session(tmp_path / "rec.mcap", depth_images, n_frames=6)
+
+    def wider_band() -> tuple[Node, ...]:
+        nodes = default_nodes()
+        scans = replace(nodes[0], init=lambda: ScansState(params=ScanParams(band_m=0.002)))
+        return (scans, *nodes[1:])
+
+    monkeypatch.setattr(replay_cli, "default_nodes", wider_band)
+    assert lpc(["replay", str(tmp_path / "rec.mcap"), "--check"]) == 1
+    out = capsys.readouterr().out
+    assert "check: 4 differences" in out
+    assert "lpc/scans frame 0 " in out and "recorded" in out and "replayed" in out
+
+
+def test_replay_cli_cut_file_replays_readable_part_and_names_last_good_time(
+    tmp_path: Path, depth_images: list[np.ndarray], capsys: pytest.CaptureFixture[str]
+) -> None:
+    record_session(tmp_path / "rec.mcap", depth_images)
+    data = (tmp_path / "rec.mcap").read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: len(data) // 2])
+    assert lpc(["replay", str(tmp_path / "cut.mcap"), "--check"]) == 0
+    captured = capsys.readouterr()
+    assert "cut short at byte" in captured.err and "last good time" in captured.err
+    assert "replayed the readable part" in captured.err
+    assert "check: no differences" in captured.out
+    (tmp_path / "stub.mcap").write_bytes(data[:100])
+    assert lpc(["replay", str(tmp_path / "stub.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert "cut short at byte" in err and "Traceback" not in err
+
+
+def test_replay_cli_bad_files_are_clear_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
+    assert lpc(["replay", str(tmp_path / "junk.mcap")]) == 2
+    assert "not an MCAP file" in capsys.readouterr().err
+    assert lpc(["replay", str(tmp_path / "missing.mcap")]) == 2
+    assert "cannot open" in capsys.readouterr().err
+    with LogWriter(tmp_path / "health.mcap") as writer:
+        writer.write("lpc/emg", emg(0, T0), T0)
+    with LogWriter(tmp_path / "nothing.mcap"):
+        pass
+    assert lpc(["replay", str(tmp_path / "nothing.mcap")]) == 2
+    assert "holds none of the replay inputs" in capsys.readouterr().err
+    assert lpc(["replay", str(tmp_path / "health.mcap"), "--check"]) == 1
+    assert "nothing to compare" in capsys.readouterr().out
