@@ -51,7 +51,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 for output in outputs:
                     # A few bytes into the port's kernel buffer: written on the loop, bounded
                     # by the driver's write timeout, saving a thread hand-off per frame.
-                    link.write(output)
+                    if link.write(output) == "reset":  # refused: all off sent, write again
+                        inbox.appendleft(PORT_OPENED)  # type: ignore[arg-type]
+                        arrived.set()
             if was_up and not link.up:
                 bus.log("warning", f"tactor port lost, retrying: {link.last_error}")
             was_up = link.up

@@ -141,11 +141,11 @@ def test_bridge_over_pty_stale_cue_reaches_the_controller_as_all_off() -> None:
         sim = link.driver.sim
         state, outputs = bridge_step(BridgeState(), command(0.9, 0.0, 0.0, 0.0), T0)
         for o in outputs:
-            assert link.write(o)
+            assert link.write(o) == "ok"
         assert sim.wait_for(lambda s: s.mask == 0b0001 and s.gain == 3, 2.0)
         state, outputs = bridge_step(state, TICK, T0 + 101 * MS)
         for o in outputs:
-            assert link.write(o)
+            assert link.write(o) == "ok"
         assert sim.wait_for(lambda s: s.mask == 0 and s.events[-1].command == 0x00, 2.0)
     finally:
         link.close()
@@ -162,11 +162,11 @@ def test_bridge_link_all_off_on_error_and_reopens_when_port_returns(tmp_path) ->
     second = None
     try:
         assert link.reopen(T0)
-        assert link.write(out(0.5, 0.5, 0, 0))
+        assert link.write(out(0.5, 0.5, 0, 0)) == "ok"
         assert first.wait_for(lambda s: s.mask == 0b0011, 2.0)
         first.close()  # unplugged
         port.unlink()
-        assert not link.write(out(0.5, 0, 0, 0))
+        assert link.write(out(0.5, 0, 0, 0)) == "down"
         assert not link.up and link.counters["errors"] == 1
         assert not link.reopen(T0 + 50 * MS)  # retry not due yet
         assert not link.reopen(T0 + 100 * MS)  # due, but the port is still gone
@@ -174,7 +174,7 @@ def test_bridge_link_all_off_on_error_and_reopens_when_port_returns(tmp_path) ->
         second = TactorSim()
         port.symlink_to(second.port)  # plugged back in
         assert link.reopen(T0 + 200 * MS)
-        assert link.write(out(0, 0, 0.5, 0))
+        assert link.write(out(0, 0, 0.5, 0)) == "ok"
         assert second.wait_for(lambda s: s.mask == 0b0100, 2.0)
     finally:
         link.close()

@@ -109,9 +109,9 @@ def test_link_counts_acks_and_naks() -> None:
     link = TactorLink(lambda: open_driver("sim"))
     try:
         assert link.reopen(0)
-        assert link.write(TactorOutput((0.5, 0.5, 0, 0)))
+        assert link.write(TactorOutput((0.5, 0.5, 0, 0))) == "ok"
         assert link.driver.sim.wait_for(lambda s: s.mask == 0b0011, 2.0)
-        assert link.write(OFF)
+        assert link.write(OFF) == "ok"
         assert link.counters["writes"] == 2 and link.counters["naks"] == 0
     finally:
         link.close()
@@ -137,3 +137,22 @@ def test_profile_gain_limits_loaded(tmp_path) -> None:
     path.write_text("{not json")
     with pytest.raises(ValueError, match="JSON"):
         load_profile(path)
+
+
+def test_link_nak_sends_all_off_and_asks_for_a_rewrite() -> None:
+    link = TactorLink(lambda: open_driver("sim"))
+    try:
+        assert link.reopen(0)
+        sim = link.driver.sim
+        assert link.write(TactorOutput((0.5, 0, 0, 0))) == "ok"
+        assert sim.wait_for(lambda s: s.mask == 0b0001, 2.0)
+        sim.nak_next = 1
+        status = link.write(TactorOutput((0, 0.5, 0, 0)))
+        assert sim.wait_for(lambda s: any(not e.ok for e in s.events), 2.0)
+        if status == "ok":  # the NAK came back after the write returned: the next write sees it
+            status = link.write(TactorOutput((0, 0.5, 0, 0)))
+        assert status == "reset"
+        assert sim.wait_for(lambda s: s.mask == 0 and s.events[-1].command == 0x00, 2.0)
+        assert link.counters["naks"] == 1
+    finally:
+        link.close()

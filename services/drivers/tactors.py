@@ -269,8 +269,9 @@ def open_driver(name: str, port: str | None = None, **kwargs: Any) -> TactorDriv
 
 
 class TactorLink:
-    """A driver that comes back. ``write`` never raises: on an error it tries all off, drops
-    the driver and counts; ``reopen(now_ns)`` tries again at most every ``retry_ns``."""
+    """A driver that comes back. ``write`` never raises: on a serial error it tries all off,
+    drops the driver and counts; on a NAK it sends all off and asks for a rewrite;
+    ``reopen(now_ns)`` tries again at most every ``retry_ns``."""
 
     def __init__(self, factory: Callable[[], TactorDriver], retry_ns: int = 500_000_000) -> None:
         self._factory = factory
@@ -298,21 +299,30 @@ class TactorLink:
         self.counters["opened"] += 1
         return True
 
-    def write(self, output: TactorOutput, timeout: float = 0.05) -> bool:
+    def write(self, output: TactorOutput, timeout: float = 0.05) -> str:
+        """Write ``output``: ``"ok"``; ``"reset"`` when the controller refused an earlier
+        command (it was sent all off, and what it holds is unknown: write again); ``"down"``
+        when the port failed or is closed."""
         if self.driver is None:
             self.counters["dropped_writes"] += 1
-            return False
+            return "down"
         try:
             self.driver.send(output, timeout)
             self.counters["writes"] += 1
+            refused = False
             while (reply := self.driver.recv(0.0)) is not None:
                 self.counters["acks" if reply.ok else "naks"] += 1
-            return True
+                refused |= not reply.ok
+            if refused:
+                self.last_error = "the controller refused a command"
+                self.driver.all_off(timeout)
+                return "reset"
+            return "ok"
         except DriverError as exc:
             self.counters["errors"] += 1
             self.last_error = str(exc)
             self.close()
-            return False
+            return "down"
 
     def close(self) -> None:
         if self.driver is not None:
