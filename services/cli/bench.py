@@ -8,6 +8,7 @@ import importlib
 # name -> (module, one-line help); each module defines add_arguments(parser) and run(args).
 BENCHES: dict[str, tuple[str, str]] = {
     "latency": ("services.cli.bench_latency", "depth frame capture to bytes on the tactor line"),
+    "compare": ("services.cli.bench_compare", "the four-line method against the full cloud"),
     "foxglove": ("services.cli.bench_foxglove", "Foxglove conversion, export and bridge figures"),
 }
 
