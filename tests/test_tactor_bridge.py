@@ -226,3 +226,29 @@ def test_bridge_service_switches_off_on_shutdown(endpoint: str, rendezvous: zeno
             proc.kill()
         proc.wait()
         sim.close()
+
+
+def test_bridge_service_reconnects_when_the_port_comes_back(
+    endpoint: str, rendezvous: zenoh.Session, tmp_path
+) -> None:
+    port = tmp_path / "ttyTACTOR"
+    first = TactorSim()
+    port.symlink_to(first.port)
+    proc = spawn_service(
+        "services.tactor_bridge", endpoint, "--tactor-port", str(port), "--stale-ms", "60000"
+    )
+    second = None
+    try:
+        assert first.wait_for(lambda s: s.bytes_received > 0, 30.0), "bridge never opened"
+        wait_for(lambda: _light(rendezvous, first, 0b0001), 20.0, "tactor 0 on")
+        first.close()  # unplugged: the next write fails, the port is gone
+        port.unlink()
+        second = TactorSim()
+        port.symlink_to(second.port)  # plugged back in under the same name
+        wait_for(lambda: _light(rendezvous, second, 0b0100), 20.0, "tactor 2 on the new port")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+        first.close()
+        if second is not None:
+            second.close()
