@@ -13,7 +13,14 @@ import contextlib
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
-from lpc_core.tactor_bridge import PORT_OPENED, TICK, BridgeParams, BridgeState, bridge_step
+from lpc_core.tactor_bridge import (
+    PORT_OPENED,
+    TICK,
+    BridgeParams,
+    BridgeState,
+    PortOpened,
+    bridge_step,
+)
 from schemas import TactorCommand
 from services.drivers.tactors import TactorLink, load_profile, open_driver, tactor_profile
 from services.runtime import Bus, run_service, service_parser
@@ -29,7 +36,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     link = TactorLink(lambda: open_driver(args.driver, args.tactor_port, baudrate=args.baud))
     serial_thread = ThreadPoolExecutor(1, thread_name_prefix="tactor-serial")
     loop = asyncio.get_running_loop()
-    inbox: collections.deque[TactorCommand] = collections.deque()
+    inbox: collections.deque[TactorCommand | PortOpened] = collections.deque()
     arrived = asyncio.Event()
 
     async def pump() -> None:
@@ -42,9 +49,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     was_up = False
     try:
         while True:
-            if await loop.run_in_executor(serial_thread, link.reopen, bus.clock.now_ns()):
+            # Opening waits for the controller's answer: off the loop, and only when down.
+            if not link.up and await loop.run_in_executor(
+                serial_thread, link.reopen, bus.clock.now_ns()
+            ):
                 bus.log("info", f"tactor port {link.driver.port} open ({args.driver})")
-                inbox.appendleft(PORT_OPENED)  # type: ignore[arg-type]
+                inbox.appendleft(PORT_OPENED)
             events = [inbox.popleft() for _ in range(len(inbox))] or [TICK]
             for event in events:
                 state, outputs = bridge_step(state, event, bus.clock.now_ns())
@@ -52,7 +62,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     # A few bytes into the port's kernel buffer: written on the loop, bounded
                     # by the driver's write timeout, saving a thread hand-off per frame.
                     if link.write(output) == "reset":  # refused: all off sent, write again
-                        inbox.appendleft(PORT_OPENED)  # type: ignore[arg-type]
+                        inbox.appendleft(PORT_OPENED)
                         arrived.set()
             if was_up and not link.up:
                 bus.log("warning", f"tactor port lost, retrying: {link.last_error}")
