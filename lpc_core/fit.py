@@ -14,6 +14,10 @@ consensus models: a point is an inlier when its distance is ``<= threshold``.
 
 A degenerate input gives a falsy :class:`FailedFit` carrying ``.reason``, never an
 exception; bad shapes or parameters raise ``ValueError`` naming the parameter.
+
+Speed: with ~100 points a fit is dominated by numpy's per-call overhead (~1 us), not by
+arithmetic, so the code below counts calls: scalar algebra runs on Python floats, and the
+per-hypothesis work is a handful of array expressions over all hypotheses at once.
 """
 
 from __future__ import annotations
@@ -26,6 +30,12 @@ from typing import ClassVar, NamedTuple, Protocol, Self, runtime_checkable
 import numpy as np
 
 __all__ = [
+    "AXIS_LIMITS_M",
+    "CIRCLE_TRIALS",
+    "CONFIDENCE",
+    "ELLIPSE_TRIALS",
+    "LINE_TRIALS",
+    "RADIUS_LIMITS_M",
     "CircleFit",
     "CircleModel",
     "EllipseFit",
@@ -48,19 +58,19 @@ RADIUS_LIMITS_M = (0.005, 0.05)
 AXIS_LIMITS_M = (0.005, 0.10)
 CONFIDENCE = 0.99
 
-# Trial budgets. A chunk of ``min_trials`` hypotheses is always scored; the standard RANSAC
-# bound then decides how many more (up to ``max_trials``) are needed, and they are scored in
-# one more chunk. The maxima are sized for the frame budget, not for the worst scan line.
+# Trial budgets (min_trials, max_trials). A first chunk of min_trials hypotheses is always
+# scored; the standard RANSAC bound at CONFIDENCE then says how many more are needed (up to
+# max_trials), and they are scored as one more chunk. Clean scan lines stop after the first
+# chunk; the maxima bound the time spent on lines the model does not describe.
 LINE_TRIALS = (16, 100)
 CIRCLE_TRIALS = (32, 200)
-ELLIPSE_TRIALS = (64, 256)
-# Ellipse hypotheses are ranked by Sampson distance on at most this many points, then the
-# best few are scored by the true orthogonal distance on every point.
+ELLIPSE_TRIALS = (128, 256)
+# Ellipse hypotheses are scored by Sampson distance on an evenly strided subsample of at most
+# this many points; the best few are then rescored on every point.
 ELLIPSE_SCORE_POINTS = 64
 ELLIPSE_TOP = 4
-# Newton steps for the orthogonal distance to an ellipse; the iteration is monotone and
-# quadratic near the root (see ``_ellipse_distance``), 8 steps reach ~1e-12 relative.
-ELLIPSE_NEWTON_STEPS = 8
+# Gauss-Newton steps of the geometric (orthogonal distance) polish of the ellipse refit.
+ELLIPSE_GN_STEPS = 3
 
 
 # --------------------------------------------------------------------------- results
@@ -133,6 +143,17 @@ def _as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
     return arr
 
 
+def _coincide(spread2: float, n: int, mx: float, my: float) -> bool:
+    """Whether points with squared spread ``spread2`` about their mean ``(mx, my)`` coincide
+    up to round-off (the mean itself is only exact to ~1e-16 of the coordinates)."""
+    return not spread2 > n * (1e-12 * (abs(mx) + abs(my))) ** 2 or not spread2 > 0.0
+
+
+def _frozen(mask: np.ndarray) -> np.ndarray:
+    mask.flags.writeable = False
+    return mask
+
+
 # --------------------------------------------------------------------------- line
 
 
@@ -179,8 +200,7 @@ class LineModel:
     def residuals(self, points: np.ndarray) -> np.ndarray:
         """Orthogonal distances of ``points`` ``(N, 2)`` to the line, shape ``(N,)``, metres."""
         p = _as_points(points)
-        (px, py), (dx, dy) = self.origin, self.direction
-        return np.abs((p[:, 0] - px) * dy - (p[:, 1] - py) * dx)
+        return _line_distance(p[:, 0], p[:, 1], *self.params)
 
 
 @dataclass(frozen=True)
@@ -191,16 +211,22 @@ class LineFit(LineModel, _FitMixin):
     trials: int = 0
 
 
+def _line_distance(
+    x: np.ndarray, y: np.ndarray, px: float, py: float, dx: float, dy: float
+) -> np.ndarray:
+    return np.abs((x - px) * dy - (y - py) * dx)
+
+
 def _line_lsq(x: np.ndarray, y: np.ndarray) -> LineModel | FailedFit:
     n = x.shape[0]
     if n < 2:
         return FailedFit(f"a line needs at least 2 points, got {n}")
-    mx, my = float(x.mean()), float(y.mean())
+    mx, my = float(x.sum()) / n, float(y.sum()) / n
     dx, dy = x - mx, y - my
     sxx, sxy, syy = float(dx @ dx), float(dx @ dy), float(dy @ dy)
-    if not sxx + syy > 0.0:
+    if _coincide(sxx + syy, n, mx, my):
         return FailedFit("line: all points coincide")
-    # Principal axis of the 2x2 scatter matrix in closed form.
+    # Principal axis of the 2x2 scatter matrix, in closed form.
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
     ux, uy = math.cos(phi), math.sin(phi)
     if ux < 0.0 or (ux == 0.0 and uy < 0.0):
@@ -253,8 +279,7 @@ class CircleModel:
     def residuals(self, points: np.ndarray) -> np.ndarray:
         """Orthogonal distances ``||p - c| - r|`` of ``points`` ``(N, 2)``, shape ``(N,)``."""
         p = _as_points(points)
-        cx, cy = self.center
-        return np.abs(np.hypot(p[:, 0] - cx, p[:, 1] - cy) - self.radius)
+        return _circle_distance(p[:, 0], p[:, 1], *self.params)
 
 
 @dataclass(frozen=True)
@@ -265,7 +290,11 @@ class CircleFit(CircleModel, _FitMixin):
     trials: int = 0
 
 
-_GN_STEPS = 20
+def _circle_distance(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float) -> np.ndarray:
+    return np.abs(np.hypot(x - cx, y - cy) - r)
+
+
+_CIRCLE_GN_STEPS = 10
 
 
 def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
@@ -273,14 +302,16 @@ def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
     if n < 3:
         return FailedFit(f"a circle needs at least 3 points, got {n}")
     # Centre and scale so the normal equations are O(1) (skimage's habit).
-    mx, my = float(x.mean()), float(y.mean())
+    mx, my = float(x.sum()) / n, float(y.sum()) / n
     xs, ys = x - mx, y - my
-    scale = math.sqrt(float(xs @ xs + ys @ ys) / n)
-    if not scale > 0.0:
+    spread2 = float(xs @ xs + ys @ ys)
+    if _coincide(spread2, n, mx, my):
         return FailedFit("circle: all points coincide")
-    xs, ys = xs / scale, ys / scale
-    # Kasa: x^2 + y^2 = a x + b y + c, linear least squares. On centred data the normal
-    # equations split into a 2x2 system for (a, b) and c = mean(x^2 + y^2).
+    scale = math.sqrt(spread2 / n)
+    inv = 1.0 / scale
+    xs, ys = xs * inv, ys * inv
+    # Kasa: x^2 + y^2 = a x + b y + c by linear least squares. On centred data the normal
+    # equations split into a 2x2 system for (a, b), and c = mean(x^2 + y^2).
     zz = xs * xs + ys * ys
     sxx, sxy, syy = float(xs @ xs), float(xs @ ys), float(ys @ ys)
     sxz, syz = float(xs @ zz), float(ys @ zz)
@@ -289,27 +320,16 @@ def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
         return FailedFit("circle: points are collinear or repeated")
     cx = 0.5 * (syy * sxz - sxy * syz) / det
     cy = 0.5 * (sxx * syz - sxy * sxz) / det
-    # Gauss-Newton on the centre; residual_i = rho_i - mean(rho), Jacobian -(u_i - mean(u)),
-    # u_i the unit vector from the centre to point i.
-    cost, base_x, base_y, step_x, step_y = math.inf, cx, cy, 0.0, 0.0
-    for _ in range(_GN_STEPS):
+    # Gauss-Newton on the centre: residual_i = rho_i - mean(rho), Jacobian -(u_i - mean(u)),
+    # u_i the unit vector from the centre to point i; normal equations (J'J) step = J' res.
+    for _ in range(_CIRCLE_GN_STEPS):
         dx, dy = xs - cx, ys - cy
         rho = np.hypot(dx, dy)
         if not rho.all():
             break
-        res = rho - rho.mean()
-        new_cost = float(res @ res)
-        if new_cost > cost:
-            # Overshoot (rare: Kasa starts close on arcs of 90 degrees or more): halve the step.
-            step_x, step_y = 0.5 * step_x, 0.5 * step_y
-            cx, cy = base_x + step_x, base_y + step_y
-            if step_x * step_x + step_y * step_y < 1e-24:
-                cx, cy = base_x, base_y
-                break
-            continue
-        cost, base_x, base_y = new_cost, cx, cy
         ux, uy = dx / rho, dy / rho
-        jx, jy = ux - ux.mean(), uy - uy.mean()
+        res = rho - float(rho.sum()) / n
+        jx, jy = ux - float(ux.sum()) / n, uy - float(uy.sum()) / n
         a11, a12, a22 = float(jx @ jx), float(jx @ jy), float(jy @ jy)
         b1, b2 = float(jx @ res), float(jy @ res)
         det = a11 * a22 - a12 * a12
@@ -318,9 +338,10 @@ def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
         step_x = (a22 * b1 - a12 * b2) / det
         step_y = (a11 * b2 - a12 * b1) / det
         cx, cy = cx + step_x, cy + step_y
-        if step_x * step_x + step_y * step_y < 1e-24:
+        # Kasa starts close on arcs of 90 degrees or more; 1e-9 of the scale is ~1e-11 m.
+        if step_x * step_x + step_y * step_y < 1e-18:
             break
-    r = float(np.hypot(xs - cx, ys - cy).mean())
+    r = float(np.hypot(xs - cx, ys - cy).sum()) / n
     cx, cy, r = mx + scale * cx, my + scale * cy, scale * r
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(r)):
         return FailedFit("circle: least squares did not converge")
@@ -341,8 +362,10 @@ class EllipseModel:
     Direct least squares (Fitzgibbon, Pilu and Fisher 1999) in Halir and Flusser's numerically
     stable form: minimises the algebraic distance ``sum_i F(p_i)**2`` of the conic
     ``F(x, y) = A x^2 + B xy + C y^2 + D x + E y + F`` subject to ``4AC - B^2 = 1``, which
-    always yields an ellipse. At least 5 points, no 3 collinear. ``residuals`` are the true
-    orthogonal distances, not algebraic ones.
+    always yields an ellipse. At least 5 points, no 3 collinear. With ``geometric=True`` the
+    direct fit is polished by Gauss-Newton on the orthogonal distances (the algebraic fit
+    shrinks ellipses seen over a partial arc). ``residuals`` are the true orthogonal
+    distances, not algebraic ones.
 
     Attributes
     ----------
@@ -376,10 +399,13 @@ class EllipseModel:
         return (*self.center, *self.axis_lengths, self.theta)
 
     @classmethod
-    def estimate(cls, points: np.ndarray) -> EllipseModel | FailedFit:
+    def estimate(cls, points: np.ndarray, *, geometric: bool = False) -> EllipseModel | FailedFit:
         """Direct least-squares ellipse through ``points``, shape ``(N, 2)``, metres."""
         p = _as_points(points)
-        return _ellipse_lsq(p[:, 0], p[:, 1])
+        found = _ellipse_lsq(p[:, 0], p[:, 1])
+        if found and geometric:
+            found = _ellipse_geometric(p[:, 0], p[:, 1], found) or found
+        return found
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         """Orthogonal distances of ``points`` ``(N, 2)`` to the ellipse, shape ``(N,)``."""
@@ -395,89 +421,83 @@ class EllipseFit(EllipseModel, _FitMixin):
     trials: int = 0
 
 
-def _wrap_half_turn(angle: np.ndarray | float) -> np.ndarray | float:
-    return (angle + np.pi / 2) % np.pi - np.pi / 2
+def _wrap_half_turn(angle: float) -> float:
+    return (angle + math.pi / 2) % math.pi - math.pi / 2
 
 
-def _conic_to_ellipse(
-    A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, E: np.ndarray, F: np.ndarray
-) -> tuple[np.ndarray, ...]:
-    """Centre, semi-axes and major-axis angle of conics; ``ok`` is False where not an ellipse.
-
-    Vectorised over any shape; invalid entries hold NaN or garbage and must be masked.
-    """
-    with np.errstate(all="ignore"):
-        # Make the quadratic form positive definite where it is definite at all.
-        sign = np.where(A + C < 0.0, -1.0, 1.0)
-        A, B, C, D, E, F = (sign * c for c in (A, B, C, D, E, F))
-        det = 4.0 * A * C - B * B
-        cx = (B * E - 2.0 * C * D) / det
-        cy = (B * D - 2.0 * A * E) / det
-        f_center = F + 0.5 * (D * cx + E * cy)  # F(center)
-        mean = 0.5 * (A + C)
-        half = np.hypot(0.5 * (A - C), 0.5 * B)
-        # Eigenvalues of [[A, B/2], [B/2, C]]; the smaller one belongs to the major axis.
-        a = np.sqrt(-f_center / (mean - half))
-        b = np.sqrt(-f_center / (mean + half))
-        # 0.5 * atan2(B, A - C) points along the larger eigenvalue's eigenvector (minor axis).
-        theta = _wrap_half_turn(0.5 * np.arctan2(B, A - C) + 0.5 * np.pi)
-        ok = (det > 0.0) & (f_center < 0.0) & np.isfinite(a) & np.isfinite(b) & (b > 0.0)
-    return cx, cy, a, b, theta, ok
-
-
-def _ellipse_to_conic(
-    cx: np.ndarray, cy: np.ndarray, a: np.ndarray, b: np.ndarray, theta: np.ndarray
-) -> np.ndarray:
-    """Conic coefficients ``(6, ...)`` of ellipses, scaled so ``F(center) = -1``."""
-    c, s = np.cos(theta), np.sin(theta)
-    ia, ib = 1.0 / (a * a), 1.0 / (b * b)
-    A = c * c * ia + s * s * ib
-    B = 2.0 * c * s * (ia - ib)
-    C = s * s * ia + c * c * ib
-    D = -2.0 * A * cx - B * cy
-    E = -B * cx - 2.0 * C * cy
-    F = A * cx * cx + B * cx * cy + C * cy * cy - 1.0
-    return np.stack([A, B, C, D, E, F])
+def _conic_params(
+    A: float, B: float, C: float, D: float, E: float, F: float
+) -> tuple[float, float, float, float, float] | None:
+    """``(cx, cy, a, b, theta)`` of the conic ``A x^2 + B xy + C y^2 + D x + E y + F = 0``,
+    or None when it is not a real ellipse."""
+    if A + C < 0.0:
+        A, B, C, D, E, F = -A, -B, -C, -D, -E, -F
+    det = 4.0 * A * C - B * B
+    if not det > 0.0:
+        return None
+    cx = (B * E - 2.0 * C * D) / det
+    cy = (B * D - 2.0 * A * E) / det
+    f_center = F + 0.5 * (D * cx + E * cy)
+    if not f_center < 0.0:
+        return None
+    # Eigenvalues of [[A, B/2], [B/2, C]]; the smaller one belongs to the major axis, and
+    # 0.5 atan2(B, A - C) points along the larger one's eigenvector (the minor axis).
+    mean, half = 0.5 * (A + C), 0.5 * math.hypot(A - C, B)
+    a = math.sqrt(-f_center / (mean - half))
+    b = math.sqrt(-f_center / (mean + half))
+    theta = _wrap_half_turn(0.5 * math.atan2(B, A - C) + 0.5 * math.pi)
+    return cx, cy, a, b, theta
 
 
 def _ellipse_distance(
-    u: np.ndarray, v: np.ndarray, a: np.ndarray | float, b: np.ndarray | float
+    u: np.ndarray, v: np.ndarray, a: float | np.ndarray, b: float | np.ndarray
 ) -> np.ndarray:
     """Orthogonal distance from ``(u, v)``, in the ellipse's frame, to ``u²/a² + v²/b² = 1``.
 
     ``a >= b > 0``; arrays broadcast. Eberly's formulation ("Distance from a point to an
-    ellipse", 2013): reflect into the first quadrant; the closest point is
-    ``x = (r0 y0 / (s + r0), y1 / (s + 1))`` with ``r0 = (a/b)^2`` and ``s`` the root of
-    ``G(s) = (r0 z0 / (s + r0))^2 + (z1 / (s + 1))^2 - 1``, ``z = (y0/a, y1/b)``. Eberly
-    bisects; here a fixed number of Newton steps on ``phi(s) = (G + 1)^(-1/2) - 1`` runs on all
-    points at once. ``phi`` is concave and increasing (a power mean with exponent -2 of
-    affine functions), so Newton started left of the root, at
-    ``max(z1 - 1, r0 z0 - r0)`` where ``G >= 0``, climbs monotonically to it; and ``phi`` is
-    exactly linear when one term dominates, so there is no slow phase near the poles.
+    ellipse, an ellipsoid, or a hyperellipsoid", 2013): reflect into the first quadrant; the
+    closest point is ``x = (r0 y0 / (s + r0), y1 / (s + 1))`` with ``r0 = (a/b)^2`` and ``s``
+    the root of ``G(s) = (r0 z0 / (s + r0))^2 + (z1 / (s + 1))^2 - 1``, ``z = (y0/a, y1/b)``.
+    Eberly bisects point by point; here Newton runs on all points at once, on
+    ``phi(s) = (G + 1)^(-1/2) - 1``, which is concave and increasing (a power mean with
+    exponent -2 of affine functions of ``s``) and exactly linear where one term dominates.
+    Started at ``max(z1 - 1, r0 z0 - r0)``, where ``G >= 0``, Newton climbs monotonically to
+    the root: it converges for every point, to round-off within 12 steps for axis ratios up
+    to 20 (typically 5-7), and stops once every step is below 1e-12 relative. Points with
+    ``v = 0`` use Eberly's closed form.
     """
     y0, y1 = np.abs(u), np.abs(v)
     r0 = (a / b) ** 2
     z0, z1 = y0 / a, y1 / b
-    c0, c1 = (r0 * z0) ** 2, z1 * z1
-    s = np.maximum(z1 - 1.0, r0 * z0 - r0)
-    with np.errstate(all="ignore"):
-        for _ in range(ELLIPSE_NEWTON_STEPS):
-            w0, w1 = s + r0, s + 1.0
-            q0, q1 = c0 / (w0 * w0), c1 / (w1 * w1)
-            total = q0 + q1
-            s = s + total * (np.sqrt(total) - 1.0) / (q0 / w0 + q1 / w1)
-        # x - y without cancellation: x0 - y0 = -s y0 / (s + r0), x1 - y1 = -s y1 / (s + 1).
-        d = np.abs(s) * np.hypot(y0 / (s + r0), y1 / (s + 1.0))
-        # On the major axis (v ~ 0) the iteration meets the pole at s = -1: Eberly's closed
-        # form. Inside the evolute the closest point leaves the axis.
-        on_axis = z1 < 1e-9
-        if np.any(on_axis):
-            a2b2 = a * a - b * b
-            inside = y0 * a < a2b2
+    # On the major axis (v ~ 0) the iteration would meet the pole at s = -1: give those points
+    # a harmless stand-in and use Eberly's closed form for them below.
+    on_axis = z1 < 1e-9
+    axis_points = bool(on_axis.any())
+    if axis_points:
+        z1 = np.where(on_axis, 1.0, z1)
+    k0 = r0 * z0
+    c0, c1 = k0 * k0, z1 * z1
+    s = np.maximum(z1 - 1.0, k0 - r0)
+    tol = 1e-12 * (1.0 + float(np.abs(s).max()))
+    for _ in range(40):
+        w0, w1 = s + r0, s + 1.0
+        q0, q1 = c0 / (w0 * w0), c1 / (w1 * w1)
+        total = q0 + q1
+        step = total * (np.sqrt(total) - 1.0) / (q0 / w0 + q1 / w1)
+        s += step
+        if not np.abs(step).max() > tol:
+            break
+    # x - y without cancellation: x0 - y0 = -s y0 / (s + r0), x1 - y1 = -s y1 / (s + 1).
+    d = np.abs(s) * np.hypot(y0 / (s + r0), y1 / (s + 1.0))
+    if axis_points:
+        # Inside the evolute the closest point leaves the axis.
+        a2b2 = a * a - b * b
+        inside = y0 * a < a2b2
+        with np.errstate(all="ignore"):
             x0 = a * a * y0 / np.where(inside, a2b2, 1.0)
             x1 = b * np.sqrt(np.maximum(1.0 - (x0 / a) ** 2, 0.0))
-            d_axis = np.where(inside, np.hypot(x0 - y0, x1), np.abs(y0 - a))
-            d = np.where(on_axis, d_axis, d)
+        d_axis = np.where(inside, np.hypot(x0 - y0, x1), np.abs(y0 - a))
+        d = np.where(on_axis, d_axis, d)
     return d
 
 
@@ -489,48 +509,165 @@ def _ellipse_residuals(
     return _ellipse_distance(dx * c + dy * s, dy * c - dx * s, a, b)
 
 
+def _eig3(m: list[list[float]]) -> list[tuple[float, list[float]]]:
+    """Real eigenpairs of a 3x3 matrix with real spectrum (closed form, Python floats).
+
+    ``numpy.linalg.eig`` costs ~25 us for a 3x3; this costs ~5 us.
+    """
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m
+    tr = m00 + m11 + m22
+    minors = m00 * m11 - m01 * m10 + m00 * m22 - m02 * m20 + m11 * m22 - m12 * m21
+    det = (m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20)
+           + m02 * (m10 * m21 - m11 * m20))  # fmt: skip
+    # lambda^3 - tr lambda^2 + minors lambda - det = 0; lambda = y + tr/3 gives y^3 + p y + q.
+    p = minors - tr * tr / 3.0
+    q = -2.0 * tr**3 / 27.0 + tr * minors / 3.0 - det
+    if p < 0.0:
+        rad = math.sqrt(-p / 3.0)
+        arg = max(-1.0, min(1.0, -q / (2.0 * rad**3)))
+        phi = math.acos(arg) / 3.0
+        roots = [tr / 3.0 + 2.0 * rad * math.cos(phi - 2.0 * math.pi * k / 3.0) for k in range(3)]
+    else:  # triple root (up to round-off)
+        roots = [tr / 3.0 + math.copysign(abs(q) ** (1.0 / 3.0), -q)] * 3
+    pairs = []
+    for lam in roots:
+        r0 = (m00 - lam, m01, m02)
+        r1 = (m10, m11 - lam, m12)
+        r2 = (m20, m21, m22 - lam)
+        # The eigenvector is orthogonal to every row of M - lambda I: take the largest of the
+        # three cross products of row pairs.
+        best, best_norm = [0.0, 0.0, 0.0], 0.0
+        for u, w in ((r0, r1), (r0, r2), (r1, r2)):
+            c = [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]]
+            norm = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+            if norm > best_norm:
+                best, best_norm = c, norm
+        if best_norm > 0.0:
+            scale = 1.0 / math.sqrt(best_norm)
+            pairs.append((lam, [best[0] * scale, best[1] * scale, best[2] * scale]))
+    return pairs
+
+
 def _ellipse_lsq(x: np.ndarray, y: np.ndarray) -> EllipseModel | FailedFit:
     n = x.shape[0]
     if n < 5:
         return FailedFit(f"an ellipse needs at least 5 points, got {n}")
     # Centre and scale: the quartic moments in S1 span many orders of magnitude otherwise.
-    mx, my = float(x.mean()), float(y.mean())
+    mx, my = float(x.sum()) / n, float(y.sum()) / n
     xs, ys = x - mx, y - my
-    scale = math.sqrt(float(xs @ xs + ys @ ys) / n)
-    if not scale > 0.0:
+    spread2 = float(xs @ xs + ys @ ys)
+    if _coincide(spread2, n, mx, my):
         return FailedFit("ellipse: all points coincide")
-    xs, ys = xs / scale, ys / scale
+    scale = math.sqrt(spread2 / n)
+    inv = 1.0 / scale
+    xs, ys = xs * inv, ys * inv
     # Halir & Flusser 1998, Sec. 3: split the design matrix D = [D1 | D2] into its quadratic
     # part D1 = [x^2, xy, y^2] and linear part D2 = [x, y, 1], with scatter blocks
     # S1 = D1'D1, S2 = D1'D2, S3 = D2'D2.
-    d1 = np.stack([xs * xs, xs * ys, ys * ys])
-    d2 = np.stack([xs, ys, np.ones_like(xs)])
+    d1 = np.array([xs * xs, xs * ys, ys * ys])
+    d2 = np.array([xs, ys, np.ones(n)])
     s1, s2, s3 = d1 @ d1.T, d1 @ d2.T, d2 @ d2.T
-    if np.linalg.cond(s3) > 1e12:
+    # On centred, scaled data S3 = [[Sxx, Sxy, 0], [Sxy, Syy, 0], [0, 0, n]]: rank 3 unless
+    # the points are collinear.
+    s3_det = float(s3[0, 0] * s3[1, 1] - s3[0, 1] ** 2)
+    if s3_det <= 1e-10 * float(s3[0, 0] + s3[1, 1]) ** 2:
         return FailedFit("ellipse: points are collinear")
-    # a2 = T a1 with T = -S3^-1 S2' (linear part from the quadratic part), and the reduced
-    # scatter matrix M = S1 + S2 T; the constraint 4AC - B^2 = 1 is a1' C1 a1 = 1 with
-    # C1 = [[0, 0, 2], [0, -1, 0], [2, 0, 0]], so solve the 3x3 eigenproblem C1^-1 M a1 = l a1.
+    # The linear part follows from the quadratic one: a2 = T a1, T = -S3^-1 S2'. The reduced
+    # scatter matrix is M = S1 + S2 T, and the constraint 4AC - B^2 = 1 reads a1' C1 a1 = 1
+    # with C1 = [[0, 0, 2], [0, -1, 0], [2, 0, 0]]: solve C1^-1 M a1 = lambda a1.
     t = -np.linalg.solve(s3, s2.T)
     m = s1 + s2 @ t
-    m = np.stack([0.5 * m[2], -m[1], 0.5 * m[0]])
-    eigval, eigvec = np.linalg.eig(m)
-    eigvec = np.real(eigvec)
-    # Exactly one eigenvector satisfies a1' C1 a1 = 4AC - B^2 > 0 (Fitzgibbon et al.); with
-    # round-off on exact data pick the one with the smallest |eigenvalue| among them.
-    cond = 4.0 * eigvec[0] * eigvec[2] - eigvec[1] ** 2
-    good = np.flatnonzero(cond > 0.0)
-    if good.size == 0:
+    m = np.array([0.5 * m[2], -m[1], 0.5 * m[0]]).tolist()
+    # Exactly one eigenvector has a1' C1 a1 = 4AC - B^2 > 0 (Fitzgibbon et al.); with
+    # round-off on exact data pick the smallest |eigenvalue| among those that do.
+    found = None
+    for lam, a1 in _eig3(m):
+        if 4.0 * a1[0] * a1[2] - a1[1] * a1[1] > 0.0 and (found is None or abs(lam) < found[0]):
+            found = (abs(lam), a1)
+    if found is None:
         return FailedFit("ellipse: no elliptic solution")
-    a1 = eigvec[:, good[np.argmin(np.abs(eigval[good]))]]
-    a2 = t @ a1
-    cx, cy, a, b, theta, ok = _conic_to_ellipse(*a1, *a2)
-    if not ok:
+    a1 = found[1]
+    a2 = (t @ np.array(a1)).tolist()
+    params = _conic_params(*a1, *a2)
+    if params is None:
         return FailedFit("ellipse: degenerate conic")
+    cx, cy, a, b, theta = params
     return EllipseModel(
-        center=(mx + scale * float(cx), my + scale * float(cy)),
-        axis_lengths=(scale * float(a), scale * float(b)),
-        theta=float(theta),
+        center=(mx + scale * cx, my + scale * cy), axis_lengths=(scale * a, scale * b), theta=theta
+    )
+
+
+def _ellipse_geometric(
+    x: np.ndarray, y: np.ndarray, start: EllipseModel, steps: int = ELLIPSE_GN_STEPS
+) -> EllipseModel | None:
+    """Polish an ellipse by Gauss-Newton on the orthogonal distances of ``x, y``.
+
+    Minimises ``sum_i d_i^2`` over ``(cx, cy, a, b, theta)``, ``d_i`` the signed distance of
+    point ``i`` along the normal at its closest point ``X(t_i) = c + R(theta) (a cos t_i,
+    b sin t_i)``. Each step first moves every ``t_i`` by one Newton step towards the closest
+    point, then solves the 5x5 normal equations with the Jacobian ``-n_i . dX/dparam`` (the
+    tangential part vanishes at the closest point). The step is rejected if the cost rises.
+    Returns None if the polish fails (it never makes the fit worse).
+    """
+    n = x.shape[0]
+    if n < 5:
+        return None
+    (cx0, cy0), (a, b), theta = start.center, start.axis_lengths, start.theta
+    # Work centred on the start's centre and scaled by its major axis.
+    scale = a
+    inv = 1.0 / scale
+    xs, ys = (x - cx0) * inv, (y - cy0) * inv
+    p = [0.0, 0.0, 1.0, b * inv, theta]
+    best_p, best_cost = p, math.inf
+    c, s = math.cos(theta), math.sin(theta)
+    u, v = xs * c + ys * s, ys * c - xs * s
+    t = np.arctan2(p[2] * v, p[3] * u)
+    with np.errstate(all="ignore"):
+        for k in range(steps + 1):
+            cx, cy, a, b, theta = p
+            ct, st = np.cos(t), np.sin(t)
+            ru, rv = u - a * ct, v - b * st
+            # Newton on f(t) = r . X'(t) = 0, X'(t) = (-a sin t, b cos t); skip where f' >= 0
+            # (beyond the centre of curvature, where the step would go the wrong way).
+            f = b * ct * rv - a * st * ru
+            fp = -(a * a * st * st + b * b * ct * ct) - a * ct * ru - b * st * rv
+            t = t - np.where(fp < 0.0, f / fp, 0.0)
+            ct, st = np.cos(t), np.sin(t)
+            ru, rv = u - a * ct, v - b * st
+            w = np.hypot(b * ct, a * st)
+            nu, nv = b * ct / w, a * st / w
+            d = nu * ru + nv * rv
+            cost = float(d @ d)
+            if not cost < best_cost:
+                break
+            best_p, best_cost = p, cost
+            if k == steps:
+                break
+            c, s = math.cos(theta), math.sin(theta)
+            jac = np.array([nv * s - nu * c, -nu * s - nv * c, -nu * ct, -nv * st, nu * v - nv * u])
+            h = jac @ jac.T
+            # A little Levenberg damping: theta is unobservable on a circle (a = b).
+            h[np.diag_indices(5)] *= 1.0 + 1e-6
+            h[np.diag_indices(5)] += 1e-12 * float(np.trace(h))
+            try:
+                step = np.linalg.solve(h, -(jac @ d)).tolist()
+            except np.linalg.LinAlgError:
+                break
+            p = [p[i] + step[i] for i in range(5)]
+            if not (p[2] > 0.0 and p[3] > 0.0 and all(map(math.isfinite, p))):
+                break
+            c, s = math.cos(p[4]), math.sin(p[4])
+            dx, dy = xs - p[0], ys - p[1]
+            u, v = dx * c + dy * s, dy * c - dx * s
+    if best_cost == math.inf:
+        return None
+    cx, cy, a, b, theta = best_p
+    if b > a:
+        a, b, theta = b, a, theta + 0.5 * math.pi
+    return EllipseModel(
+        center=(cx0 + scale * cx, cy0 + scale * cy),
+        axis_lengths=(scale * a, scale * b),
+        theta=_wrap_half_turn(theta),
     )
 
 
@@ -554,30 +691,39 @@ def _check_limits(limits: tuple[float, float], name: str) -> tuple[float, float]
     return lo, hi
 
 
-def _check_trials(min_trials: int, max_trials: int, confidence: float) -> None:
-    if int(max_trials) != max_trials or max_trials < 1:
-        raise ValueError(f"max_trials must be a positive integer, got {max_trials}")
-    if int(min_trials) != min_trials or min_trials < 1:
-        raise ValueError(f"min_trials must be a positive integer, got {min_trials}")
+def _check_trials(trials: tuple[int, int], confidence: float, name: str = "trials") -> None:
+    lo, hi = trials
+    if int(hi) != hi or hi < 1:
+        raise ValueError(f"max_trials ({name}) must be a positive integer, got {hi}")
+    if int(lo) != lo or lo < 1:
+        raise ValueError(f"min_trials ({name}) must be a positive integer, got {lo}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be within (0, 1), got {confidence}")
 
 
 def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
-    """``(size, k)`` indices into ``range(n)``, distinct within each row."""
-    # Column j is drawn from the n - j indices not yet used in its row: take the v-th unused
-    # index by stepping v past every earlier pick it reaches, smallest first.
-    idx = rng.integers(0, n - np.arange(k), size=(size, k))
-    for j in range(1, k):
+    """``(size, k)`` indices into ``range(n)``, distinct within each row, uniform."""
+    # Column j is uniform over the n - j indices its row has not used: draw v in [0, n - j)
+    # and step v past each earlier pick it reaches, smallest first (Floyd-style).
+    idx = (rng.random((size, k)) * (n - np.arange(k))).astype(np.intp)
+    if k > 1:
+        v = idx[:, 1]
+        v += v >= idx[:, 0]
+    if k > 2:
+        lo, hi = np.minimum(idx[:, 0], idx[:, 1]), np.maximum(idx[:, 0], idx[:, 1])
+        v = idx[:, 2]
+        v += v >= lo
+        v += v >= hi
+    for j in range(3, k):
+        earlier = np.sort(idx[:, :j], axis=1)
         v = idx[:, j]
-        earlier = np.sort(idx[:, :j], axis=1) if j > 1 else idx[:, :1]
         for c in range(j):
             v += v >= earlier[:, c]
     return idx
 
 
 def _trials_needed(n_inliers: int, n: int, k: int, confidence: float) -> float:
-    """Standard RANSAC bound: trials for one all-inlier sample with the given confidence."""
+    """Standard RANSAC bound: trials for one all-inlier sample at the given confidence."""
     # Exact probability of an all-inlier sample without replacement (matters for small n).
     p = 1.0
     for i in range(k):
@@ -590,42 +736,46 @@ def _trials_needed(n_inliers: int, n: int, k: int, confidence: float) -> float:
 
 
 # A chunk scorer takes the (T, k) sample indices and returns the chunk's best hypothesis as
-# (inlier count, residual sum over its inliers, parameter tuple), or None if no sample in the
-# chunk gave a valid hypothesis.
-_Scorer = Callable[[np.ndarray], tuple[int, float, tuple[float, ...]] | None]
+# (inlier count, cost, parameters), or None if no sample in the chunk gave a valid hypothesis.
+# Lines and circles rank by count, ties by cost = residual sum over the inliers; the ellipse
+# ranks by cost alone, MSAC's truncated quadratic (see fit_ellipse). Counts may be on a fixed
+# subsample (the ellipse's): the RANSAC bound then uses that subsample's size.
+_Best = tuple[int, float, tuple[float, ...]]
+_Scorer = Callable[[np.ndarray], _Best | None]
 
 
 def _ransac(
     n: int,
     k: int,
-    seed: int | np.random.Generator,
-    min_trials: int,
-    max_trials: int,
+    rng: np.random.Generator,
+    trials: tuple[int, int],
     confidence: float,
     score_chunk: _Scorer,
-) -> tuple[tuple[int, float, tuple[float, ...]] | None, int]:
-    rng = np.random.default_rng(seed)
-    best: tuple[int, float, tuple[float, ...]] | None = None
+    n_scored: int | None = None,
+    by_cost: bool = False,
+) -> tuple[_Best | None, int]:
+    min_trials, max_trials = trials
+    n_scored = n if n_scored is None else n_scored
+    best: _Best | None = None
     done, needed = 0, float(max_trials)
     size = min(min_trials, max_trials)
     while size > 0:
         found = score_chunk(_draw_samples(rng, n, size, k))
         done += size
         if found is not None and (
-            best is None or found[0] > best[0] or (found[0] == best[0] and found[1] < best[1])
+            best is None
+            or (by_cost and found[1] < best[1])
+            or (not by_cost and (found[0], -found[1]) > (best[0], -best[1]))
         ):
             best = found
-            needed = _trials_needed(best[0], n, k, confidence)
-        remaining = min(max_trials, needed) - done
-        size = (
-            0
-            if remaining <= 0
-            else int(min(max(math.ceil(remaining), min_trials), max_trials - done))
-        )
+            needed = _trials_needed(best[0], n_scored, k, confidence)
+        remaining = min(float(max_trials), needed) - done
+        size = 0 if remaining <= 0 else min(max(math.ceil(remaining), min_trials),
+                                            max_trials - done)  # fmt: skip
     return best, done
 
 
-def _best_of(counts: np.ndarray, residual_sums: Callable[[np.ndarray], np.ndarray]) -> int:
+def _pick(counts: np.ndarray, residual_sums: Callable[[np.ndarray], np.ndarray]) -> int:
     """Row with the most inliers; ties go to the lowest residual sum, then the first row."""
     top = counts.max()
     tied = np.flatnonzero(counts == top)
@@ -635,17 +785,35 @@ def _best_of(counts: np.ndarray, residual_sums: Callable[[np.ndarray], np.ndarra
 
 
 class _Points:
-    """A validated scan line, centred on its mean (all fitting runs in centred coordinates)."""
+    """A validated scan line, centred on its mean: every fit runs in centred coordinates."""
 
-    __slots__ = ("mean", "n", "points", "x", "y")
+    __slots__ = ("_circle_basis", "_line_basis", "mean", "n", "points", "x", "y")
 
     def __init__(self, points: np.ndarray) -> None:
         self.points = _as_points(points)
-        self.n = self.points.shape[0]
-        self.mean = self.points.mean(axis=0) if self.n else np.zeros(2)
-        centred = self.points - self.mean
+        self.n = n = self.points.shape[0]
+        mean = self.points.sum(axis=0) / n if n else np.zeros(2)
+        self.mean = (float(mean[0]), float(mean[1]))
+        centred = self.points - mean
         self.x = np.ascontiguousarray(centred[:, 0])
         self.y = np.ascontiguousarray(centred[:, 1])
+        self._line_basis: np.ndarray | None = None
+        self._circle_basis: np.ndarray | None = None
+
+    def line_basis(self) -> np.ndarray:
+        if self._line_basis is None:
+            self._line_basis = np.array([self.x, self.y, np.ones(self.n)])
+        return self._line_basis
+
+    def circle_basis(self) -> np.ndarray:
+        if self._circle_basis is None:
+            x, y = self.x, self.y
+            self._circle_basis = np.array([x, y, x * x + y * y, np.ones(self.n)])
+        return self._circle_basis
+
+
+def _none(n: int) -> np.ndarray:
+    return _frozen(np.zeros(n, bool))
 
 
 # --------------------------------------------------------------------------- fit_line
@@ -653,24 +821,26 @@ class _Points:
 
 def _line_scorer(pts: _Points, threshold: float) -> _Scorer:
     x, y = pts.x, pts.y
-    basis = np.stack([x, y, np.ones_like(x)])  # (3, N)
+    basis = pts.line_basis()  # (3, N): x, y, 1
 
-    def score(idx: np.ndarray) -> tuple[int, float, tuple[float, ...]] | None:
+    def score(idx: np.ndarray) -> _Best | None:
         x0, y0 = x[idx[:, 0]], y[idx[:, 0]]
         ex, ey = x[idx[:, 1]] - x0, y[idx[:, 1]] - y0
+        # |e x (p - p0)| = |e| * distance, for every hypothesis and point in one product.
+        coef = np.array([-ey, ex, ey * x0 - ex * y0])  # (3, T)
         length = np.hypot(ex, ey)
-        ok = length > 0.0
-        if not ok.any():
-            return None
-        nx, ny = -ey[ok] / length[ok], ex[ok] / length[ok]
-        # Signed distance n . p - n . p0 for every hypothesis and point in one product.
-        coef = np.stack([nx, ny, -(nx * x0[ok] + ny * y0[ok])], axis=1)
-        dist = np.abs(coef @ basis)
-        inl = dist <= threshold
+        # Repeated points (length 0) must count nothing.
+        limit = np.where(length > 0.0, threshold * length, -1.0)
+        dist = np.abs(coef.T @ basis)
+        inl = dist <= limit[:, None]
         counts = inl.sum(axis=1)
-        i = _best_of(counts, lambda rows: (dist[rows] * inl[rows]).sum(axis=1))
-        sum_res = float(dist[i][inl[i]].sum())
-        return int(counts[i]), sum_res, (float(nx[i]), float(ny[i]), float(coef[i, 2]))
+        i = _pick(counts, lambda rows: (dist[rows] * inl[rows]).sum(axis=1) / length[rows])
+        if counts[i] == 0:
+            return None
+        li = float(length[i])
+        total = float(dist[i][inl[i]].sum()) / li
+        return int(counts[i]), total, (float(coef[0, i]) / li, float(coef[1, i]) / li,
+                                       float(coef[2, i]) / li)  # fmt: skip
 
     return score
 
@@ -678,30 +848,27 @@ def _line_scorer(pts: _Points, threshold: float) -> _Scorer:
 def _fit_line(
     pts: _Points,
     threshold: float,
-    seed: int | np.random.Generator,
-    min_trials: int,
-    max_trials: int,
+    rng: np.random.Generator,
+    trials: tuple[int, int],
     confidence: float,
 ) -> LineFit | FailedFit:
     n = pts.n
     if n < 2:
-        return FailedFit(f"a line needs at least 2 points, got {n}", np.zeros(n, bool))
-    best, trials = _ransac(
-        n, 2, seed, min_trials, max_trials, confidence, _line_scorer(pts, threshold)
-    )
+        return FailedFit(f"a line needs at least 2 points, got {n}", _none(n))
+    best, done = _ransac(n, 2, rng, trials, confidence, _line_scorer(pts, threshold))
     if best is None:
-        return FailedFit("line: every sample was degenerate", np.zeros(n, bool), trials)
+        return FailedFit("line: every sample was degenerate", _none(n), done)
     nx, ny, c = best[2]
-    inl = np.abs(nx * pts.x + ny * pts.y + c) <= threshold
-    model = _line_lsq(pts.x[inl], pts.y[inl])
-    if not model:
-        # Only if every inlier coincides; keep the sample's line.
-        model = LineModel(origin=(-c * nx, -c * ny), direction=(ny, -nx))
-    (px, py), direction = model.origin, model.direction
-    origin = (px + float(pts.mean[0]), py + float(pts.mean[1]))
-    fitted = LineModel(origin=origin, direction=direction)
-    inliers = fitted.residuals(pts.points) <= threshold
-    return LineFit(origin=origin, direction=direction, inliers=inliers, trials=trials)
+    x, y = pts.x, pts.y
+    inl = np.abs(nx * x + ny * y + c) <= threshold
+    model = _line_lsq(x[inl], y[inl])
+    if model:
+        (px, py), (dx, dy) = model.origin, model.direction
+    else:  # only if every inlier coincides, which two distinct inliers rule out
+        px, py, dx, dy = -c * nx, -c * ny, ny, -nx
+    px, py = px + pts.mean[0], py + pts.mean[1]
+    inliers = _line_distance(pts.points[:, 0], pts.points[:, 1], px, py, dx, dy) <= threshold
+    return LineFit(origin=(px, py), direction=(dx, dy), inliers=_frozen(inliers), trials=done)
 
 
 def fit_line(
@@ -729,7 +896,7 @@ def fit_line(
         At least ``min_trials`` samples are scored, then as many as the standard bound asks
         for at ``confidence``, never more than ``max_trials``.
     seed : int or numpy.random.Generator
-        Seeds ``numpy.random.default_rng``; the same seed gives the same result.
+        Passed to ``numpy.random.default_rng``; the same seed gives the same result.
 
     Returns
     -------
@@ -749,8 +916,9 @@ def fit_line(
     """
     pts = _Points(points)
     threshold = _check_threshold(threshold)
-    _check_trials(min_trials, max_trials, confidence)
-    return _fit_line(pts, threshold, seed, min_trials, max_trials, confidence)
+    _check_trials((min_trials, max_trials), confidence)
+    return _fit_line(pts, threshold, np.random.default_rng(seed), (min_trials, max_trials),
+                     confidence)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- fit_circle
@@ -758,44 +926,44 @@ def fit_line(
 
 def _circle_scorer(pts: _Points, threshold: float, limits: tuple[float, float]) -> _Scorer:
     x, y = pts.x, pts.y
-    # |p - c|^2 = |p|^2 - 2 c.p + |c|^2 for all hypotheses and points as one product.
-    basis = np.stack([x, y, x * x + y * y, np.ones_like(x)])  # (4, N)
-    r_lo, r_hi = limits
+    basis = pts.circle_basis()  # (4, N): x, y, x^2 + y^2, 1
+    lo2, hi2 = limits[0] ** 2, limits[1] ** 2
 
-    def score(idx: np.ndarray) -> tuple[int, float, tuple[float, ...]] | None:
-        x0, y0 = x[idx[:, 0]], y[idx[:, 0]]
-        bx, by = x[idx[:, 1]] - x0, y[idx[:, 1]] - y0
-        ex, ey = x[idx[:, 2]] - x0, y[idx[:, 2]] - y0
-        bb, ee = bx * bx + by * by, ex * ex + ey * ey
+    def score(idx: np.ndarray) -> _Best | None:
+        px, py = x[idx], y[idx]  # (T, 3)
+        # Circumcentre relative to the first point; b, e the other two points' offsets.
+        dx, dy = px[:, 1:] - px[:, :1], py[:, 1:] - py[:, :1]
+        sq = dx * dx + dy * dy
+        bx, ex, by, ey, bb, ee = dx[:, 0], dx[:, 1], dy[:, 0], dy[:, 1], sq[:, 0], sq[:, 1]
         cross = 2.0 * (bx * ey - by * ex)
         with np.errstate(all="ignore"):
-            # Circumcentre relative to the first point.
             ux = (ey * bb - by * ee) / cross
             uy = (bx * ee - ex * bb) / cross
-        r = np.hypot(ux, uy)
-        # Collinear or repeated points give cross == 0 (r inf or nan): rejected here too.
-        ok = (np.abs(cross) > 1e-12 * (bb + ee)) & (r >= r_lo) & (r <= r_hi)
-        if not ok.any():
-            return None
-        cx, cy, r = x0[ok] + ux[ok], y0[ok] + uy[ok], r[ok]
-        # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt.
-        lo2 = np.maximum(r - threshold, 0.0) ** 2
-        hi2 = (r + threshold) ** 2
-        mid, half = 0.5 * (lo2 + hi2), 0.5 * (hi2 - lo2)
-        coef = np.stack([-2.0 * cx, -2.0 * cy, np.ones_like(cx), cx * cx + cy * cy - mid], axis=1)
-        off = np.abs(coef @ basis)
+            r2 = ux * ux + uy * uy
+            # Collinear or repeated points: cross ~ 0 and r2 inf or nan, rejected by the limits.
+            ok = (np.abs(cross) > 1e-12 * (bb + ee)) & (r2 >= lo2) & (r2 <= hi2)
+            if not ok.any():
+                return None
+            cx, cy, r = px[:, 0] + ux, py[:, 0] + uy, np.sqrt(r2)
+            # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt
+            # on the (T, N) array, and |p - c|^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
+            rlo = np.maximum(r - threshold, 0.0)
+            rhi = r + threshold
+            mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
+            half = np.where(ok, half, -1.0)
+            coef = np.array([-2.0 * cx, -2.0 * cy, np.ones_like(cx), cx * cx + cy * cy - mid])
+            off = np.abs(coef.T @ basis)
         counts = (off <= half[:, None]).sum(axis=1)
 
         def residual_sums(rows: np.ndarray) -> np.ndarray:
             d = np.abs(np.hypot(x - cx[rows, None], y - cy[rows, None]) - r[rows, None])
             return np.where(d <= threshold, d, 0.0).sum(axis=1)
 
-        i = _best_of(counts, residual_sums)
-        return (
-            int(counts[i]),
-            float(residual_sums(np.array([i]))[0]),
-            (float(cx[i]), float(cy[i]), float(r[i])),
-        )
+        i = _pick(counts, residual_sums)
+        if counts[i] == 0:
+            return None
+        total = float(residual_sums(np.array([i]))[0])
+        return int(counts[i]), total, (float(cx[i]), float(cy[i]), float(r[i]))
 
     return score
 
@@ -804,30 +972,25 @@ def _fit_circle(
     pts: _Points,
     threshold: float,
     limits: tuple[float, float],
-    seed: int | np.random.Generator,
-    min_trials: int,
-    max_trials: int,
+    rng: np.random.Generator,
+    trials: tuple[int, int],
     confidence: float,
 ) -> CircleFit | FailedFit:
     n = pts.n
     if n < 3:
-        return FailedFit(f"a circle needs at least 3 points, got {n}", np.zeros(n, bool))
-    best, trials = _ransac(
-        n, 3, seed, min_trials, max_trials, confidence, _circle_scorer(pts, threshold, limits)
-    )
+        return FailedFit(f"a circle needs at least 3 points, got {n}", _none(n))
+    best, done = _ransac(n, 3, rng, trials, confidence, _circle_scorer(pts, threshold, limits))
     if best is None:
-        return FailedFit(
-            "circle: no sample gave a circle within radius_limits", np.zeros(n, bool), trials
-        )
+        return FailedFit("circle: no sample gave a circle within radius_limits", _none(n), done)
     cx, cy, r = best[2]
-    inl = np.abs(np.hypot(pts.x - cx, pts.y - cy) - r) <= threshold
+    inl = _circle_distance(pts.x, pts.y, cx, cy, r) <= threshold
     refit = _circle_lsq(pts.x[inl], pts.y[inl])
-    # The refit may leave the radius limits (e.g. a flat face); then keep the sample's circle.
+    # The refit may leave the radius limits (e.g. on a flat face); then keep the sample's.
     if refit and limits[0] <= refit.radius <= limits[1]:
         (cx, cy), r = refit.center, refit.radius
-    center = (cx + float(pts.mean[0]), cy + float(pts.mean[1]))
-    inliers = CircleModel(center=center, radius=r).residuals(pts.points) <= threshold
-    return CircleFit(center=center, radius=r, inliers=inliers, trials=trials)
+    cx, cy = cx + pts.mean[0], cy + pts.mean[1]
+    inliers = _circle_distance(pts.points[:, 0], pts.points[:, 1], cx, cy, r) <= threshold
+    return CircleFit(center=(cx, cy), radius=r, inliers=_frozen(inliers), trials=done)
 
 
 def fit_circle(
@@ -869,14 +1032,15 @@ def fit_circle(
     >>> points = np.column_stack([0.02 * np.cos(t), 0.2 + 0.02 * np.sin(t)])
     >>> points += rng.normal(0, 3e-4, points.shape)
     >>> circle = fit_circle(points, 0.001)
-    >>> round(circle.radius * 1000, 1), circle.inlier_fraction > 0.9
-    (20.0, True)
+    >>> abs(circle.radius - 0.02) < 5e-4, circle.inlier_fraction > 0.9
+    (True, True)
     """
     pts = _Points(points)
     threshold = _check_threshold(threshold)
     limits = _check_limits(radius_limits, "radius_limits")
-    _check_trials(min_trials, max_trials, confidence)
-    return _fit_circle(pts, threshold, limits, seed, min_trials, max_trials, confidence)
+    _check_trials((min_trials, max_trials), confidence)
+    return _fit_circle(pts, threshold, limits, np.random.default_rng(seed),
+                       (min_trials, max_trials), confidence)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- fit_ellipse
@@ -887,129 +1051,148 @@ def _five_point_conics(px: np.ndarray, py: np.ndarray) -> np.ndarray:
 
     The conics through p1..p4 form the pencil spanned by the line pairs L12 L34 and
     L13 L24; the member through p5 is ``C2(p5) C1 - C1(p5) C2``. Closed form, no solve.
+    Degenerate samples (three collinear points) give degenerate conics, rejected later.
     """
     i, j = [0, 2, 0, 1], [1, 3, 2, 3]  # lines L12, L34, L13, L24
     xi, yi, xj, yj = px[:, i], py[:, i], px[:, j], py[:, j]
     # Homogeneous line through two points: l = p_i x p_j, l0 x + l1 y + l2 = 0.
     l0, l1, l2 = yi - yj, xj - xi, xi * yj - xj * yi  # (T, 4)
-    # Conic of the product of lines l and m.
     a0, a1, a2 = l0[:, 0::2], l1[:, 0::2], l2[:, 0::2]  # L12, L13
     b0, b1, b2 = l0[:, 1::2], l1[:, 1::2], l2[:, 1::2]  # L34, L24
-    pair = np.stack(
-        [
-            a0 * b0,
-            a0 * b1 + a1 * b0,
-            a1 * b1,
-            a0 * b2 + a2 * b0,
-            a1 * b2 + a2 * b1,
-            a2 * b2,
-        ]
-    )  # (6, T, 2)
-    x5, y5 = px[:, 4:5], py[:, 4:5]
+    # Coefficients of the product of lines a and b.
+    pair = np.array([
+        a0 * b0, a0 * b1 + a1 * b0, a1 * b1, a0 * b2 + a2 * b0, a1 * b2 + a2 * b1, a2 * b2,
+    ])  # (6, T, 2)
+    x5, y5 = px[:, 4:], py[:, 4:]
     at5 = (a0 * x5 + a1 * y5 + a2) * (b0 * x5 + b1 * y5 + b2)  # (T, 2)
     return pair[:, :, 0] * at5[:, 1] - pair[:, :, 1] * at5[:, 0]
 
 
-def _ellipse_scorer(
-    pts: _Points, threshold: float, limits: tuple[float, float], scale: float
-) -> _Scorer:
-    # Work in the scan line's normalised frame (centred, RMS radius 1): conic coefficients
-    # and Sampson distances stay O(1).
-    x, y = pts.x / scale, pts.y / scale
-    t_n = threshold / scale
-    lo, hi = limits[0] / scale, limits[1] / scale
-    n = x.shape[0]
-    # Sampson pre-scoring on an evenly strided subsample, to bound the (T x N) work.
-    sub = slice(None, None, max(1, -(-n // ELLIPSE_SCORE_POINTS)))
-    xs, ys = x[sub], y[sub]
-    mono = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)])  # (6, M)
-    lin = mono[3:]  # (3, M): x, y, 1
+def _sampson_terms(conic: np.ndarray, mono: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``F^2`` and ``|grad F|^2`` ``(T, M)`` of conics ``(6, T)`` at points whose monomials
+    ``[x^2, xy, y^2, x, y, 1]`` are ``mono`` ``(6, M)``.
 
-    def score(idx: np.ndarray) -> tuple[int, float, tuple[float, ...]] | None:
-        px, py = x[idx], y[idx]  # (T, 5)
-        # Per-sample centring and scaling keeps the pencil well conditioned.
-        mx, my = px.mean(axis=1, keepdims=True), py.mean(axis=1, keepdims=True)
-        px, py = px - mx, py - my
-        sc = np.sqrt((px * px + py * py).mean(axis=1, keepdims=True))
+    The Sampson distance ``|F| / |grad F|`` is the orthogonal distance to first order and is
+    free of the conic's scale; the test ``F^2 <= t^2 |grad F|^2`` needs no sqrt or division.
+    """
+    A, B, C, D, E = conic[:5]
+    f = conic.T @ mono
+    lin = mono[3:]
+    gx = np.array([2.0 * A, B, D]).T @ lin
+    gy = np.array([B, 2.0 * C, E]).T @ lin
+    return f * f, gx * gx + gy * gy
+
+
+def _sampson_residual_sums(f2: np.ndarray, g2: np.ndarray, inl: np.ndarray) -> np.ndarray:
+    with np.errstate(all="ignore"):
+        return np.where(inl, np.sqrt(f2 / g2), 0.0).sum(axis=1)
+
+
+def _ellipse_ok(conic: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Which conics ``(6, T)`` are real ellipses with semi-axes within ``[lo, hi]``."""
+    A, B, C, D, E, F = conic
+    with np.errstate(all="ignore"):
+        det = 4.0 * A * C - B * B
+        # F at the centre, F(c) = F - (C D^2 - B D E + A E^2) / det, times det.
+        f_det = F * det - (C * D * D - B * D * E + A * E * E)
+        m = A + C
+        h = np.hypot(A - C, B)
+        # Eigenvalues (m -+ h)/2 share m's sign when det = m^2 - h^2 > 0, and the semi-axes
+        # are a^2 = -2 F(c) / (m - h), b^2 = -2 F(c) / (m + h) once the sign is m's.
+        g = -2.0 * f_det * np.sign(m)  # = 2 |F(c)| det when the conic is a real ellipse
+        am = np.abs(m)
+        return (det > 0.0) & (g > 0.0) & (g >= lo * lo * det * (am + h)) & (
+            g <= hi * hi * det * (am - h))
+
+
+def _ellipse_scorer(
+    x: np.ndarray, y: np.ndarray, threshold: float, limits: tuple[float, float]
+) -> tuple[_Scorer, int]:
+    """Scorer over normalised coordinates ``x, y``; also the number of points it counts on."""
+    n = x.shape[0]
+    stride = max(1, -(-n // ELLIPSE_SCORE_POINTS))
+    xs, ys = x[::stride], y[::stride]
+    mono = np.array([xs * xs, xs * ys, ys * ys, xs, ys, np.ones(xs.shape[0])])
+    full: list[np.ndarray] = []  # every point's monomials, built on first need
+    lo, hi = limits
+    t2 = threshold * threshold
+
+    def score(idx: np.ndarray) -> _Best | None:
         with np.errstate(all="ignore"):
-            px, py = px / sc, py / sc
-            conic = _five_point_conics(px, py)
-            cx, cy, a, b, theta, ok = _conic_to_ellipse(*conic)
-        sc, mx, my = sc[:, 0], mx[:, 0], my[:, 0]
-        a, b = a * sc, b * sc
-        ok &= (b >= lo) & (a <= hi)
+            conic = _five_point_conics(x[idx], y[idx])
+        ok = _ellipse_ok(conic, lo, hi)
         if not ok.any():
             return None
-        cx, cy = (mx + sc * cx)[ok], (my + sc * cy)[ok]
-        a, b, theta = a[ok], b[ok], theta[ok]
-        # Sampson distance |F| / |grad F| <= t, as F^2 <= t^2 |grad F|^2 (no sqrt, no divide).
-        coef = _ellipse_to_conic(cx, cy, a, b, theta)  # (6, V)
-        f = coef.T @ mono
-        A, B, C, D, E = coef[:5]
-        grad = np.concatenate([np.stack([2 * A, B, D], 1), np.stack([B, 2 * C, E], 1)]) @ lin
-        v = cx.shape[0]
-        gx, gy = grad[:v], grad[v:]
-        counts = (f * f <= t_n * t_n * (gx * gx + gy * gy)).sum(axis=1)
-        # True orthogonal distances on every point for the best few.
-        top = np.argsort(-counts, kind="stable")[:ELLIPSE_TOP]
-        c, s = np.cos(theta[top])[:, None], np.sin(theta[top])[:, None]
-        dx, dy = x - cx[top, None], y - cy[top, None]
-        d = _ellipse_distance(dx * c + dy * s, dy * c - dx * s, a[top, None], b[top, None])
-        inl = d <= t_n
-        true_counts = inl.sum(axis=1)
-        i = _best_of(true_counts, lambda rows: np.where(inl[rows], d[rows], 0.0).sum(axis=1))
-        j = top[i]
-        return (
-            int(true_counts[i]),
-            float(d[i][inl[i]].sum()),
-            (float(cx[j]), float(cy[j]), float(a[j]), float(b[j]), float(theta[j])),
-        )
+        conic = conic[:, ok]
+        f2, g2 = _sampson_terms(conic, mono)
+        with np.errstate(all="ignore"):
+            ratio = f2 / g2
+        inl = ratio <= t2
+        cost = np.where(inl, ratio, t2).sum(axis=1)
+        if stride > 1:
+            top = np.argsort(cost, kind="stable")[:ELLIPSE_TOP]
+            if not full:
+                full.append(np.array([x * x, x * y, y * y, x, y, np.ones(n)]))
+            conic = conic[:, top]
+            f2, g2 = _sampson_terms(conic, full[0])
+            with np.errstate(all="ignore"):
+                ratio = f2 / g2
+            inl = ratio <= t2
+            cost = np.where(inl, ratio, t2).sum(axis=1) / stride
+        i = int(np.argmin(cost))
+        count = inl[i].sum() / stride
+        if count == 0:
+            return None
+        # MSAC: rank by the truncated quadratic cost; report it as a negative "count" key.
+        return int(count + 0.5), float(cost[i]), tuple(conic[:, i].tolist())
 
-    return score
+    return score, xs.shape[0]
 
 
 def _fit_ellipse(
     pts: _Points,
     threshold: float,
     limits: tuple[float, float],
-    seed: int | np.random.Generator,
-    min_trials: int,
-    max_trials: int,
+    rng: np.random.Generator,
+    trials: tuple[int, int],
     confidence: float,
+    geometric: bool,
 ) -> EllipseFit | FailedFit:
     n = pts.n
     if n < 5:
-        return FailedFit(f"an ellipse needs at least 5 points, got {n}", np.zeros(n, bool))
+        return FailedFit(f"an ellipse needs at least 5 points, got {n}", _none(n))
+    # Hypotheses live in the scan line's normalised frame (centred, RMS radius 1), so the
+    # conic coefficients and Sampson terms stay O(1).
     scale = math.sqrt(float(pts.x @ pts.x + pts.y @ pts.y) / n)
     if not scale > 0.0:
-        return FailedFit("ellipse: all points coincide", np.zeros(n, bool))
-    best, trials = _ransac(
-        n,
-        5,
-        seed,
-        min_trials,
-        max_trials,
-        confidence,
-        _ellipse_scorer(pts, threshold, limits, scale),
-    )
+        return FailedFit("ellipse: all points coincide", _none(n))
+    inv = 1.0 / scale
+    x, y = pts.x * inv, pts.y * inv
+    t_n = threshold * inv
+    lim_n = (limits[0] * inv, limits[1] * inv)
+    score, n_scored = _ellipse_scorer(x, y, t_n, lim_n)
+    best, done = _ransac(n, 5, rng, trials, confidence, score, n_scored, by_cost=True)
     if best is None:
-        return FailedFit(
-            "ellipse: no sample gave an ellipse within axis_limits", np.zeros(n, bool), trials
-        )
-    cx, cy, a, b, theta = best[2]
-    params = (cx * scale, cy * scale, a * scale, b * scale, theta)
-    inl = _ellipse_residuals(pts.x, pts.y, *params) <= threshold
-    refit = _ellipse_lsq(pts.x[inl], pts.y[inl])
-    # Keep the sample's ellipse if the refit leaves the axis limits.
-    if refit and limits[0] <= refit.axis_lengths[1] and refit.axis_lengths[0] <= limits[1]:
-        params = refit.params
-    cx, cy, a, b, theta = params
-    center = (cx + float(pts.mean[0]), cy + float(pts.mean[1]))
-    model = EllipseModel(center=center, axis_lengths=(a, b), theta=theta)
-    inliers = model.residuals(pts.points) <= threshold
-    return EllipseFit(
-        center=center, axis_lengths=(a, b), theta=theta, inliers=inliers, trials=trials
-    )
+        return FailedFit("ellipse: no sample gave an ellipse within axis_limits", _none(n), done)
+    mono = np.array([x * x, x * y, y * y, x, y, np.ones(n)])
+    f2, g2 = _sampson_terms(np.array(best[2])[:, None], mono)
+    inl = f2[0] <= g2[0] * (t_n * t_n)
+    found: EllipseModel | FailedFit = _ellipse_lsq(pts.x[inl], pts.y[inl])
+    if found and geometric:
+        found = _ellipse_geometric(pts.x[inl], pts.y[inl], found) or found
+    if not (found and limits[0] <= found.axis_lengths[1] and found.axis_lengths[0] <= limits[1]):
+        # The refit left the limits (or failed): keep the sample's ellipse.
+        params = _conic_params(*best[2])
+        if params is None:  # validated as an ellipse when drawn; round-off only
+            return FailedFit("ellipse: degenerate conic", _none(n), done)
+        cx, cy, a, b, theta = params
+        found = EllipseModel(center=(cx * scale, cy * scale),
+                             axis_lengths=(a * scale, b * scale), theta=theta)  # fmt: skip
+    (cx, cy), axes, theta = found.center, found.axis_lengths, found.theta
+    cx, cy = cx + pts.mean[0], cy + pts.mean[1]
+    residuals = _ellipse_residuals(pts.points[:, 0], pts.points[:, 1], cx, cy, *axes, theta)
+    return EllipseFit(center=(cx, cy), axis_lengths=axes, theta=theta,
+                      inliers=_frozen(residuals <= threshold), trials=done)  # fmt: skip
 
 
 def fit_ellipse(
@@ -1021,16 +1204,22 @@ def fit_ellipse(
     min_trials: int = ELLIPSE_TRIALS[0],
     confidence: float = CONFIDENCE,
     seed: int | np.random.Generator = 0,
+    geometric: bool = True,
 ) -> EllipseFit | FailedFit:
     """RANSAC ellipse on one scan line: inliers are within ``threshold`` (orthogonal distance).
 
     Hypotheses are the conics through five points (closed form, all at once); those that are
     not ellipses, or whose semi-axes leave ``axis_limits`` (``low <= b <= a <= high``), are
-    rejected. All hypotheses are ranked by the Sampson distance (first-order orthogonal
-    distance) on a subsample of at most ``ELLIPSE_SCORE_POINTS`` points; the best
-    ``ELLIPSE_TOP`` are then scored by the true orthogonal distance on every point. The best
-    (ties: lower residual sum) is refitted by direct least squares on its inliers (kept only
-    within the limits) and the inliers recomputed once with the true distance.
+    rejected. Hypotheses are scored with the Sampson distance ``d`` (the first-order
+    orthogonal distance) on an evenly strided subsample of at most ``ELLIPSE_SCORE_POINTS``
+    points, and the best ``ELLIPSE_TOP`` are rescored on every point. Unlike the line and the
+    circle, the ellipse is chosen by MSAC's cost ``sum(min(d^2, threshold^2))`` rather than
+    by inlier count: many ellipses fit a partial arc within the threshold, and the one with
+    the most inliers is the one that also catches the most stray points, which then pull the
+    refit by millimetres (MSAC halves the axis error with 20 % scattered outliers). The best
+    is refitted by direct least squares on its inliers, then (``geometric=True``) polished by
+    Gauss-Newton on the orthogonal distances, and kept if within the limits; the inliers are
+    recomputed once with the true orthogonal distance.
 
     Parameters
     ----------
@@ -1042,6 +1231,9 @@ def fit_ellipse(
         Accepted semi-axes ``(low, high)``, metres.
     max_trials, min_trials, confidence, seed
         As for :func:`fit_line`.
+    geometric : bool
+        Polish the direct fit by orthogonal-distance least squares: on a partial arc the
+        direct (algebraic) fit shrinks the ellipse by millimetres at this noise level.
 
     Returns
     -------
@@ -1063,8 +1255,9 @@ def fit_ellipse(
     pts = _Points(points)
     threshold = _check_threshold(threshold)
     limits = _check_limits(axis_limits, "axis_limits")
-    _check_trials(min_trials, max_trials, confidence)
-    return _fit_ellipse(pts, threshold, limits, seed, min_trials, max_trials, confidence)
+    _check_trials((min_trials, max_trials), confidence)
+    return _fit_ellipse(pts, threshold, limits, np.random.default_rng(seed),
+                        (min_trials, max_trials), confidence, geometric)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- fit_all
@@ -1082,28 +1275,32 @@ def fit_all(
     points: np.ndarray,
     threshold: float,
     *,
-    seed: int = 0,
+    seed: int | np.random.Generator = 0,
     radius_limits: tuple[float, float] = RADIUS_LIMITS_M,
     axis_limits: tuple[float, float] = AXIS_LIMITS_M,
     confidence: float = CONFIDENCE,
     line_trials: tuple[int, int] = LINE_TRIALS,
     circle_trials: tuple[int, int] = CIRCLE_TRIALS,
     ellipse_trials: tuple[int, int] = ELLIPSE_TRIALS,
+    geometric: bool = True,
 ) -> ScanLineFits:
-    """Line, circle and ellipse on one scan line, validating and centring the points once.
+    """Line, circle and ellipse on one scan line, sharing validation, centring and the RNG.
 
-    Identical to calling :func:`fit_line`, :func:`fit_circle` and :func:`fit_ellipse` with the
-    same ``seed`` (each model draws from its own ``default_rng(seed)``). ``*_trials`` are
-    ``(min_trials, max_trials)`` pairs.
+    ``*_trials`` are ``(min_trials, max_trials)`` pairs. One generator
+    ``g = numpy.random.default_rng(seed)`` serves the three fits in turn, so the result equals
+    ``fit_line(points, threshold, seed=g)``, then ``fit_circle(..., seed=g)``, then
+    ``fit_ellipse(..., seed=g)`` with the same settings.
     """
     pts = _Points(points)
     threshold = _check_threshold(threshold)
     r_limits = _check_limits(radius_limits, "radius_limits")
     a_limits = _check_limits(axis_limits, "axis_limits")
-    for lo_hi in (line_trials, circle_trials, ellipse_trials):
-        _check_trials(lo_hi[0], lo_hi[1], confidence)
+    _check_trials(line_trials, confidence, "line_trials")
+    _check_trials(circle_trials, confidence, "circle_trials")
+    _check_trials(ellipse_trials, confidence, "ellipse_trials")
+    rng = np.random.default_rng(seed)
     return ScanLineFits(
-        line=_fit_line(pts, threshold, seed, *line_trials, confidence),
-        circle=_fit_circle(pts, threshold, r_limits, seed, *circle_trials, confidence),
-        ellipse=_fit_ellipse(pts, threshold, a_limits, seed, *ellipse_trials, confidence),
+        line=_fit_line(pts, threshold, rng, line_trials, confidence),
+        circle=_fit_circle(pts, threshold, r_limits, rng, circle_trials, confidence),
+        ellipse=_fit_ellipse(pts, threshold, a_limits, rng, ellipse_trials, confidence, geometric),
     )
