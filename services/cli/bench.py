@@ -9,6 +9,7 @@ import importlib
 BENCHES: dict[str, tuple[str, str]] = {
     "latency": ("services.cli.bench_latency", "depth frame capture to bytes on the tactor line"),
     "compare": ("services.cli.bench_compare", "the four-line method against the full cloud"),
+    "render": ("services.cli.bench_render", "simulated camera and scan-cut speed"),
     "foxglove": ("services.cli.bench_foxglove", "Foxglove conversion, export and bridge figures"),
 }
 
