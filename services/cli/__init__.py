@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "schemas": ("services.cli.schemas", "print the JSON schema of every topic"),
     "bench": ("services.cli.bench", "benchmarks that print their figures"),
     "tactors": ("services.cli.tactors", "pulse each tactor in turn to fit a user (tactors test)"),
+    "emg": ("services.cli.emg", "EMG: record rest and maximal contraction (emg calibrate)"),
     "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
     "replay": ("services.cli.replay", "re-run the pipeline on a recording; --check compares"),
     "export": ("services.cli.export", "re-log a recording in Foxglove's schemas (--foxglove)"),
