@@ -45,6 +45,7 @@ from lpc_core.solids import (
     PlaneSolid,
     SphereSolid,
     best_cylinder_axis,
+    fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
 )
@@ -87,6 +88,7 @@ class LaserParams:
     segment_gap_m: float = 0.008
     pierce_tolerance_m: float = 0.006
     max_outlier_run: int = 3
+    run_gap_m: float = 0.015
     # Seeds and Algorithm 1.
     alpha_max_rad: float = math.radians(10.0)
     capture_half_width_m: float = 0.05
@@ -103,6 +105,17 @@ class LaserParams:
     max_axis_guesses: int = 2
     cylinder_points: int = 160
     edge_tolerance_m: float = 0.0015
+    # A cuboid's width includes the object past the face's edges while the surface falls away
+    # steeper than ``bevel_min_rad`` (or within ``bevel_free_depth_m`` of the edge).
+    bevels: bool = True
+    bevel_min_rad: float = math.radians(20.0)
+    bevel_free_depth_m: float = 0.003
+    # A face whose uncut seeds lie on a circle (RMS <= disc_max_rms_m, at least disc_min_seeds)
+    # better than on a rectangle is a disc: a short cylinder along the face normal.
+    disc_min_seeds: int = 6
+    disc_max_rms_m: float = 0.0012
+    # An axis within ~6 degrees of the optical axis has no wrist angle (as the simulator's truth).
+    axis_along_view: float = 0.1
     axis_grid_points: int = 120
     axis_good_fraction: float = 0.9
     cylinder_iterations: int = 6
@@ -118,12 +131,20 @@ class LaserParams:
             "min_points_per_line",
             "segment_gap_m",
             "pierce_tolerance_m",
+            "run_gap_m",
             "alpha_max_rad",
             "capture_half_width_m",
             "solid_threshold_m",
             "axis_grid",
             "axis_grid_points",
             "cylinder_iterations",
+            "max_axis_guesses",
+            "cylinder_points",
+            "edge_tolerance_m",
+            "bevel_min_rad",
+            "disc_min_seeds",
+            "disc_max_rms_m",
+            "axis_along_view",
         )
         for name in positive:
             value = getattr(self, name)
@@ -144,8 +165,9 @@ class LaserParams:
             "crop_margin_m",
             "edge_extension",
             "sphere_depth_ratio",
-            "max_outlier_run",
             "paper_ellipse_margin",
+            "bevel_free_depth_m",
+            "max_outlier_run",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -283,15 +305,36 @@ def _segment(points: np.ndarray, s: np.ndarray, params: LaserParams) -> np.ndarr
     return np.arange(starts[best], ends[best])
 
 
-def _runs(inliers: np.ndarray, points: np.ndarray, params: LaserParams) -> list[np.ndarray]:
-    """Runs of inlier indices, split at more than ``max_outlier_run`` outliers or a jump."""
+def _runs(
+    inliers: np.ndarray, points: np.ndarray, params: LaserParams, front: np.ndarray | None = None
+) -> list[np.ndarray]:
+    """Runs of inlier indices. A run ends at more than ``max_outlier_run`` outliers in a row or
+    a jump of ``segment_gap_m``, except over a bump: outliers all in ``front`` of the model
+    (toward the camera; a remote's buttons) spanning at most ``run_gap_m``."""
     idx = np.flatnonzero(inliers)
     if len(idx) == 0:
         return []
     d = points[idx[1:]] - points[idx[:-1]]
-    jump = np.einsum("ij,ij->i", d, d) > params.segment_gap_m**2
-    breaks = np.flatnonzero((idx[1:] - idx[:-1] > params.max_outlier_run + 1) | jump) + 1
+    dist2 = np.einsum("ij,ij->i", d, d)
+    between = idx[1:] - idx[:-1] - 1
+    split = (between > params.max_outlier_run) | (dist2 > params.segment_gap_m**2)
+    if front is not None and split.any():
+        behind = np.concatenate([[0], np.cumsum(~front)])
+        bump = (behind[idx[1:]] - behind[idx[:-1] + 1] == 0) & (dist2 <= params.run_gap_m**2)
+        split &= ~bump
+    breaks = np.flatnonzero(split) + 1
     return np.split(idx, breaks) if len(breaks) else [idx]
+
+
+def _front(model: str, fitted: Any, sz: np.ndarray) -> np.ndarray | None:
+    """For a line model, the points nearer the camera (smaller z) than the line."""
+    if model != "line":
+        return None
+    px, py, dx, dy = fitted.params
+    normal = np.array([dy, -dx])
+    if normal[1] > 0:
+        normal = -normal  # toward the camera: decreasing z
+    return (sz - (px, py)) @ normal > 0
 
 
 def _pierced_run(runs: list[np.ndarray], s: np.ndarray, params: LaserParams) -> np.ndarray:
@@ -365,14 +408,17 @@ def _analyse_line(
     line.fits = {"line": fits.line, "circle": fits.circle, "ellipse": fits.ellipse}
     # A model counts by the run of its inliers that reaches the optical axis: a table or a
     # side face next to the object may hold more inliers, but it is not what the axis pierces.
-    all_runs = {m: _runs(f.inliers, line.points, params) if f else [] for m, f in line.fits.items()}
+    all_runs = {
+        m: _runs(f.inliers, line.points, params, _front(m, f, line.sz)) if f else []
+        for m, f in line.fits.items()
+    }
     pierced = {m: _pierced_run(r, line.sz[:, 0], params) for m, r in all_runs.items()}
     if len(pierced["line"]) < need and line.fits["line"]:
         # Across a crease (a box's front and top faces, or a face and the table) RANSAC's line
         # may lie on the other side: look once more among the points it left out.
         second = _second_line(line, params, seed)
         if second is not None:
-            runs = _runs(second.inliers, line.points, params)
+            runs = _runs(second.inliers, line.points, params, _front("line", second, line.sz))
             run = _pierced_run(runs, line.sz[:, 0], params)
             if len(run) > len(pierced["line"]):
                 line.fits["line"], all_runs["line"], pierced["line"] = second, runs, run
@@ -557,31 +603,45 @@ def _min_area_direction(uv: np.ndarray) -> np.ndarray:
     return edges[int(np.argmin(np.ptp(a, axis=0) * np.ptp(b, axis=0)))]
 
 
+@dataclass(frozen=True)
+class _Face:
+    width: float
+    axis: np.ndarray  # principal axis, 3-D unit
+    centre: np.ndarray
+    rectangle_residual: float  # largest distance of an uncut seed to its rectangle side
+    disc: tuple[np.ndarray, float, float] | None  # centre (3-D), radius, RMS of a circle fit
+
+
 def _face_geometry(
-    plane: PlaneSolid, seeds: _Seeds, params: LaserParams, *, paper: bool
-) -> tuple[float, np.ndarray, np.ndarray] | str:
+    plane: PlaneSolid,
+    seeds: _Seeds,
+    params: LaserParams,
+    *,
+    paper: bool,
+    beyond: np.ndarray | None = None,
+) -> _Face | str:
     """Grasp width, principal axis (3-D, unit) and centre of a face or longitudinal plane.
 
     The seeds are projected on the plane and sorted around the star. The paper's variant takes
     Algorithm 1's first direction and measures the seeds across it. Otherwise the direction is
-    the one putting most seeds on shared edges (Algorithm 1's straightest triple among the
-    candidates), refined by least squares; the principal axis is the longer extent and the
-    width the extent across it, both over all seeds, since seeds cut by the capture volume lie
-    inside the face.
+    the one putting the seeds on the sides of a rectangle (Algorithm 1's straightest triple is
+    among the candidates), refined by least squares; the principal axis is the longer extent
+    and the width the extent across it, over all seeds (seeds cut by the capture volume lie
+    inside the face) and the points ``beyond`` the face's edges that belong to the object.
     """
     origin, e1, e2 = _face_frame(plane)
     d = seeds.points - origin
     uv = np.column_stack([d @ e1, d @ e2])
     order = sort_around(uv, np.zeros(2))
     uv, cropped = uv[order], seeds.cropped[order]
+    disc = None
     if paper:
         direction = principal_direction(uv, params.alpha_max_rad, pick="first")
         if direction is None:
             return "no principal direction: no three seed points are collinear"
         u = direction / np.linalg.norm(direction)
-        extent = np.ptp(uv @ _perp(u))
-        lo_hi = (uv @ u).min(), (uv @ u).max(), (uv @ _perp(u)).min(), (uv @ _perp(u)).max()
-        width, principal = float(extent), u
+        a, b = uv @ u, uv @ _perp(u)
+        principal, width = u, float(np.ptp(b))
     else:
         tol = params.edge_tolerance_m
         direction = _edge_direction(uv, cropped, tol)
@@ -589,16 +649,62 @@ def _face_geometry(
             direction = _min_area_direction(uv)
         u = direction / np.linalg.norm(direction)
         a, b = uv @ u, uv @ _perp(u)
-        lo_hi = a.min(), a.max(), b.min(), b.max()
+        if beyond is not None and len(beyond):
+            extra = beyond - origin
+            extra_uv = np.column_stack([extra @ e1, extra @ e2])
+            a = np.concatenate([a, extra_uv @ u])
+            b = np.concatenate([b, extra_uv @ _perp(u)])
         if np.ptp(a) >= np.ptp(b):
             principal, width = u, float(np.ptp(b))
         else:
             principal, width = _perp(u), float(np.ptp(a))
+        valid = uv[~cropped]
+        if len(valid) >= params.disc_min_seeds:
+            circle = fit_circle_2d(valid)
+            if circle is not None:
+                rms = float(
+                    np.sqrt(np.mean((np.linalg.norm(valid - circle[0], axis=1) - circle[1]) ** 2))
+                )
+                disc = (origin + circle[0][0] * e1 + circle[0][1] * e2, circle[1], rms)
+    residual = _rectangle_residual(uv[~cropped], u) if (~cropped).any() else 0.0
+    lo_hi = a.min(), a.max(), b.min(), b.max()
     a_mid, b_mid = (lo_hi[0] + lo_hi[1]) / 2, (lo_hi[2] + lo_hi[3]) / 2
     centre_uv = a_mid * u + b_mid * _perp(u)
     centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
     axis = principal[0] * e1 + principal[1] * e2
-    return width, axis / np.linalg.norm(axis), centre
+    return _Face(width, axis / np.linalg.norm(axis), centre, residual, disc)
+
+
+def _rectangle_residual(uv: np.ndarray, u: np.ndarray) -> float:
+    a, b = uv @ u, uv @ _perp(u)
+    dist = np.minimum.reduce([a - a.min(), a.max() - a, b - b.min(), b.max() - b])
+    return float(dist.max())
+
+
+def _beyond_edges(lines: list[_Line], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
+    """Points of the object past the face's edges: from each end of a line's run, outward
+    through its segment, while the surface falls away from the face (a bevel, a rounded edge,
+    a prism's next face) and before it turns parallel to the face again (a table)."""
+    out = []
+    n = plane.normal
+    for line in lines:
+        heights = (line.points - plane.point) @ n  # > 0: in front of the face
+        for end, step in ((line.run[0], -1), (line.run[-1], 1)):
+            stop = 0 if step < 0 else len(line.points) - 1
+            if end == stop:
+                continue
+            idx = np.arange(end, stop + step, step)
+            p, h = line.points[idx], heights[idx]
+            moves = np.diff(p, axis=0)
+            rise = np.diff(h)
+            run = np.sqrt(np.maximum(np.einsum("ij,ij->i", moves, moves) - rise**2, 0.0))
+            falling = -rise >= math.tan(params.bevel_min_rad) * run
+            near = (h[0] - h[1:]) <= params.bevel_free_depth_m
+            ok = (h[1:] <= params.solid_threshold_m) & (falling | near)
+            k = int(np.argmin(ok)) if not ok.all() else len(ok)
+            if k > 0:
+                out.append(p[k])
+    return plane.project(np.array(out)) if out else np.empty((0, 3))
 
 
 # --------------------------------------------------------------------------- 3-D candidates
@@ -887,16 +993,39 @@ def _decide(
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
     seeds = _collect_seeds(on_face, params, extend=True)
     seeds = _Seeds(points=solid.project(seeds.points), cropped=seeds.cropped)
-    face = _face_geometry(solid, seeds, params, paper=False)
+    beyond = _beyond_edges(on_face, solid, params) if params.bevels else None
+    face = _face_geometry(solid, seeds, params, paper=False, beyond=beyond)
     if isinstance(face, str):
         return _none(face, summaries, total, extra)
-    width, axis, centre = face
-    axis = _canonical_axis(axis)
+    if face.disc is not None:
+        extra["disc_rms_mm"] = 1000 * face.disc[2]
+        extra["rectangle_residual_mm"] = 1000 * face.rectangle_residual
+    if (
+        face.disc is not None
+        and face.disc[2] <= params.disc_max_rms_m
+        and face.disc[2] < 0.5 * face.rectangle_residual
+        and params.radius_limits_m[0] <= face.disc[1] <= params.radius_limits_m[1]
+    ):
+        # A flat round face (a lid seen from above): a short cylinder along the face normal.
+        normal = _canonical_axis(solid.normal)
+        along_view = math.hypot(normal[0], normal[1]) < params.axis_along_view
+        return Reconstruction(
+            shape="cylinder",
+            grasp_width_m=2 * face.disc[1],
+            wrist_angle_rad=None if along_view else _axis_angle(normal),
+            center_m=_tuple3(face.disc[0]),
+            axis=_tuple3(normal),
+            lines=summaries,
+            confidence=confidence,
+            points=total,
+            extra=extra,
+        )
+    axis = _canonical_axis(face.axis)
     return Reconstruction(
         shape="cuboid",
-        grasp_width_m=width,
+        grasp_width_m=face.width,
         wrist_angle_rad=_axis_angle(axis),
-        center_m=_tuple3(centre),
+        center_m=_tuple3(face.centre),
         axis=_tuple3(axis),
         lines=summaries,
         confidence=confidence,
@@ -978,13 +1107,12 @@ def _decide_paper(
     face = _face_geometry(plane, seeds, params, paper=True)
     if isinstance(face, str):
         return _none(face, summaries, total, extra)
-    width, axis, centre = face
-    axis = _canonical_axis(axis)
+    axis = _canonical_axis(face.axis)
     return Reconstruction(
         shape=shape,
-        grasp_width_m=width,
+        grasp_width_m=face.width,
         wrist_angle_rad=_axis_angle(axis),
-        center_m=_tuple3(centre),
+        center_m=_tuple3(face.centre),
         axis=_tuple3(axis),
         lines=summaries,
         confidence=max(fraction.values()),
