@@ -322,24 +322,27 @@ def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
     cy = 0.5 * (sxx * syz - sxy * sxz) / det
     # Gauss-Newton on the centre: residual_i = rho_i - mean(rho), Jacobian -(u_i - mean(u)),
     # u_i the unit vector from the centre to point i; normal equations (J'J) step = J' res.
+    # With sum(res) = 0 and sum(u_i rho_i) = sum(p_i - c) = -n c (centred data), J'res and
+    # J'J need only sum(rho), sum(u) and two dot products.
     for _ in range(_CIRCLE_GN_STEPS):
         dx, dy = xs - cx, ys - cy
         rho = np.hypot(dx, dy)
         if not rho.all():
             break
         ux, uy = dx / rho, dy / rho
-        res = rho - float(rho.sum()) / n
-        jx, jy = ux - float(ux.sum()) / n, uy - float(uy.sum()) / n
-        a11, a12, a22 = float(jx @ jx), float(jx @ jy), float(jy @ jy)
-        b1, b2 = float(jx @ res), float(jy @ res)
+        r = float(rho.sum()) / n
+        mux, muy = float(ux.sum()) / n, float(uy.sum()) / n
+        sxx, sxy = float(ux @ ux), float(ux @ uy)
+        a11, a12, a22 = sxx - n * mux * mux, sxy - n * mux * muy, n - sxx - n * muy * muy
+        b1, b2 = -n * (cx + r * mux), -n * (cy + r * muy)
         det = a11 * a22 - a12 * a12
         if not det > 0.0:
             break
         step_x = (a22 * b1 - a12 * b2) / det
         step_y = (a11 * b2 - a12 * b1) / det
         cx, cy = cx + step_x, cy + step_y
-        # Kasa starts close on arcs of 90 degrees or more; 1e-9 of the scale is ~1e-11 m.
-        if step_x * step_x + step_y * step_y < 1e-18:
+        # 1e-6 of the scale is ~1e-8 m: far below the depth noise.
+        if step_x * step_x + step_y * step_y < 1e-12:
             break
     r = float(np.hypot(xs - cx, ys - cy).sum()) / n
     cx, cy, r = mx + scale * cx, my + scale * cy, scale * r
@@ -616,49 +619,54 @@ def _ellipse_geometric(
     # Work centred on the start's centre and scaled by its major axis.
     scale = a
     inv = 1.0 / scale
-    xs, ys = (x - cx0) * inv, (y - cy0) * inv
+    xy = np.array([(x - cx0) * inv, (y - cy0) * inv])  # (2, N)
     p = [0.0, 0.0, 1.0, b * inv, theta]
     best_p, best_cost = p, math.inf
     c, s = math.cos(theta), math.sin(theta)
-    u, v = xs * c + ys * s, ys * c - xs * s
+    u, v = np.array([[c, s], [-s, c]]) @ xy
     t = np.arctan2(p[2] * v, p[3] * u)
-    with np.errstate(all="ignore"):
-        for k in range(steps + 1):
-            cx, cy, a, b, theta = p
-            ct, st = np.cos(t), np.sin(t)
-            ru, rv = u - a * ct, v - b * st
-            # Newton on f(t) = r . X'(t) = 0, X'(t) = (-a sin t, b cos t); skip where f' >= 0
-            # (beyond the centre of curvature, where the step would go the wrong way).
-            f = b * ct * rv - a * st * ru
-            fp = -(a * a * st * st + b * b * ct * ct) - a * ct * ru - b * st * rv
-            t = t - np.where(fp < 0.0, f / fp, 0.0)
-            ct, st = np.cos(t), np.sin(t)
-            ru, rv = u - a * ct, v - b * st
-            w = np.hypot(b * ct, a * st)
-            nu, nv = b * ct / w, a * st / w
-            d = nu * ru + nv * rv
-            cost = float(d @ d)
-            if not cost < best_cost:
-                break
-            best_p, best_cost = p, cost
-            if k == steps:
-                break
-            c, s = math.cos(theta), math.sin(theta)
-            jac = np.array([nv * s - nu * c, -nu * s - nv * c, -nu * ct, -nv * st, nu * v - nv * u])
-            h = jac @ jac.T
-            # A little Levenberg damping: theta is unobservable on a circle (a = b).
-            h[np.diag_indices(5)] *= 1.0 + 1e-6
-            h[np.diag_indices(5)] += 1e-12 * float(np.trace(h))
-            try:
-                step = np.linalg.solve(h, -(jac @ d)).tolist()
-            except np.linalg.LinAlgError:
-                break
-            p = [p[i] + step[i] for i in range(5)]
-            if not (p[2] > 0.0 and p[3] > 0.0 and all(map(math.isfinite, p))):
-                break
-            c, s = math.cos(p[4]), math.sin(p[4])
-            dx, dy = xs - p[0], ys - p[1]
-            u, v = dx * c + dy * s, dy * c - dx * s
+    for k in range(steps + 1):
+        cx, cy, a, b, theta = p
+        # First move each t_i by a Gauss-Newton step towards its closest point on the current
+        # ellipse, r . X'(t) = 0 with X'(t) = (-a sin t, b cos t); then take the normal there.
+        ct, st = np.cos(t), np.sin(t)
+        bct, ast = b * ct, a * st
+        t = t + (bct * (v - b * st) - ast * (u - a * ct)) / (bct * bct + ast * ast)
+        ct, st = np.cos(t), np.sin(t)
+        bct, ast = b * ct, a * st
+        ru, rv = u - a * ct, v - b * st
+        w = np.hypot(bct, ast)
+        nu, nv = bct / w, ast / w  # unit normal at X(t), in the ellipse's frame
+        d = nu * ru + nv * rv
+        cost = float(d @ d)
+        if not cost < best_cost:
+            break
+        best_p, best_cost = p, cost
+        if k == steps:
+            break
+        # d(d)/d(centre) = -R(theta) n; d/da = -n_u cos t; d/db = -n_v sin t;
+        # d/dtheta = n_u v - n_v u (the frame turns under the fixed point).
+        c, s = math.cos(theta), math.sin(theta)
+        jac = np.empty((5, n))
+        jac[:2] = np.array([[-c, s], [-s, -c]]) @ np.array([nu, nv])
+        jac[2], jac[3], jac[4] = -nu * ct, -nv * st, nu * v - nv * u
+        h = jac @ jac.T
+        # A little Levenberg damping: theta is unobservable on a circle (a = b).
+        h.flat[::6] *= 1.0 + 1e-6
+        h.flat[::6] += 1e-12 * float(h.trace())
+        try:
+            step = np.linalg.solve(h, -(jac @ d)).tolist()
+        except np.linalg.LinAlgError:
+            break
+        p = [p[i] + step[i] for i in range(5)]
+        if not (p[2] > 0.0 and p[3] > 0.0 and all(map(math.isfinite, p))):
+            break
+        c, s = math.cos(p[4]), math.sin(p[4])
+        u, v = np.array([[c, s], [-s, c]]) @ (xy - np.array([[p[0]], [p[1]]]))
+        if step[0] ** 2 + step[1] ** 2 + step[2] ** 2 + step[3] ** 2 + step[4] ** 2 < 1e-14:
+            # Converged (1e-7 of the major axis): keep this step without another evaluation.
+            best_p = p
+            break
     if best_cost == math.inf:
         return None
     cx, cy, a, b, theta = best_p
@@ -702,24 +710,19 @@ def _check_trials(trials: tuple[int, int], confidence: float, name: str = "trial
 
 
 def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
-    """``(size, k)`` indices into ``range(n)``, distinct within each row, uniform."""
-    # Column j is uniform over the n - j indices its row has not used: draw v in [0, n - j)
-    # and step v past each earlier pick it reaches, smallest first (Floyd-style).
-    idx = (rng.random((size, k)) * (n - np.arange(k))).astype(np.intp)
-    if k > 1:
-        v = idx[:, 1]
-        v += v >= idx[:, 0]
-    if k > 2:
-        lo, hi = np.minimum(idx[:, 0], idx[:, 1]), np.maximum(idx[:, 0], idx[:, 1])
-        v = idx[:, 2]
-        v += v >= lo
-        v += v >= hi
-    for j in range(3, k):
-        earlier = np.sort(idx[:, :j], axis=1)
-        v = idx[:, j]
-        for c in range(j):
-            v += v >= earlier[:, c]
-    return idx
+    """``(size, k)`` indices into ``range(n)``, distinct within each row.
+
+    Floyd's algorithm, one column at a time for all rows: for j = n-k .. n-1 draw v uniform in
+    [0, j] and take v, or j if v is already in the row. Every k-subset is equally likely (the
+    order within a row is not uniform, which no model here cares about); no sorting.
+    """
+    v = (rng.random((size, k)) * (np.arange(n - k, n) + 1.0)).astype(np.intp)
+    for col in range(1, k):
+        j = n - k + col
+        taken = v[:, :1] == v[:, col : col + 1] if col == 1 else (
+            np.logical_or.reduce(v[:, :col] == v[:, col : col + 1], axis=1, keepdims=True))
+        v[:, col : col + 1] = np.where(taken, j, v[:, col : col + 1])
+    return v
 
 
 def _trials_needed(n_inliers: int, n: int, k: int, confidence: float) -> float:
@@ -927,9 +930,16 @@ def fit_line(
 def _circle_scorer(pts: _Points, threshold: float, limits: tuple[float, float]) -> _Scorer:
     x, y = pts.x, pts.y
     basis = pts.circle_basis()  # (4, N): x, y, x^2 + y^2, 1
+    r_lo = limits[0]
     lo2, hi2 = limits[0] ** 2, limits[1] ** 2
+    unbounded = math.isinf(hi2)
+    t2 = threshold * threshold
+    ones = np.ones(0)
 
     def score(idx: np.ndarray) -> _Best | None:
+        nonlocal ones
+        if ones.shape[0] != idx.shape[0]:
+            ones = np.ones(idx.shape[0])
         px, py = x[idx], y[idx]  # (T, 3)
         # Circumcentre relative to the first point; b, e the other two points' offsets.
         dx, dy = px[:, 1:] - px[:, :1], py[:, 1:] - py[:, :1]
@@ -940,18 +950,21 @@ def _circle_scorer(pts: _Points, threshold: float, limits: tuple[float, float]) 
             ux = (ey * bb - by * ee) / cross
             uy = (bx * ee - ex * bb) / cross
             r2 = ux * ux + uy * uy
-            # Collinear or repeated points: cross ~ 0 and r2 inf or nan, rejected by the limits.
-            ok = (np.abs(cross) > 1e-12 * (bb + ee)) & (r2 >= lo2) & (r2 <= hi2)
-            if not ok.any():
-                return None
+            # Collinear or repeated points give cross ~ 0, so r2 huge, inf or nan: the radius
+            # limits reject them (nan fails every comparison).
+            ok = (r2 >= lo2) & (r2 <= hi2)
+            if unbounded:
+                ok &= np.abs(cross) > 1e-12 * (bb + ee)
             cx, cy, r = px[:, 0] + ux, py[:, 0] + uy, np.sqrt(r2)
             # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt
             # on the (T, N) array, and |p - c|^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
-            rlo = np.maximum(r - threshold, 0.0)
-            rhi = r + threshold
-            mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
+            if r_lo >= threshold:  # then r - t >= 0 on every valid row
+                mid, half = r2 + t2, 2.0 * threshold * r
+            else:
+                rlo, rhi = np.maximum(r - threshold, 0.0), r + threshold
+                mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
             half = np.where(ok, half, -1.0)
-            coef = np.array([-2.0 * cx, -2.0 * cy, np.ones_like(cx), cx * cx + cy * cy - mid])
+            coef = np.array([-2.0 * cx, -2.0 * cy, ones, cx * cx + cy * cy - mid])
             off = np.abs(coef.T @ basis)
         counts = (off <= half[:, None]).sum(axis=1)
 
