@@ -18,12 +18,16 @@ import argparse
 import asyncio
 import contextlib
 import sys
+import time
 
 from services.mcap_log import COMPRESSIONS, DEFAULT_COMPRESSION, LogWriter
 from services.runtime import Bus, run_service, service_parser
 
 QUEUE_CAPACITY = 1 << 16  # ~6 s of everything at 90 Hz depth: a slow disk stalls, never drops
-DRAIN_IDLE_S = 0.1  # at shutdown, write what arrives until the bus is quiet this long
+# At shutdown, write what is queued or still arriving, until the bus has been quiet this long,
+# for at most DRAIN_MAX_S ('lpc up' stops the recorder last and gives each service 2 s).
+DRAIN_IDLE_S = 0.25
+DRAIN_MAX_S = 1.5
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
@@ -37,8 +41,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             _record(bus, writer, key, payload, received_ns)
     finally:
         # Cancelled by SIGINT/SIGTERM: keep what is already queued, then finish the file.
+        end = time.monotonic() + DRAIN_MAX_S
         with contextlib.suppress(TimeoutError):
-            while True:
+            while time.monotonic() < end:
                 key, payload, received_ns = await asyncio.wait_for(sub.receive(), DRAIN_IDLE_S)
                 _record(bus, writer, key, payload, received_ns)
         writer.finish()
