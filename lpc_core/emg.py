@@ -175,7 +175,7 @@ def calibrate(
         )
     noise = float(np.max(3.0 * rest.std(axis=0) / (maximal - rest_mean)))
     off = max(base.off, round(noise, 3))
-    on = max(base.on, off + 0.05)
+    on = round(max(base.on, off + 0.05), 3)
     if on >= base.upper:
         raise ValueError(f"rest noise too high: 3 SD is {noise:.2f} of the maximal contraction")
     return dataclasses.replace(

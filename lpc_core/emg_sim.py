@@ -24,11 +24,11 @@ proportional close on the object, a hold, and an opening that releases it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from schemas import AimCue, ControllerState, EmgSample, ProsthesisState
 
@@ -75,6 +75,33 @@ class MuscleState:
     artifact: tuple[float, float] = (0.0, 0.0)
 
 
+NOISE_BLOCK = 100  # samples drawn per seeded block
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_block(seed: int, block: int) -> np.ndarray:
+    """(NOISE_BLOCK, 6): AR shocks (2), artifact draws (2), artifact sizes (2), seeded by the
+    block so that any sample's noise depends only on ``(seed, seq)``, however it is stepped."""
+    rng = np.random.default_rng((seed, block))
+    noise = np.concatenate(
+        [
+            rng.standard_normal((NOISE_BLOCK, 2)),
+            rng.random((NOISE_BLOCK, 2)),
+            rng.uniform(0.3, 1.0, (NOISE_BLOCK, 2)),
+        ],
+        axis=1,
+    )
+    noise.flags.writeable = False
+    return noise
+
+
+def _noise(seed: int, seq: int, n: int) -> np.ndarray:
+    first, last = seq // NOISE_BLOCK, (seq + n - 1) // NOISE_BLOCK
+    blocks = [_noise_block(seed, b) for b in range(first, last + 1)]
+    start = seq - first * NOISE_BLOCK
+    return np.concatenate(blocks)[start : start + n]
+
+
 def simulate_emg(
     state: MuscleState,
     drive: np.ndarray,
@@ -82,53 +109,52 @@ def simulate_emg(
     seed: int,
     seq: int,
 ) -> tuple[MuscleState, np.ndarray]:
-    """Envelopes (N, 2) in volts for the intended drive (N, 2) in [0, 1], from sample ``seq``."""
+    """Envelopes (N, 2) in volts for the intended drive (N, 2) in [0, 1], from sample ``seq``.
+
+    Stepping one sample at a time gives the same envelopes as one call over the whole drive.
+    """
     drive = np.clip(np.asarray(drive, dtype=float), 0.0, 1.0)
     if drive.ndim != 2 or drive.shape[1] != 2:
         raise ValueError(f"drive must have shape (N, 2), got {drive.shape}")
     n = len(drive)
     if n == 0:
         return state, np.empty((0, 2))
-    rng = np.random.default_rng((seed, seq))
-    shocks = rng.standard_normal((n, 2))
-    artifact_hits = rng.random((n, 2)) < params.artifact_rate_hz / RATE_HZ
-    artifact_sizes = rng.uniform(0.3, 1.0, (n, 2)) * params.artifact_level
-
+    noise = _noise(seed, seq, n)
     dt = 1.0 / RATE_HZ
     k_rise = 1.0 - math.exp(-dt * 1e3 / params.rise_ms)
     k_fall = 1.0 - math.exp(-dt * 1e3 / params.fall_ms)
     k_artifact = math.exp(-dt / 0.03)
     rho = params.noise_corr
     innovation = math.sqrt(1.0 - rho * rho)
-    rest = np.asarray(params.rest)
-    span = np.asarray(params.maximal) - rest
+    hit_p = params.artifact_rate_hz / RATE_HZ
+    span = [m - r for r, m in zip(params.rest, params.maximal, strict=True)]
 
-    # Activation and fatigue are asymmetric and state-dependent: a loop over time, in plain
-    # floats (numpy's per-call overhead would dominate at one sample per step).
-    activation = np.empty((n, 2))
-    fatigue = np.empty((n, 2))
-    for c in range(2):
-        a, f = state.activation[c], state.fatigue[c]
-        for i, u in enumerate(drive[:, c].tolist()):
-            a += (u - a) * (k_rise if u > a else k_fall)
-            f += (params.fatigue_rate * a - params.recovery_rate * f) * dt
-            f = min(max(f, 0.0), params.max_fatigue)
-            activation[i, c], fatigue[i, c] = a, f
-    # The linear parts are filters: AR(1) fluctuation and decaying artifacts.
-    z0 = np.asarray(state.fluctuation)
-    z = lfilter([innovation], [1.0, -rho], shocks, axis=0, zi=(rho * z0)[None, :])[0]
-    kicks = np.where(artifact_hits, artifact_sizes, 0.0)
-    art0 = np.asarray(state.artifact)
-    art = lfilter([1.0], [1.0, -k_artifact], kicks, axis=0, zi=(k_artifact * art0)[None, :])[0]
-    seen = activation + params.crosstalk * activation[:, ::-1]
-    amplitude = seen * (1.0 - fatigue) * span
-    envelope = np.sqrt(rest**2 + amplitude**2) * (1.0 + params.noise * z)
-    out = np.maximum(envelope + art * span, 0.0)
+    # A loop over time in plain floats: the activation dynamics are asymmetric and the fatigue
+    # state-dependent, and at one sample per call numpy's per-call overhead would dominate.
+    a, f = list(state.activation), list(state.fatigue)
+    z, art = list(state.fluctuation), list(state.artifact)
+    out = np.empty((n, 2))
+    rows = noise.tolist()
+    for i, u in enumerate(drive.tolist()):
+        row = rows[i]
+        for c in range(2):
+            a[c] += (u[c] - a[c]) * (k_rise if u[c] > a[c] else k_fall)
+            f[c] += (params.fatigue_rate * a[c] - params.recovery_rate * f[c]) * dt
+            f[c] = min(max(f[c], 0.0), params.max_fatigue)
+            z[c] = rho * z[c] + innovation * row[c]
+            art[c] = art[c] * k_artifact + (
+                row[4 + c] * params.artifact_level if row[2 + c] < hit_p else 0.0
+            )
+        for c in range(2):
+            seen = a[c] + params.crosstalk * a[1 - c]
+            amplitude = seen * (1.0 - f[c]) * span[c]
+            envelope = math.sqrt(params.rest[c] ** 2 + amplitude**2) * (1.0 + params.noise * z[c])
+            out[i, c] = max(envelope + art[c] * span[c], 0.0)
     new_state = MuscleState(
-        activation=(float(activation[-1, 0]), float(activation[-1, 1])),
-        fatigue=(float(fatigue[-1, 0]), float(fatigue[-1, 1])),
-        fluctuation=(float(z[-1, 0]), float(z[-1, 1])),
-        artifact=(float(art[-1, 0]), float(art[-1, 1])),
+        activation=(a[0], a[1]),
+        fatigue=(f[0], f[1]),
+        fluctuation=(z[0], z[1]),
+        artifact=(art[0], art[1]),
     )
     return new_state, out
 

@@ -14,6 +14,7 @@ from lpc_core.hand import HandCommand, HandStatus
 from schemas import ProsthesisState
 from services.drivers.hand import BACKENDS, DEFAULT_CHANNEL, HandLink, open_hand
 from services.drivers.hand_sim import SimulatedHand
+from services.hand_sim import follow_grasps
 from services.runtime import Bus, run_service, service_parser
 
 
@@ -50,7 +51,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         on_event=lambda level, text: loop.call_soon_threadsafe(bus.log, level, text),
         watchdog_s=args.watchdog_ms / 1000.0,
     ).start()
-    follow = asyncio.create_task(_follow_grasps(bus, sim, args.object_mm)) if sim else None
+    follow = asyncio.create_task(follow_grasps(bus, sim, args.object_mm)) if sim else None
     try:
         async for command in bus.subscribe("lpc/prosthesis/command"):
             age_ns = bus.clock.now_ns() - command.t_ns
@@ -65,15 +66,6 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         if sim is not None:
             sim.stop()
         bus.health.counters.update(link.counters)
-
-
-async def _follow_grasps(bus: Bus, sim: SimulatedHand, default_mm: float | None) -> None:
-    # Simulation only: the object between the fingers is the one the hand was pre-shaped for.
-    async for state in bus.subscribe("lpc/controller/state"):
-        if state.state == "preshaping" and state.target_width_mm is not None:
-            sim.object_mm = state.target_width_mm
-        elif state.state == "idle" and state.previous == "direct":
-            sim.object_mm = default_mm
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -66,12 +66,15 @@ def test_simulate_emg_fatigue_lowers_the_amplitude_then_recovers() -> None:
     assert state.fatigue[0] < 0.5 * 0.05 * 0.8 * 30  # recovered from its peak during rest
 
 
-def test_simulate_emg_carries_state_across_blocks() -> None:
-    drive = script_drive([Segment(0.1, 0.5, flexor=0.9)], 100)
-    state = MuscleState()
-    for i in range(30):
-        state, _ = simulate_emg(state, drive[i : i + 1], PARAMS, seed=0, seq=i)
-    assert state.activation[0] > 0.8  # the activation built up one sample at a time
+def test_simulate_emg_stepwise_equals_one_call() -> None:
+    drive = script_drive([Segment(0.1, 0.5, flexor=0.9), Segment(1.5, 0.3, extensor=0.6)], 250)
+    state, whole = simulate_emg(MuscleState(), drive, PARAMS, seed=0, seq=40)
+    stepped, parts = MuscleState(), []
+    for i in range(len(drive)):
+        stepped, out = simulate_emg(stepped, drive[i : i + 1], PARAMS, seed=0, seq=40 + i)
+        parts.append(out)
+    np.testing.assert_allclose(np.concatenate(parts), whole, rtol=1e-12)
+    assert stepped == state
 
 
 def test_simulate_emg_rejects_a_bad_drive() -> None:

@@ -1,0 +1,118 @@
+"""Controller service: ``lpc/emg``, ``lpc/grasp/target``, ``lpc/aim/cue`` and
+``lpc/prosthesis/state`` in; ``lpc/controller/state`` (every transition, and 10 Hz) and
+``lpc/prosthesis/command`` (one per hand status, 100 Hz) out. A 100 Hz timer lets the
+controller notice stale inputs when nothing arrives at all."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from types import MappingProxyType
+
+from lpc_core.controller import (
+    EMG,
+    HAND,
+    TARGET,
+    ControllerCore,
+    ControllerParams,
+    Tick,
+    TransitionError,
+    controller_step,
+)
+from lpc_core.emg import EmgProfile
+from schemas import ControllerState
+from services.drivers.emg import load_emg_profile
+from services.runtime import Bus, run_service, service_parser
+
+TICK_NS = 10_000_000
+INPUTS = {EMG: False, TARGET: True, "lpc/aim/cue": True, HAND: True}  # key -> newest only
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    core = ControllerCore(params=args.params)
+    publishers = {
+        "ControllerState": bus.publisher("lpc/controller/state"),
+        "ProsthesisCommand": bus.publisher("lpc/prosthesis/command"),
+    }
+    inbox: asyncio.Queue = asyncio.Queue()
+
+    async def pump(key: str, latest: bool) -> None:
+        # EMG is FIFO: the detector's timing rules need every sample, in order.
+        async for message in bus.subscribe(key, latest=latest):
+            inbox.put_nowait(message)
+
+    async def ticks() -> None:
+        t_ns = bus.clock.now_ns()
+        while True:
+            t_ns = max(t_ns + TICK_NS, bus.clock.now_ns() - TICK_NS)
+            await bus.clock.sleep_until(t_ns)
+            inbox.put_nowait(Tick(t_ns))
+
+    tasks = [asyncio.create_task(pump(k, latest)) for k, latest in INPUTS.items()]
+    tasks.append(asyncio.create_task(ticks()))
+    try:
+        while True:
+            message = await inbox.get()
+            try:
+                core, outputs = controller_step(core, message, bus.clock.now_ns())
+            except TransitionError as exc:
+                bus.health.counters["transition_errors"] += 1
+                bus.log("warning", str(exc))
+                continue
+            except ValueError as exc:
+                bus.reject(type(message).__name__, str(exc))
+                continue
+            for out in outputs:
+                publishers[type(out).__name__].put(out)
+                if isinstance(out, ControllerState) and out.event:
+                    bus.log("info", f"{out.previous} -> {out.state} on {out.event}: {out.reason}")
+    finally:
+        for task in tasks:
+            task.cancel()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("controller", __doc__ or "")
+    parser.add_argument("--profile", metavar="FILE", help="user profile JSON (its emg section)")
+    parser.add_argument(
+        "--sim-user",
+        action="store_true",
+        help="calibration of the simulated user (lpc_core.emg_sim defaults) instead of a profile",
+    )
+    parser.add_argument("--stale-emg-ms", type=float, default=100.0)
+    parser.add_argument("--stale-hand-ms", type=float, default=100.0)
+    parser.add_argument(
+        "--stale-target-ms", type=float, default=1000.0, help="0: do not watch the grasp target"
+    )
+    parser.add_argument(
+        "--camera-fixed",
+        action="store_true",
+        help="target angles are not relative to the wrist (camera not on the hand)",
+    )
+    args = parser.parse_args(argv)
+    if min(args.stale_emg_ms, args.stale_hand_ms, args.stale_target_ms) < 0:
+        parser.error("--stale-*-ms must be >= 0 (0 turns that watchdog off)")
+    try:
+        if args.sim_user:
+            from lpc_core.emg_sim import MuscleParams
+
+            m = MuscleParams()
+            profile: EmgProfile | None = EmgProfile(rest=m.rest, maximal=m.maximal, user="sim")
+        else:
+            profile = load_emg_profile(args.profile)
+        stale = {EMG: args.stale_emg_ms, HAND: args.stale_hand_ms, TARGET: args.stale_target_ms}
+        args.params = ControllerParams(
+            profile=profile or EmgProfile(),
+            stale_ms=MappingProxyType({k: v for k, v in stale.items() if v > 0}),
+            camera_on_hand=not args.camera_fixed,
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
+    if profile is None:
+        print("[controller] warning: no EMG profile: run 'lpc emg calibrate'", file=sys.stderr)
+    return run_service("controller", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

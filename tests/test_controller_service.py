@@ -1,0 +1,157 @@
+"""The controller and EMG services over the real bus: scripted stand-ins publish, we listen."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+
+import numpy as np
+import zenoh
+
+from lpc_core.emg import EmgProfile, Gesture, detect
+from lpc_core.emg_sim import MuscleParams
+from schemas import (
+    AimCue,
+    ControllerState,
+    EmgSample,
+    GraspTarget,
+    ProsthesisCommand,
+    ProsthesisState,
+    decode,
+    encode,
+)
+from tests.conftest import spawn_service, wait_for
+
+
+class Listener:
+    def __init__(self, session: zenoh.Session, *keys: str) -> None:
+        self.messages: dict[str, list] = {k: [] for k in keys}
+        self._subs = [session.declare_subscriber(k, lambda s, k=k: self._on(k, s)) for k in keys]
+
+    def _on(self, key: str, sample: zenoh.Sample) -> None:
+        self.messages[key].append(decode(key, sample.payload.to_bytes()))
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def test_controller_service_follows_the_cycle_and_stops_on_stale_emg(
+    rendezvous: zenoh.Session, endpoint: str
+) -> None:
+    listen = Listener(rendezvous, "lpc/controller/state", "lpc/prosthesis/command")
+    pubs = {
+        k: rendezvous.declare_publisher(k)
+        for k in ("lpc/emg", "lpc/prosthesis/state", "lpc/aim/cue", "lpc/grasp/target")
+    }
+    process = spawn_service("services.controller", endpoint, "--sim-user")
+    seq = itertools.count(1)
+    p = MuscleParams()
+    stop = threading.Event()
+    drive = {"flexor": 0.0, "extensor": 0.0, "emg": True, "vision": False}
+
+    def stand_ins() -> None:  # EMG and hand state at 100 Hz, vision at 33 Hz
+        k = 0
+        while not stop.is_set():
+            t = time.time_ns()
+            n = next(seq)
+            if drive["emg"]:
+                levels = [drive["flexor"], drive["extensor"]]
+                raw = [r + lv * (m - r) for r, m, lv in zip(p.rest, p.maximal, levels, strict=True)]
+                pubs["lpc/emg"].put(encode(EmgSample(seq=n, t_ns=t, channels=raw)))
+            hand = ProsthesisState(seq=n, t_ns=t, wrist_angle_deg=0.0, aperture_mm=90.0)
+            pubs["lpc/prosthesis/state"].put(encode(hand))
+            if drive["vision"] and k % 3 == 0:
+                pubs["lpc/aim/cue"].put(
+                    encode(AimCue(seq=n, t_ns=t, frame_seq=n, state="on_target"))
+                )
+                target = GraspTarget(
+                    seq=n,
+                    t_ns=t,
+                    frame_seq=n,
+                    shape="sphere",
+                    grasp_width_mm=50.0,
+                    reconstructed=True,
+                )
+                pubs["lpc/grasp/target"].put(encode(target))
+            k += 1
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=stand_ins, daemon=True)
+    thread.start()
+
+    def state() -> str:
+        states = listen.messages["lpc/controller/state"]
+        return states[-1].state if states else ""
+
+    def gesture(flexor: float, extensor: float) -> None:
+        drive.update(flexor=flexor, extensor=extensor)
+        time.sleep(0.15)  # the contraction itself: the stand-in drives the EMG in real time
+        drive.update(flexor=0.0, extensor=0.0)
+
+    try:
+        wait_for(lambda: state() == "idle", 20.0, "the controller to become idle")
+        drive["vision"] = True
+        wait_for(lambda: state() == "ready", 5.0, "ready")
+        gesture(0.9, 0.0)
+        wait_for(lambda: state() == "preshaping", 5.0, "preshaping after a quick flexion")
+        # The servo opens the hand toward 50 + 15 mm from 90 mm: closing commands.
+        wait_for(
+            lambda: any(c.grasp > 0 for c in listen.messages["lpc/prosthesis/command"][-20:]),
+            5.0,
+            "pre-shape commands",
+        )
+        time.sleep(0.4)  # past the lock-out, as a person would be
+        gesture(0.0, 0.9)
+        wait_for(lambda: state() == "direct", 5.0, "direct after a quick extension")
+        drive["emg"] = False
+        wait_for(lambda: state() == "stopped", 5.0, "stopped on stale EMG")
+        stopped = [s for s in listen.messages["lpc/controller/state"] if s.state == "stopped"]
+        assert "lpc/emg" in stopped[-1].reason
+        commands: list[ProsthesisCommand] = listen.messages["lpc/prosthesis/command"]
+        after = [c for c in commands if c.t_ns > stopped[-1].t_ns]
+        wait_for(
+            lambda: len([c for c in commands if c.t_ns > stopped[-1].t_ns]) > 5, 5.0, "commands"
+        )
+        assert all(c.grasp == 0.0 and c.wrist == 0.0 for c in after)
+        events = [s.event for s in listen.messages["lpc/controller/state"] if s.event]
+        for expected in ("object_seen", "new_target", "auto_preshape", "take_over", "stale"):
+            assert expected in events
+    finally:
+        stop.set()
+        thread.join(timeout=2)
+        process.terminate()
+        process.wait(timeout=10)
+        listen.close()
+    assert process.returncode == 0
+
+
+def test_emg_service_sim_user_answers_the_ready_pulse(
+    rendezvous: zenoh.Session, endpoint: str
+) -> None:
+    listen = Listener(rendezvous, "lpc/emg")
+    states = rendezvous.declare_publisher("lpc/controller/state")
+    process = spawn_service("services.emg", endpoint, "--source", "sim", "--seed", "3")
+    try:
+        wait_for(lambda: len(listen.messages["lpc/emg"]) > 20, 20.0, "EMG samples")
+        t = time.time_ns()
+        for i in range(
+            3
+        ):  # status topics are not stored: say it a few times, as the heartbeat does
+            states.put(encode(ControllerState(seq=i + 1, t_ns=t, state="ready", previous="aiming")))
+            time.sleep(0.05)
+        n = len(listen.messages["lpc/emg"])
+        wait_for(lambda: len(listen.messages["lpc/emg"]) > n + 150, 10.0, "1.5 s more of EMG")
+        samples: list[EmgSample] = listen.messages["lpc/emg"]
+        raw = np.array([s.channels for s in samples])
+        t_ns = np.array([s.t_ns for s in samples])
+        p = MuscleParams()
+        fired = detect(raw, t_ns, EmgProfile(rest=p.rest, maximal=p.maximal))
+        assert [g for _, g in fired] == [Gesture.QUICK_FLEXION]
+        assert all(s.source == "sim" and s.unit == "V" for s in samples)
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+        listen.close()
+    assert process.returncode == 0
