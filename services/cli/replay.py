@@ -18,6 +18,7 @@ the cut is reported (status 0); if nothing before the cut is readable, status 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -28,7 +29,7 @@ from typing import Any
 
 import msgspec
 
-from lpc_core.replay import Recorded, Replay, check, default_nodes, volatile_fields
+from lpc_core.replay import Node, Recorded, Replay, check, default_nodes, volatile_fields
 from schemas import BadMessage, decode
 from services.mcap_log import (
     COMPRESSIONS,
@@ -96,8 +97,30 @@ def _fail(text: str) -> int:
     return 2
 
 
+def _timed(nodes: tuple[Node, ...], spent: Counter[str]) -> tuple[Node, ...]:
+    """The nodes with their steps timed (the shell's clock, never the step's)."""
+
+    def wrap(name: str, step: Any) -> Any:
+        def timed(state: Any, message: Any, now_ns: int) -> Any:
+            start = time.perf_counter()
+            try:
+                return step(state, message, now_ns)
+            finally:
+                spent[name] += time.perf_counter() - start
+
+        return timed
+
+    return tuple(
+        dataclasses.replace(
+            n, routes=tuple(dataclasses.replace(r, step=wrap(n.name, r.step)) for r in n.routes)
+        )
+        for n in nodes
+    )
+
+
 def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
-    nodes = default_nodes()
+    spent: Counter[str] = Counter()
+    nodes = _timed(default_nodes(), spent)
     frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
     replay = Replay(nodes, log.topics(), frames, all_frames=args.all_frames)
     if not replay.inputs:
@@ -141,6 +164,13 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     if out_tmp is not None:
         os.replace(out_tmp, args.out)
     _report_run(args, path, replay, reader, counts, (last_ns - first_ns) / 1e9, elapsed)
+    steps = ", ".join(
+        f"{name} {spent[name]:.3f} s" for name in sorted(spent, key=spent.get, reverse=True)
+    )
+    print(
+        f"  time in steps: {steps}; the rest (read, decode, write) "
+        f"{elapsed - sum(spent.values()):.3f} s"
+    )
 
     cut = log.cut
     if cut is not None:
