@@ -15,13 +15,14 @@ import numpy as np
 
 from lpc_core.intrinsics import Intrinsics
 from schemas import ObjectTruth
+from services.drivers.errors import DeviceUnavailable
 
 
 class EndOfStream(Exception):
     """The source has no more frames (end of a recording)."""
 
 
-class SourceUnavailable(RuntimeError):
+class SourceUnavailable(DeviceUnavailable):
     """The source cannot be opened: missing package, missing device, unreadable file."""
 
 
