@@ -19,7 +19,12 @@ ShapeName = Literal["sphere", "cylinder", "cuboid", "none"]
 
 
 class Message(Struct, kw_only=True, frozen=True):
-    """Fields every topic carries."""
+    """Fields every topic carries.
+
+    Messages derived from a depth frame (scans, reconstruction, grasp target, aim cue, tactor
+    command) keep that frame's capture time in ``t_ns``: ``now - t_ns`` is the pipeline's
+    latency, and staleness is measured from capture, not from arrival.
+    """
 
     seq: Seq
     t_ns: TimeNs
