@@ -33,6 +33,7 @@ and Algorithm 1 (``principal_direction``) finds the principal direction.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
@@ -79,6 +80,7 @@ class LaserParams:
     line_trials: tuple[int, int] = fit.LINE_TRIALS
     circle_trials: tuple[int, int] = fit.CIRCLE_TRIALS
     ellipse_trials: tuple[int, int] = fit.ELLIPSE_TRIALS
+    lazy_fits: bool = True
     min_points_per_line: int = 10
     # A richer 2-D model (circle over line, ellipse over circle) must beat a simpler one by this
     # much inlier fraction on its line.
@@ -118,7 +120,7 @@ class LaserParams:
     axis_along_view: float = 0.1
     axis_grid_points: int = 120
     axis_good_fraction: float = 0.9
-    cylinder_iterations: int = 6
+    cylinder_iterations: int = 5
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
@@ -251,7 +253,11 @@ def sphere_from_circles(
 
 
 @dataclass
-class _Line:
+class LineModels:
+    """One scan line as the method sees it: the pierced ``points`` (segment, (N, 3)) and their
+    plane coordinates ``sz``, the three ``fits``, the chosen ``model``, the ``run`` of its
+    inliers through the optical axis, and a ``reason`` when the line is unusable."""
+
     index: int
     angle: float
     total: int
@@ -361,7 +367,21 @@ def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_ma
     return best if fraction[best] > 0 else "none"
 
 
-def _second_line(line: _Line, params: LaserParams, seed: int) -> Any:
+def _fit_model(model: str, sz: np.ndarray, params: LaserParams, seed: int) -> Any:
+    thr = params.threshold_m
+    if model == "line":
+        lo, hi = params.line_trials
+        return fit.fit_line(sz, thr, min_trials=lo, max_trials=hi, seed=seed)
+    if model == "circle":
+        lo, hi = params.circle_trials
+        return fit.fit_circle(
+            sz, thr, radius_limits=params.radius_limits_m, min_trials=lo, max_trials=hi, seed=seed
+        )
+    lo, hi = params.ellipse_trials
+    return fit.fit_ellipse(sz, thr, min_trials=lo, max_trials=hi, seed=seed)
+
+
+def _second_line(line: LineModels, params: LaserParams, seed: int) -> Any:
     """A line fitted to the points the first line left out, inliers over the whole segment."""
     rest = ~line.fits["line"].inliers
     if np.count_nonzero(rest) < params.min_points_per_line:
@@ -377,8 +397,8 @@ def _second_line(line: _Line, params: LaserParams, seed: int) -> Any:
 
 def _analyse_line(
     index: int, angle: float, points: np.ndarray, params: LaserParams, seed: int
-) -> _Line:
-    line = _Line(index=index, angle=float(angle), total=len(points))
+) -> LineModels:
+    line = LineModels(index=index, angle=float(angle), total=len(points))
     need = params.min_points_per_line
     if len(points) < need:
         line.reason = f"too few points on {line.label}: {len(points)} < {need}"
@@ -396,33 +416,36 @@ def _analyse_line(
         return line
     line.points = points[segment]
     line.sz = np.column_stack([s[segment], line.points[:, 2]])
-    fits = fit.fit_all(
-        line.sz,
-        params.threshold_m,
-        seed=_line_seed(seed, index),
-        radius_limits=params.radius_limits_m,
-        line_trials=params.line_trials,
-        circle_trials=params.circle_trials,
-        ellipse_trials=params.ellipse_trials,
-    )
-    line.fits = {"line": fits.line, "circle": fits.circle, "ellipse": fits.ellipse}
     # A model counts by the run of its inliers that reaches the optical axis: a table or a
     # side face next to the object may hold more inliers, but it is not what the axis pierces.
-    all_runs = {
-        m: _runs(f.inliers, line.points, params, _front(m, f, line.sz)) if f else []
-        for m, f in line.fits.items()
-    }
-    pierced = {m: _pierced_run(r, line.sz[:, 0], params) for m, r in all_runs.items()}
-    if len(pierced["line"]) < need and line.fits["line"]:
-        # Across a crease (a box's front and top faces, or a face and the table) RANSAC's line
-        # may lie on the other side: look once more among the points it left out.
-        second = _second_line(line, params, seed)
-        if second is not None:
-            runs = _runs(second.inliers, line.points, params, _front("line", second, line.sz))
-            run = _pierced_run(runs, line.sz[:, 0], params)
-            if len(run) > len(pierced["line"]):
-                line.fits["line"], all_runs["line"], pierced["line"] = second, runs, run
+    # Models are fitted simplest first; with ``lazy_fits`` a richer one is not fitted once a
+    # simpler one's run covers so much of the segment that the richer could not win.
     paper = params.variant == "paper"
+    enough = len(line.points) * (1.0 - params.model_margin)
+    all_runs: dict[str, list[np.ndarray]] = {}
+    pierced: dict[str, np.ndarray] = {}
+    for model in MODELS:
+        if params.lazy_fits and not paper and any(len(r) >= enough for r in pierced.values()):
+            line.fits[model] = fit.FailedFit("not fitted: a simpler model covers the line")
+            all_runs[model], pierced[model] = [], _EMPTY_RUN
+            continue
+        found = _fit_model(model, line.sz, params, _line_seed(seed, index))
+        line.fits[model] = found
+        all_runs[model] = (
+            _runs(found.inliers, line.points, params, _front(model, found, line.sz))
+            if found
+            else []
+        )
+        pierced[model] = _pierced_run(all_runs[model], line.sz[:, 0], params)
+        if model == "line" and len(pierced["line"]) < need and found:
+            # Across a crease (a box's front and top faces, or a face and the table) RANSAC's
+            # line may lie on the other side: look once more among the points it left out.
+            second = _second_line(line, params, seed)
+            if second is not None:
+                runs = _runs(second.inliers, line.points, params, _front("line", second, line.sz))
+                run = _pierced_run(runs, line.sz[:, 0], params)
+                if len(run) > len(pierced["line"]):
+                    line.fits["line"], all_runs["line"], pierced["line"] = second, runs, run
     ellipse_margin = params.paper_ellipse_margin if paper else params.model_margin
     line.model = _choose_model(pierced, len(line.points), params.model_margin, ellipse_margin)
     if line.model != "none" and len(pierced[line.model]) >= need:
@@ -452,7 +475,7 @@ class _Seeds:
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
 
 
-def _collect_seeds(lines: list[_Line], params: LaserParams, *, extend: bool) -> _Seeds:
+def _collect_seeds(lines: list[LineModels], params: LaserParams, *, extend: bool) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
     by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge)."""
     pts, cropped = [], []
@@ -475,7 +498,7 @@ def _collect_seeds(lines: list[_Line], params: LaserParams, *, extend: bool) -> 
     return _Seeds(points=np.array(pts), cropped=np.array(cropped, dtype=bool))
 
 
-def _extend_seed(line: _Line, k: int, q: float) -> np.ndarray:
+def _extend_seed(line: LineModels, k: int, q: float) -> np.ndarray:
     """The point on the ray s/z = q, on the straight line through the run's two end points."""
     run = line.run
     a, b = (run[0], run[1]) if k == 0 else (run[-1], run[-2])
@@ -681,7 +704,7 @@ def _rectangle_residual(uv: np.ndarray, u: np.ndarray) -> float:
     return float(dist.max())
 
 
-def _beyond_edges(lines: list[_Line], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
+def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
     """Points of the object past the face's edges: from each end of a line's run, outward
     through its segment, while the surface falls away from the face (a bevel, a rounded edge,
     a prism's next face) and before it turns parallel to the face again (a table)."""
@@ -738,13 +761,15 @@ class _Candidate:
         return 0.0 if self.reason else self.fraction
 
 
-def _plane_candidate(lines: list[_Line], clean: np.ndarray, params: LaserParams) -> _Candidate:
+def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserParams) -> _Candidate:
     """The face plane: the best of the plane through all runs and the planes spanned by each
     pair of line runs (a run that crossed onto a side face spoils only the first)."""
     thr = params.solid_threshold_m
     first = PlaneSolid.estimate(clean)
     if not first:
         return _Candidate("cuboid", reason=first.reason)
+    if _fraction(first.residuals(clean), thr) >= 1.0 - params.cuboid_margin:
+        return _Candidate("cuboid", _fraction(first.residuals(clean), thr), first)
     ends = np.array([ln.points[[ln.run[0], ln.run[-1]]] for ln in lines])  # (L, 2, 3)
     i, j = np.triu_indices(len(lines), 1)
     along = ends[:, 1] - ends[:, 0]
@@ -767,7 +792,9 @@ def _plane_candidate(lines: list[_Line], clean: np.ndarray, params: LaserParams)
     return _Candidate("cuboid", _fraction(solid.residuals(clean), thr), solid)
 
 
-def _sphere_candidate(lines: list[_Line], clean: np.ndarray, params: LaserParams) -> _Candidate:
+def _sphere_candidate(
+    lines: list[LineModels], clean: np.ndarray, params: LaserParams
+) -> _Candidate:
     circles = [ln for ln in lines if ln.fits.get("circle")]
     init = None
     if len(circles) >= 2:
@@ -795,15 +822,27 @@ def _sphere_candidate(lines: list[_Line], clean: np.ndarray, params: LaserParams
     return _Candidate("sphere", _fraction(residuals, thr), solid)
 
 
-def _axis_guesses(lines: list[_Line], params: LaserParams) -> list[np.ndarray]:
-    """Cylinder axis directions from the 2-D results, most trusted first, without repeats."""
-    guesses = []
+def _axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.ndarray]:
+    """Cylinder axis directions from the 2-D results, most trusted first, without repeats;
+    lazily, since the first good one ends the search."""
+    seen: list[np.ndarray] = []
+    cos_same = math.cos(math.radians(5.0))
+    for guess in _raw_axis_guesses(lines, params):
+        guess = guess / np.linalg.norm(guess)
+        if all(abs(guess @ u) < cos_same for u in seen):
+            seen.append(guess)
+            yield guess
+            if len(seen) >= params.max_axis_guesses:
+                return
+
+
+def _raw_axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.ndarray]:
     # A plane through the axis cuts a cylinder along a generator: a line model is the axis.
     for line in lines:
         if line.model == "line":
             ends = line.points[[line.run[0], line.run[-1]]]
             if np.linalg.norm(ends[1] - ends[0]) > 0.01:
-                guesses.append(ends[1] - ends[0])
+                yield ends[1] - ends[0]
     # Algorithm 1 on the seeds, in the longitudinal plane through them.
     seeds = _collect_seeds(lines, params, extend=False)
     keep = ~seeds.cropped
@@ -817,17 +856,12 @@ def _axis_guesses(lines: list[_Line], params: LaserParams) -> list[np.ndarray]:
                 uv[sort_around(uv, np.zeros(2))], params.alpha_max_rad, pick="straightest"
             )
             if direction is not None:
-                guesses.append(direction[0] * e1 + direction[1] * e2)
-    unique: list[np.ndarray] = []
-    cos_same = math.cos(math.radians(5.0))
-    for g in guesses:
-        g = g / np.linalg.norm(g)
-        if all(abs(g @ u) < cos_same for u in unique):
-            unique.append(g)
-    return unique[: params.max_axis_guesses]
+                yield direction[0] * e1 + direction[1] * e2
 
 
-def _cylinder_candidate(lines: list[_Line], clean: np.ndarray, params: LaserParams) -> _Candidate:
+def _cylinder_candidate(
+    lines: list[LineModels], clean: np.ndarray, params: LaserParams
+) -> _Candidate:
     thr = params.solid_threshold_m
     step = max(1, len(clean) // params.cylinder_points)
     sample = clean[::step]
@@ -854,9 +888,11 @@ def _cylinder_candidate(lines: list[_Line], clean: np.ndarray, params: LaserPara
         return _Candidate("cylinder", reason="no cylinder converged")
     solid = best
     residuals = solid.residuals(clean)
-    inliers = clean[residuals <= thr]
-    if len(inliers) >= 5:
-        refined = CylinderSolid.estimate(inliers, solid.axis, iterations=3)
+    keep = residuals <= thr
+    inliers = clean[keep]
+    if len(inliers) >= 5 and (step > 1 or not keep.all()):
+        # Refit on every inlier: the first fit saw a sample, or outliers.
+        refined = CylinderSolid.estimate(inliers, solid.axis, iterations=2)
         if refined:
             solid, residuals = refined, refined.residuals(clean)
     lo, hi = params.radius_limits_m
@@ -911,15 +947,26 @@ def reconstruct_laser(
     fraction (``f_cuboid``, ``f_sphere``, ``f_cylinder``; a solid that could not win is not
     fitted). ``shape="none"`` comes with a ``reason``.
     """
+    return decide(analyse_lines(scan_lines, params, seed), params)
+
+
+def analyse_lines(
+    scan_lines: ScanLinesLike, params: LaserParams = LaserParams(), seed: int = 0
+) -> list[LineModels]:
+    """First stage of ``reconstruct_laser``: the 2-D models and pierced run of each line."""
     angles = np.asarray(scan_lines.angles_rad, dtype=np.float64).reshape(-1)
     raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
-    total = int(sum(len(p) for p in raw))
-    lines = [
+    return [
         _analyse_line(i, a, p, params, seed)
         for i, (a, p) in enumerate(zip(angles, raw, strict=True))
     ]
+
+
+def decide(lines: list[LineModels], params: LaserParams = LaserParams()) -> Reconstruction:
+    """Second stage of ``reconstruct_laser``: the shape and its grasp from the lines' models."""
+    total = sum(ln.total for ln in lines)
     summaries = tuple(ln.summary() for ln in lines)
     counts = {m: sum(ln.model == m for ln in lines) for m in MODELS}
     extra: dict[str, float] = {f"n_{m}": float(k) for m, k in counts.items()}
@@ -932,7 +979,7 @@ def reconstruct_laser(
 
 
 def _decide(
-    lines: list[_Line],
+    lines: list[LineModels],
     params: LaserParams,
     summaries: tuple[LineSummary, ...],
     total: int,
@@ -1049,7 +1096,7 @@ def _closest_to_optical_axis(point: np.ndarray, axis: np.ndarray) -> np.ndarray:
 
 
 def _decide_paper(
-    lines: list[_Line],
+    lines: list[LineModels],
     counts: dict[str, int],
     params: LaserParams,
     summaries: tuple[LineSummary, ...],
@@ -1123,6 +1170,9 @@ def _decide_paper(
 
 __all__ = [
     "LaserParams",
+    "LineModels",
+    "analyse_lines",
+    "decide",
     "principal_direction",
     "reconstruct_laser",
     "sort_around",

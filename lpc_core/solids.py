@@ -10,6 +10,7 @@ falsy ``FailedSolid`` carrying the reason.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol, Self
 
@@ -152,11 +153,16 @@ class SphereSolid:
             center, radius = np.asarray(init[0], dtype=np.float64), float(init[1])
         for _ in range(iterations):
             w = points - center
-            rho = np.sqrt((w * w).sum(axis=1))
+            rho = np.sqrt(np.einsum("ij,ij->i", w, w))
             if np.any(rho <= 0):
                 return FailedSolid("a point sits on the centre")
-            jac = np.column_stack([-w / rho[:, None], -np.ones(len(w))])
-            step, *_ = np.linalg.lstsq(jac, -(rho - radius), rcond=None)
+            jac = np.empty((len(w), 4))
+            jac[:, :3] = -w / rho[:, None]
+            jac[:, 3] = -1.0
+            try:
+                step = np.linalg.solve(jac.T @ jac, jac.T @ (radius - rho))
+            except np.linalg.LinAlgError:
+                return FailedSolid("points do not fix a sphere")
             center = center + step[:3]
             radius += float(step[3])
             if abs(step).max() < 1e-7:
@@ -231,17 +237,20 @@ class CylinderSolid:
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         w = np.asarray(points, dtype=np.float64) - self.point
-        q = w - np.outer(w @ self.axis, self.axis)
+        q = w - (w @ self.axis)[:, None] * self.axis
         return np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - self.radius)
 
 
 def _rotate_basis(basis: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Re-orthonormalise the previous basis against the new axis (no branch, continuous)."""
     e1 = basis[:, 0] - (basis[:, 0] @ d) * d
-    e1 /= np.sqrt(e1 @ e1)
-    e2 = np.array([d[1] * e1[2] - d[2] * e1[1], d[2] * e1[0] - d[0] * e1[2],
-                   d[0] * e1[1] - d[1] * e1[0]])  # fmt: skip
-    return np.column_stack([e1, e2])
+    e1 /= math.sqrt(e1 @ e1)
+    out = np.empty((3, 2))
+    out[:, 0] = e1
+    out[0, 1] = d[1] * e1[2] - d[2] * e1[1]
+    out[1, 1] = d[2] * e1[0] - d[0] * e1[2]
+    out[2, 1] = d[0] * e1[1] - d[1] * e1[0]
+    return out
 
 
 def _cylinder_normal_equations(
@@ -255,13 +264,13 @@ def _cylinder_normal_equations(
     """
     w = points - c
     t = w @ d
-    q = w - np.outer(t, d)
-    rho = np.sqrt(np.einsum("ij,ij->i", q, q))
+    # The radial part of w in the basis across the axis: (w . e1, w . e2).
+    qb = w @ basis
+    rho = np.sqrt(np.einsum("ij,ij->i", qb, qb))
     res = rho - radius
-    n = (q @ basis) / np.maximum(rho, 1e-12)[:, None]
     jac = np.empty((len(points), 5))
-    jac[:, :2] = -n
-    jac[:, 2:4] = -t[:, None] * n
+    np.divide(qb, -np.maximum(rho, 1e-12)[:, None], out=jac[:, :2])
+    np.multiply(jac[:, :2], t[:, None], out=jac[:, 2:4])
     jac[:, 4] = -1.0
     return float(res @ res), jac.T @ jac, jac.T @ res
 

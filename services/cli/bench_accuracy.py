@@ -131,11 +131,11 @@ def run_suite(
     total = lv.count(suite, trials, frames)
     outcomes = []
     for k, view in enumerate(lv.views(suite, trials, frames, seed), start=1):
-        start = time.perf_counter()
+        start = time.process_time()
         lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-        middle = time.perf_counter()
+        middle = time.process_time()
         result = reconstruct_laser(lines, params, seed=view.seq)
-        end = time.perf_counter()
+        end = time.process_time()
         outcomes.append(Outcome(view, result, 1000 * (end - middle), 1000 * (middle - start)))
         _progress(suite, k, total)
     return outcomes
@@ -304,7 +304,7 @@ def report_cost(outcomes: list[Outcome]) -> list[str]:
     cut = np.array([o.cut_ms for o in outcomes])
     pts = np.array([o.result.points for o in outcomes])
     return [
-        f"  compute per frame from the scan lines: p50 {np.percentile(ms, 50):.2f} ms, "
+        f"  CPU per frame from the scan lines: p50 {np.percentile(ms, 50):.2f} ms, "
         f"p99 {np.percentile(ms, 99):.2f} ms (paper {PAPER_MS} ms, C++); scan cut p50 "
         f"{np.percentile(cut, 50):.2f} ms",
         f"  points per frame: {pts.mean():.0f} ± {pts.std():.0f} (paper {PAPER_POINTS})",
