@@ -397,6 +397,12 @@ def test_fit_too_few_points_is_a_failure_not_an_error():
     assert not fit_line(np.empty((0, 2)), THRESHOLD)
 
 
+def test_fit_identical_points_are_a_failure_not_an_error():
+    same = np.tile([0.01, 0.2], (12, 1))
+    for found in fit_all(same, THRESHOLD):
+        assert not found and found.reason and found.inliers.shape == (12,)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "name"),
     [

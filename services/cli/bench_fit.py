@@ -125,6 +125,20 @@ def run(args: argparse.Namespace) -> int:
             (c50, c99), (w50, w99) = _percentiles(cpu), _percentiles(wall)
             print(f"{kind:8s} {n_mean:6.0f}  {name:22s} {c50:8.3f} {c99:8.3f} {w50:8.3f} "
                   f"{w99:8.3f} {np.mean(trials):6.0f} {np.mean(frac):7.3f}")  # fmt: skip
+    # A frame: four scan lines of one scene, all three models on each (the reconstructor's
+    # fitting load per frame).
+    for kind, lines in scenes.items():
+        cpu, wall = [], []
+        for f0 in range(0, len(lines) - 3, 4):
+            w0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+            for i in range(f0, f0 + 4):
+                fit.fit_all(lines[i], threshold, seed=i)
+            c1, w1 = time.thread_time_ns(), time.perf_counter_ns()
+            cpu.append(c1 - c0)
+            wall.append(w1 - w0)
+        (c50, c99), (w50, w99) = _percentiles(cpu), _percentiles(wall)
+        print(f"{kind:8s} {'4 lines':>6s}  {'frame: 4 x fit_all':22s} {c50:8.3f} {c99:8.3f} "
+              f"{w50:8.3f} {w99:8.3f}")  # fmt: skip
     if args.profile:
         import cProfile
         import pstats
