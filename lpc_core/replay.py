@@ -305,6 +305,7 @@ class CheckResult:
     differences: list[Difference] = field(default_factory=list)
     total: int = 0
     compared: Counter[str] = field(default_factory=Counter)
+    differing: Counter[str] = field(default_factory=Counter)
 
     @property
     def ok(self) -> bool:
@@ -331,6 +332,7 @@ def check(
 
     def add(diff: Difference) -> None:
         result.total += 1
+        result.differing[diff.key] += 1
         if len(result.differences) < limit:
             result.differences.append(diff)
 

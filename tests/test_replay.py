@@ -315,7 +315,7 @@ def test_replay_cli_check_passes_and_output_replays_byte_identical(
         == 0
     )
     out = capsys.readouterr().out
-    assert "check: no differences (lpc/scans 16" in out
+    assert "check: no differences (compared lpc/scans 16" in out
     assert "inputs the live services skipped: {'scans': 8}" in out
     # The replay's own output is a recording: replaying it reproduces it byte for byte.
     assert (
@@ -385,3 +385,16 @@ def test_replay_cli_bad_files_are_clear_errors(
     assert "holds none of the replay inputs" in capsys.readouterr().err
     assert lpc(["replay", str(tmp_path / "health.mcap"), "--check"]) == 1
     assert "nothing to compare" in capsys.readouterr().out
+
+
+def test_replay_cli_without_depth_replays_from_recorded_scans(
+    tmp_path: Path, depth_images: list[np.ndarray], capsys: pytest.CaptureFixture[str]
+) -> None:
+    record_session(tmp_path / "rec.mcap", depth_images, n_frames=9)
+    args = ["replay", str(tmp_path / "rec.mcap"), "--without", "lpc/camera/depth"]
+    assert lpc([*args, "--out", str(tmp_path / "scans.mcap")]) == 0
+    out = capsys.readouterr().out
+    # 6 recorded scans (two frames in three of 9), 10 EMG samples, 10 hand states.
+    assert "26 inputs (lpc/emg, lpc/prosthesis/state, lpc/scans)" in out
+    with McapLog(tmp_path / "scans.mcap") as log:
+        assert "lpc/camera/depth" not in log.topics()

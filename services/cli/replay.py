@@ -67,6 +67,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"compression of --out (default {DEFAULT_COMPRESSION})",
     )
     parser.add_argument(
+        "--without",
+        action="append",
+        default=[],
+        metavar="KEY",
+        help="act as if the recording lacked this topic (repeatable); e.g. --without "
+        "lpc/camera/depth replays from the recorded scans",
+    )
+    parser.add_argument(
         "--horizon",
         type=float,
         default=2.0,
@@ -122,7 +130,8 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     spent: Counter[str] = Counter()
     nodes = _timed(default_nodes(), spent)
     frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
-    replay = Replay(nodes, log.topics(), frames, all_frames=args.all_frames)
+    keys = log.topics() - set(args.without)
+    replay = Replay(nodes, keys, frames, all_frames=args.all_frames)
     if not replay.inputs:
         if log.cut is not None:
             return _fail(f"{path}: {log.cut.describe()}; no replay input before the cut")
@@ -334,14 +343,22 @@ def _report_check(
     )
     for key, n in reader.bad_recorded.items():
         print(f"check: {n} recorded {key} messages do not decode; not compared")
-    summary = ", ".join(f"{k} {result.compared[k]}" for k in compared)
+    summary = ", ".join(
+        f"{k} {result.differing[k]}/{result.compared[k]}"
+        if result.differing[k]
+        else f"{k} {result.compared[k]}"
+        for k in compared
+    )
     missing = sorted(replay.outputs - set(compared))
     if missing:
         summary += f"; not in the recording: {', '.join(missing)}"
     if result.ok:
-        print(f"check: no differences ({summary})")
+        print(f"check: no differences (compared {summary})")
         return 0
-    print(f"check: {result.total} differences ({summary}); the first {len(result.differences)}:")
+    print(
+        f"check: {result.total} differences (differing/compared {summary}); "
+        f"the first {len(result.differences)}:"
+    )
     for diff in result.differences:
         print(f"  {diff.describe()}")
     return 1
