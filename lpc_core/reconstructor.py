@@ -1,0 +1,263 @@
+"""The reconstructor's logic: scan lines in, reconstructions and the grasp target out.
+
+Two ways to run it, with the same results per frame:
+
+- ``reconstruct_step(state, scans, now_ns)``: one frame, in-process (tests, replay). Its
+  ``compute_ms`` is 0: nothing here reads a clock.
+- The service (``services/reconstructor.py``) runs ``reconstruct_message`` in a process pool
+  and keeps order with ``frame_arrived`` / ``frame_done``: frames go to free workers in
+  arrival order; at most ``max_pending`` more wait, and when another arrives the oldest
+  waiting frame is dropped and counted; results are released in ``seq`` order, each then going
+  through the 10-frame window (``release``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from lpc_core.laser import LaserParams, reconstruct_laser
+from lpc_core.reconstruction import Reconstruction as CoreReconstruction
+from lpc_core.scans import ScanLines as CoreScanLines
+from lpc_core.window import WindowParams, WindowResult, WindowState, window_step
+from schemas import GraspTarget, LineModel, Reconstruction, ScanLines, from_wire
+
+Job = TypeVar("Job")
+
+
+def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
+    """The scan lines of a ``lpc/scans`` message; ``ValueError`` if an array is malformed."""
+    points = []
+    for line in message.lines:
+        array = np.asarray(from_wire(line.points), dtype=np.float64)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise ValueError(f"scan line points must be (N, 3), got {array.shape}")
+        points.append(array)
+    angles = np.radians([line.angle_deg for line in message.lines])
+    empty = tuple(np.empty(0, dtype=np.int64) for _ in points)
+    return CoreScanLines(angles_rad=angles, points=tuple(points), pixels=empty)
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is None or math.isfinite(value) else None
+
+
+def reconstruction_message(
+    result: CoreReconstruction, scans: ScanLines, compute_ms: float = 0.0
+) -> Reconstruction:
+    """The ``lpc/reconstruction`` message of one frame (``seq`` and ``t_ns`` of its scans)."""
+    lines = [
+        LineModel(
+            angle_deg=ln.angle_deg,
+            model=ln.model,  # type: ignore[arg-type]
+            params=[float(v) for v in ln.params if math.isfinite(v)],
+            inlier_fraction=min(max(ln.inlier_fraction, 0.0), 1.0),
+            n_points=ln.n_points,
+        )
+        for ln in result.lines
+    ]
+    return Reconstruction(
+        seq=scans.seq,
+        t_ns=scans.t_ns,
+        frame_seq=scans.frame_seq,
+        method=result.method,  # type: ignore[arg-type]
+        shape=result.shape,
+        grasp_width_mm=_finite(result.grasp_width_mm),
+        wrist_angle_deg=_finite(result.wrist_angle_deg),
+        center_m=None if result.center_m is None else list(result.center_m),
+        axis=None if result.axis is None else list(result.axis),
+        lines=lines,
+        confidence=min(max(result.confidence, 0.0), 1.0),
+        reason=result.reason,
+        points=result.points,
+        compute_ms=max(compute_ms, 0.0),
+        truth=scans.truth,
+    )
+
+
+_DEFAULT = LaserParams()
+
+
+def reconstruct_message(
+    scans: ScanLines, params: LaserParams = _DEFAULT, compute_ms: float = 0.0
+) -> Reconstruction:
+    """Reconstruct one ``lpc/scans`` message; RANSAC is seeded by the depth frame's ``seq``."""
+    result = reconstruct_laser(scan_lines_from_message(scans), params, seed=scans.frame_seq)
+    return reconstruction_message(result, scans, compute_ms)
+
+
+# --------------------------------------------------------------------------- the window
+
+
+def _core(message: Reconstruction) -> CoreReconstruction:
+    return CoreReconstruction(
+        shape=message.shape,
+        grasp_width_m=None if message.grasp_width_mm is None else message.grasp_width_mm / 1000,
+        wrist_angle_rad=(
+            None if message.wrist_angle_deg is None else math.radians(message.wrist_angle_deg)
+        ),
+    )
+
+
+def grasp_target_message(window: WindowResult, message: Reconstruction) -> GraspTarget:
+    return GraspTarget(
+        seq=message.seq,
+        t_ns=message.t_ns,
+        frame_seq=message.frame_seq,
+        shape=window.shape,
+        grasp_width_mm=window.grasp_width_mm,
+        wrist_angle_deg=window.wrist_angle_deg,
+        reconstructed=window.reconstructed,
+        frames=window.frames,
+        agreement=window.agreement,
+    )
+
+
+def window_message(state: WindowState, message: Reconstruction) -> tuple[WindowState, GraspTarget]:
+    """Pass one reconstruction through the 10-frame window."""
+    state, window = window_step(state, _core(message), message.seq, message.t_ns)
+    return state, grasp_target_message(window, message)
+
+
+# --------------------------------------------------------------------------- in-process step
+
+
+@dataclass(frozen=True)
+class ReconstructState:
+    params: LaserParams = field(default_factory=LaserParams)
+    window: WindowState = field(default_factory=WindowState)
+
+
+def reconstruct_step(
+    state: ReconstructState, scans: ScanLines, now_ns: int
+) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
+    """One frame in-process: its reconstruction, then the window's grasp target."""
+    del now_ns  # outputs carry the capture time of their frame
+    message = reconstruct_message(scans, state.params)
+    window, target = window_message(state.window, message)
+    return replace(state, window=window), [message, target]
+
+
+# --------------------------------------------------------------------------- pool bookkeeping
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoolParams:
+    """``workers`` frames run at once; ``max_pending`` more may wait for a worker."""
+
+    workers: int = 1
+    max_pending: int = 1
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if self.max_pending < 0:
+            raise ValueError(f"max_pending must be >= 0, got {self.max_pending}")
+
+
+@dataclass(frozen=True)
+class Submit(Generic[Job]):
+    """Start this frame's job on a worker."""
+
+    seq: int
+    job: Job
+
+
+@dataclass(frozen=True)
+class Release:
+    """This frame's result is next in ``seq`` order: publish it."""
+
+    seq: int
+    result: Any
+
+
+@dataclass(frozen=True)
+class Dropped:
+    """This frame was dropped: it waited while a newer one arrived, or it came out of order."""
+
+    seq: int
+    reason: str
+
+
+@dataclass(frozen=True)
+class PoolState:
+    params: PoolParams = field(default_factory=PoolParams)
+    running: frozenset[int] = frozenset()
+    pending: tuple[tuple[int, Any], ...] = ()
+    waiting: tuple[int, ...] = ()  # frames not yet released, in seq order
+    done: MappingProxyType[int, Any] = field(default_factory=lambda: MappingProxyType({}))
+    last_seq: int = -1
+    dropped: int = 0
+
+
+Output = Submit[Any] | Release | Dropped
+
+
+def frame_arrived(state: PoolState, seq: int, job: Any) -> tuple[PoolState, list[Output]]:
+    """A frame arrives: run it, let it wait, or drop the oldest waiting frame for it."""
+    if seq <= state.last_seq:
+        return replace(state, dropped=state.dropped + 1), [Dropped(seq, "out of order")]
+    outputs: list[Output] = []
+    running, pending, waiting = state.running, state.pending, (*state.waiting, seq)
+    dropped = state.dropped
+    if len(running) < state.params.workers:
+        running = running | {seq}
+        outputs.append(Submit(seq, job))
+    else:
+        pending = (*pending, (seq, job))
+        if len(pending) > state.params.max_pending:
+            (old, _), pending = pending[0], pending[1:]
+            waiting = tuple(s for s in waiting if s != old)
+            dropped += 1
+            outputs.append(Dropped(old, "the pool fell behind"))
+    state = replace(
+        state, running=running, pending=pending, waiting=waiting, last_seq=seq, dropped=dropped
+    )
+    # Dropping a waiting frame may unblock results that were held behind it.
+    return _release(state, outputs)
+
+
+def frame_done(state: PoolState, seq: int, result: Any) -> tuple[PoolState, list[Output]]:
+    """A worker finished ``seq``: release what is now in order, start a waiting frame."""
+    if seq not in state.running:
+        return state, []
+    running = state.running - {seq}
+    done = MappingProxyType({**state.done, seq: result})
+    outputs: list[Output] = []
+    pending = state.pending
+    if pending and len(running) < state.params.workers:
+        (next_seq, job), pending = pending[0], pending[1:]
+        running = running | {next_seq}
+        outputs.append(Submit(next_seq, job))
+    return _release(replace(state, running=running, pending=pending, done=done), outputs)
+
+
+def _release(state: PoolState, outputs: list[Output]) -> tuple[PoolState, list[Output]]:
+    waiting, done = state.waiting, dict(state.done)
+    while waiting and waiting[0] in done:
+        seq, waiting = waiting[0], waiting[1:]
+        outputs.append(Release(seq, done.pop(seq)))
+    return replace(state, waiting=waiting, done=MappingProxyType(done)), outputs
+
+
+__all__ = [
+    "Dropped",
+    "PoolParams",
+    "PoolState",
+    "ReconstructState",
+    "Release",
+    "Submit",
+    "WindowParams",
+    "frame_arrived",
+    "frame_done",
+    "grasp_target_message",
+    "reconstruct_message",
+    "reconstruct_step",
+    "reconstruction_message",
+    "scan_lines_from_message",
+    "window_message",
+]

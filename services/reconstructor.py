@@ -1,0 +1,130 @@
+"""Reconstructor service: ``lpc/scans`` in; ``lpc/reconstruction`` and ``lpc/grasp/target`` out.
+
+Frames are reconstructed in a process pool (spawn: forking after the Zenoh session is open
+hangs), one frame per task, and published in ``seq`` order. At most ``--max-pending`` frames
+wait for a worker; when another arrives the oldest waiting frame is dropped and counted
+(``dropped_frames``). The ordering is ``lpc_core.reconstructor``'s pure bookkeeping.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import multiprocessing
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import msgspec
+
+from lpc_core.laser import LaserParams
+from lpc_core.reconstructor import (
+    Dropped,
+    PoolParams,
+    PoolState,
+    Release,
+    Submit,
+    frame_arrived,
+    frame_done,
+    reconstruct_message,
+    window_message,
+)
+from lpc_core.window import WindowState
+from schemas import BadMessage, decode, encode
+from services.mcap_log import read_header
+from services.runtime import Bus, run_service, service_parser
+
+_PARAMS = LaserParams()
+
+
+def _init_worker(variant: str) -> None:
+    global _PARAMS
+    _PARAMS = LaserParams(variant=variant)  # type: ignore[arg-type]
+
+
+def work(payload: bytes) -> bytes | str:
+    """In a worker: one ``lpc/scans`` payload to an encoded reconstruction, or why not."""
+    try:
+        scans = decode("lpc/scans", payload)
+        start = time.process_time()
+        message = reconstruct_message(scans, _PARAMS)
+        compute_ms = 1000.0 * (time.process_time() - start)
+        return encode(msgspec.structs.replace(message, compute_ms=compute_ms))
+    except (BadMessage, ValueError) as exc:
+        return str(exc)
+
+
+async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # workers import numpy after this
+    loop = asyncio.get_running_loop()
+    inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
+    state = PoolState(params=PoolParams(workers=args.workers, max_pending=args.max_pending))
+    window = WindowState()
+    reconstructions = bus.publisher("lpc/reconstruction")
+    targets = bus.publisher("lpc/grasp/target")
+    pool = ProcessPoolExecutor(
+        args.workers, multiprocessing.get_context("spawn"), _init_worker, (args.method,)
+    )
+
+    async def pump() -> None:
+        scans = bus.subscribe("lpc/scans", latest=False, capacity=256, decode=False)
+        while True:
+            _, payload, _ = await scans.receive()
+            header = read_header(payload)
+            if header is None:
+                bus.reject("lpc/scans", "no seq/t_ns header")
+                continue
+            inbox.put_nowait(("frame", header[0], payload))
+
+    def finished(seq: int, future: asyncio.Future[bytes | str]) -> None:
+        if future.cancelled():
+            return
+        error = future.exception()
+        inbox.put_nowait(("done", seq, f"worker failed: {error!r}" if error else future.result()))
+
+    reader = asyncio.create_task(pump())
+    try:
+        while True:
+            kind, seq, item = await inbox.get()
+            if kind == "frame":
+                state, outputs = frame_arrived(state, seq, item)
+            else:
+                state, outputs = frame_done(state, seq, item)
+            for out in outputs:
+                if isinstance(out, Submit):
+                    task = loop.run_in_executor(pool, work, out.job)
+                    task.add_done_callback(lambda f, s=out.seq: finished(s, f))
+                elif isinstance(out, Dropped):
+                    bus.health.counters["dropped_frames"] += 1
+                elif isinstance(out, Release) and isinstance(out.result, bytes):
+                    message = decode("lpc/reconstruction", out.result)
+                    reconstructions.put(message)
+                    window, target = window_message(window, message)
+                    targets.put(target)
+                elif isinstance(out, Release):
+                    bus.reject("lpc/scans", str(out.result))
+    finally:
+        reader.cancel()
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = service_parser("reconstructor", __doc__ or "")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument(
+        "--max-pending", type=int, default=1, help="frames that may wait for a worker (default 1)"
+    )
+    parser.add_argument(
+        "--method", choices=("lpc", "paper"), default="lpc", help="the laser method's variant"
+    )
+    args = parser.parse_args(argv)
+    try:
+        PoolParams(workers=args.workers, max_pending=args.max_pending)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return run_service("reconstructor", serve, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
