@@ -440,7 +440,7 @@ def _short(value: Any, width: int = 80) -> str:
 
 def default_nodes() -> tuple[Node, ...]:
     """The pipeline as the services run it, in data-flow order: input topic -> step."""
-    from lpc_core import aim, controller, pipeline
+    from lpc_core import aim, controller, pipeline, reconstructor
 
     return (
         Node(
@@ -449,6 +449,15 @@ def default_nodes() -> tuple[Node, ...]:
             routes=(Route("lpc/camera/depth", pipeline.scans_step, gated=True),),
             outputs=("lpc/scans",),
             gate="lpc/scans",
+        ),
+        Node(
+            name="reconstructor",
+            init=reconstructor.ReconstructState,
+            routes=(Route("lpc/scans", reconstructor.reconstruct_step, gated=True),),
+            outputs=("lpc/reconstruction", "lpc/grasp/target"),
+            gate="lpc/reconstruction",
+            # Live, compute_ms is the worker's measured time; seq follows the scans'.
+            volatile=frozenset({"seq", "compute_ms"}),
         ),
         Node(
             name="aim",
