@@ -1031,11 +1031,9 @@ def _decide(
             points=total,
             extra=extra,
         )
-    # Seeds of lines whose run lies on the face (a run may have crossed onto a side face).
-    on_face = [
-        ln for ln in lines
-        if _fraction(solid.residuals(ln.points[ln.run]), params.solid_threshold_m) >= 0.8
-    ]  # fmt: skip
+    # Seeds come from each line's run on the face plane itself, whatever 2-D model won the line
+    # (an ellipse may have followed a rounded edge down the side).
+    on_face = [ln for ln in (_face_run(ln, solid, params) for ln in lines) if ln is not None]
     if len(on_face) < 2:
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
     seeds = _collect_seeds(on_face, params, extend=True)
@@ -1079,6 +1077,21 @@ def _decide(
         points=total,
         extra=extra,
     )
+
+
+def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineModels | None:
+    """The line with its run replaced by its points on ``plane`` through the optical axis (or
+    its longest such run); bumps in front of the face (buttons) do not end the run."""
+    heights = (line.points - plane.point) @ plane.normal
+    runs = _runs(np.abs(heights) <= params.solid_threshold_m, line.points, params, heights > 0)
+    if not runs:
+        return None
+    run = _pierced_run(runs, line.sz[:, 0], params)
+    if len(run) < params.min_points_per_line:
+        run = max(runs, key=len)
+        if len(run) < params.min_points_per_line:
+            return None
+    return replace(line, run=run)
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:
