@@ -7,27 +7,35 @@ comes from the circle centres, a cylinder or a cuboid from the eight seed points
 inliers of the four lines) projected on the longitudinal or face plane, sorted around the star,
 and Algorithm 1 (``principal_direction``) finds the principal direction.
 
-``LaserParams(variant="paper")`` runs the method as the paper describes it. The default
-``variant="lpc"`` keeps that structure and departs where the paper is weak:
+``LaserParams(variant="paper")`` runs the method as the paper describes it (with departure 1,
+which both variants share). The default ``variant="lpc"`` keeps the structure and departs where
+the paper is weak:
 
 1. Each line keeps only the segment the optical axis pierces (split at jumps of more than
-   ``segment_gap_m``), and the run of the chosen model's inliers through that point, so a table
-   or a neighbouring object in the capture volume does not enter the fits.
+   ``segment_gap_m``), and a model counts by the run of its inliers through that point (short
+   gaps and bumps in front of a face allowed), so a table, a side face or a neighbouring object
+   in the capture volume does not win the line. Across a crease the line is fitted once more
+   on the points the first line left out.
 2. The shape is not decided by counting 2-D models (a partial elliptic arc is fitted by a circle
    within 1 mm, which is why the paper's per-frame cylinder and cuboid accuracy was 95% and 89%)
-   but by fitting a sphere, a cylinder and a plane in 3-D to the inliers of all four lines,
-   started from the 2-D results (sphere from the circle centres; cylinder axis from Algorithm 1,
-   from lines fitted by a line model, and from a coarse search over axis directions when those
-   disagree) and comparing the fraction of the lines' points each explains.
+   but by fitting a plane, a sphere and a cylinder in 3-D to the runs of all four lines, started
+   from the 2-D results (sphere from the circle centres; cylinder axis from lines fitted by a
+   line model, from Algorithm 1, and from a coarse search over axis directions when those fail),
+   fewest parameters first: a richer solid must explain more of the runs by a margin.
 3. Sphere and cylinder diameters are 2 x the radius of the 3-D least-squares fit, not the
    distance from a centre to one extreme point. This is what fixes the narrow cylinder (the
    paper measured a 40 mm cylinder as 60 mm).
-4. Algorithm 1 returns the straightest triple of seeds rather than the first below alpha_max,
-   falls back to the minimum-area rectangle of the seeds when no three seeds are collinear
-   (a square-ish face has two seeds per edge), and the face orientation is refined by total
-   least squares over the seeds assigned to each edge. Seeds are moved half a sample outward
-   along their scan line (``edge_extension``), since the last inlier lies up to one sample
-   inside the true edge.
+4. A cuboid's seeds are the ends of each line's run on the face plane. Algorithm 1's straightest
+   triple is one candidate direction among the directions through two seeds and a 1-degree
+   grid; the chosen one puts the uncut seeds on the sides of the seeds' bounding rectangle, and
+   is refined by total least squares over the seeds on each side (a square-ish face has two
+   seeds per edge; a face larger than the capture volume may have one). Seeds move half a sample
+   outward along their line (``edge_extension``): the last inlier lies up to a sample inside the
+   edge. The width counts the object past the face's edges while its surface falls away (a
+   prism's next face, a rounded edge), and a face whose seeds lie on a circle is a disc (a lid
+   seen from above: a short cylinder along the face normal, the paper's failure case).
+5. With ``lazy_fits``, a richer 2-D model is not fitted on a line that a simpler one already
+   covers so well that the richer could not win it.
 """
 
 from __future__ import annotations
