@@ -8,9 +8,13 @@ Models follow scikit-image's fit models: one class per shape with a classmethod
 ``estimate(points)`` (least squares on all the points given) and ``residuals(points)``
 (orthogonal distances, shape ``(N,)``). RANSAC departs from skimage's loop: it draws a
 ``(trials, k)`` index array from ``numpy.random.default_rng(seed)``, fits every minimal sample
-at once in closed form and scores all hypotheses against all points in one broadcast, then
-refits the best by least squares on its inliers. Inlier semantics follow PCL's sample
-consensus models: a point is an inlier when its distance is ``<= threshold``.
+at once in closed form (2-point lines, 3-point circumcircles, 5-point conics) and scores all
+hypotheses against all points in one broadcast, then refits the best by least squares on its
+inliers and recomputes the inliers once. Lines and circles are chosen by inlier count (ties:
+lower residual sum); ellipses by MSAC's truncated quadratic cost, and their direct
+least-squares refit is polished by orthogonal-distance Gauss-Newton (see :func:`fit_ellipse`
+for why). Inlier semantics follow PCL's sample consensus models: a point is an inlier when
+its distance is ``<= threshold``; ellipse distances are true orthogonal distances.
 
 A degenerate input gives a falsy :class:`FailedFit` carrying ``.reason``, never an
 exception; bad shapes or parameters raise ``ValueError`` naming the parameter.
