@@ -77,6 +77,7 @@ class Node:
     volatile: frozenset[str] = frozenset({"seq"})
     errors: tuple[type[Exception], ...] = (ValueError,)
     tick: Tick | None = None
+    match_by: str | None = None  # how a check pairs its outputs that carry no frame id
 
 
 @dataclass(frozen=True)
@@ -318,15 +319,19 @@ def check(
     *,
     volatile: Mapping[str, frozenset[str]] | None = None,
     offered: Mapping[str, Collection[int]] | None = None,
+    match_by: Mapping[str, str] | None = None,
     cut: bool = False,
     all_frames: bool = False,
     limit: int = 20,
 ) -> CheckResult:
-    """Compare outputs topic by topic. Messages with a frame id are matched by frame, others by
-    position. A recorded output whose frame was never offered to its producer (its input is
-    not in the recording) is skipped. Replayed outputs the recording lacks are differences,
-    except past the end of a ``cut`` recording, or with ``all_frames`` (no gating) for frames
-    the live service skipped."""
+    """Compare outputs topic by topic.
+
+    Messages with a frame id are matched by frame, those of a topic in ``match_by`` by that
+    field (a tactor command by its frame's ``t_ns``), others by position. A recorded output
+    whose frame was never offered to its producer (its input is not in the recording) is
+    skipped. Replayed outputs the recording lacks are differences, except past the end of a
+    ``cut`` recording, or with ``all_frames`` (no gating) for frames the live service skipped.
+    """
     volatile = volatile or {}
     result = CheckResult()
 
@@ -339,15 +344,20 @@ def check(
     for key in sorted(set(recorded) | set(replayed)):
         ignore = volatile.get(key, frozenset())
         rec, rep = list(recorded.get(key, ())), list(replayed.get(key, ()))
+        field_ = (match_by or {}).get(key)
         by_frame = all(frame_id(m) is not None for m in itertools.chain(rec, rep))
-        if by_frame and (rec or rep):
-            seen = offered.get(key) if offered is not None else None
-            rec_by = {frame_id(m): m for m in rec if seen is None or frame_id(m) in seen}
-            rep_by = {frame_id(m): m for m in rep}
+        if (by_frame or field_) and (rec or rep):
+
+            def ident(m: Any, by_frame: bool = by_frame, field_: str | None = field_) -> Any:
+                return frame_id(m) if by_frame else getattr(m, field_ or "", None)
+
+            seen = offered.get(key) if offered is not None and by_frame else None
+            rec_by = {ident(m): m for m in rec if seen is None or ident(m) in seen}
+            rep_by = {ident(m): m for m in rep}
             last = max(rec_by, default=-1)
             for frame in sorted(set(rec_by) | set(rep_by)):
                 a, b = rec_by.get(frame), rep_by.get(frame)
-                where = f"frame {frame}"
+                where = f"frame {frame}" if by_frame else f"{field_}={frame}"
                 if a is None:
                     if not (all_frames or (cut and frame > last)):
                         add(Difference(key, where, "", "nothing", _short(b)))
@@ -468,6 +478,7 @@ def default_nodes() -> tuple[Node, ...]:
             ),
             outputs=("lpc/aim/cue", "lpc/tactors/command"),
             gate="lpc/aim/cue",
+            match_by="t_ns",  # a tactor command carries its frame's capture time
         ),
         Node(
             name="controller",
@@ -491,3 +502,8 @@ def default_nodes() -> tuple[Node, ...]:
 def volatile_fields(nodes: Iterable[Node]) -> dict[str, frozenset[str]]:
     """Per output topic, the fields a check skips."""
     return {key: node.volatile for node in nodes for key in node.outputs}
+
+
+def match_fields(nodes: Iterable[Node]) -> dict[str, str]:
+    """Per output topic without frame ids, the field a check pairs messages by."""
+    return {key: node.match_by for node in nodes if node.match_by for key in node.outputs}

@@ -34,6 +34,7 @@ from schemas import (
     GraspTarget,
     ProsthesisState,
     ScanLines,
+    TactorCommand,
     to_wire,
 )
 from services.cli import main as lpc
@@ -398,3 +399,18 @@ def test_replay_cli_without_depth_replays_from_recorded_scans(
     assert "26 inputs (lpc/emg, lpc/prosthesis/state, lpc/scans)" in out
     with McapLog(tmp_path / "scans.mcap") as log:
         assert "lpc/camera/depth" not in log.topics()
+
+
+def test_check_pairs_messages_without_frame_by_a_named_field() -> None:
+    def command(t: int, amplitude: float) -> TactorCommand:
+        return TactorCommand(seq=t, t_ns=T0 + t, amplitudes=[amplitude] * 4)
+
+    recorded = {"lpc/tactors/command": [command(1, 0.5), command(2, 0.5), command(3, 0.5)]}
+    replayed = {"lpc/tactors/command": [command(2, 0.5), command(3, 0.25)]}  # 1 skipped live
+    by_position = check(recorded, replayed)
+    assert by_position.total == 3
+    by_time = check(recorded, replayed, match_by={"lpc/tactors/command": "t_ns"})
+    assert [(d.where, d.path) for d in by_time.differences] == [
+        (f"t_ns={T0 + 1}", ""),
+        (f"t_ns={T0 + 3}", "amplitudes[0]"),
+    ]

@@ -29,7 +29,15 @@ from typing import Any
 
 import msgspec
 
-from lpc_core.replay import Node, Recorded, Replay, check, default_nodes, volatile_fields
+from lpc_core.replay import (
+    Node,
+    Recorded,
+    Replay,
+    check,
+    default_nodes,
+    match_fields,
+    volatile_fields,
+)
 from schemas import BadMessage, decode
 from services.mcap_log import (
     COMPRESSIONS,
@@ -337,6 +345,7 @@ def _report_check(
         {k: replayed.get(k, []) for k in compared},
         volatile=volatile_fields(replay.plan.nodes),
         offered=replay.offered,
+        match_by=match_fields(replay.plan.nodes),
         cut=cut is not None,
         all_frames=args.all_frames,
         limit=args.max_differences,
