@@ -551,13 +551,17 @@ def test_faults_service_survives_a_payload_with_broken_text(endpoint: str) -> No
         try:
             wait_for(lambda: watch.pid("scans") is not None, 30, "the scans service")
             publisher = z.declare_publisher("lpc/camera/depth")
-            publisher.put(bad)
 
             def rejected() -> int:
                 with watch.lock:
                     return watch.health["scans"].counters.get("rejected", 0)
 
-            wait_for(lambda: scans.poll() is not None or rejected() > 0, 30, "reject or exit")
+            # Health can come before the subscription is declared: send until it is answered.
+            wait_for(
+                lambda: (publisher.put(bad), scans.poll() is not None or rejected() > 0)[1],
+                30,
+                "the bad payload rejected, or the service gone",
+            )
             assert scans.poll() is None, "the scans service died of one bad payload"
         finally:
             if scans.poll() is None:
