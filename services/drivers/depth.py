@@ -1,5 +1,5 @@
 """Depth sources behind one small interface: the simulated scene, a RealSense camera (live or a
-recorded .bag/.db3 file), and the depth topic of an MCAP recording.
+recorded .db3/.bag file), and the depth topic of an MCAP recording.
 
 A source's ``read(timeout)`` returns the next ``DepthReading`` or ``None`` on timeout; at the end
 of a file it raises ``EndOfStream``. ``shutdown()`` may be called twice.
@@ -7,6 +7,9 @@ of a file it raises ``EndOfStream``. ``shutdown()`` may be called twice.
 
 from __future__ import annotations
 
+import contextlib
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +18,7 @@ import numpy as np
 
 from lpc_core.intrinsics import Intrinsics
 from schemas import ObjectTruth
-from services.drivers.errors import DeviceUnavailable
+from services.drivers.errors import DeviceUnavailable, OperationError
 
 
 class EndOfStream(Exception):
@@ -53,65 +56,151 @@ class SimSource:
         pass
 
 
+def _import_pyrealsense2():
+    """pyrealsense2, or ``SourceUnavailable`` saying what to install."""
+    try:
+        import pyrealsense2 as rs  # type: ignore[import-not-found]
+    except ModuleNotFoundError as exc:
+        if exc.name not in (None, "pyrealsense2"):
+            raise SourceUnavailable(f"pyrealsense2 failed to import: {exc}") from exc
+        raise SourceUnavailable(
+            "pyrealsense2 is not installed: pip install 'lpc[realsense]' "
+            "(it also needs Debian's libusb-1.0-0)"
+        ) from exc
+    except ImportError as exc:  # the wheel is there but a shared library is not
+        raise SourceUnavailable(
+            f"pyrealsense2 is installed but does not load ({exc}); "
+            "on Debian/Ubuntu: apt-get install libusb-1.0-0"
+        ) from exc
+    return rs
+
+
+def _f32(value: float) -> float:
+    """A float32 from librealsense as the decimal it was written as (0.001, not 0.0010000000475).
+
+    Intrinsics and depth units are float32 on the device and in recordings; the shortest decimal
+    that rounds to the same float32 is the value that was set, and compares equal to it.
+    """
+    return float(str(np.float32(value)))
+
+
 class RealSenseSource:
-    """pyrealsense2: a live camera, or a recorded file played back as fast as it is read."""
+    """pyrealsense2: a live camera, or a recorded file played back as fast as it is read.
+
+    A recording is ROS 2 ``.db3`` (written by pyrealsense2 2.59 on) or ROS 1 ``.bag`` (earlier
+    versions); 2.59 reads both. Only the depth stream is used, and it must be Z16. The
+    intrinsics come from the depth stream's profile, the depth scale from the depth sensor
+    (both are stored in a recording). Each reading's ``t_ns`` is the frame's own timestamp:
+    the recorded device clock for a file, librealsense's host-synchronised global time for a
+    live camera.
+
+    A file plays back in non-real-time mode: playback waits for the reader, so no frame is
+    dropped however slowly ``read`` is called, and ``read`` raises ``EndOfStream`` once the
+    last frame has been read.
+    """
 
     name = "realsense"
-    paced = False  # the device (or the file's timestamps) paces it
+    paced = False  # the device (or the reader, for a file) paces it
 
-    def __init__(self, file: str | None = None, rate: int = 90) -> None:
-        try:
-            import pyrealsense2 as rs  # type: ignore[import-not-found]
-        except ImportError as exc:
-            raise SourceUnavailable(
-                "pyrealsense2 is not installed: pip install 'lpc[realsense]' "
-                "(and Debian's libusb-1.0-0)"
-            ) from exc
-        self._rs = rs
+    _SLICE_S = 0.05  # longest single wait, so shutdown() from another thread is never held long
+
+    def __init__(
+        self, file: str | Path | None = None, rate: int = 90, width: int = 424, height: int = 240
+    ) -> None:
+        self._file = str(file) if file else None
+        if self._file and not Path(self._file).is_file():
+            raise SourceUnavailable(f"no such RealSense recording: {self._file}")
+        rs = _import_pyrealsense2()
+        self._stopped = False
+        self._ended = threading.Event()
+        self._played = False
         self._pipeline = rs.pipeline()
         config = rs.config()
-        if file:
-            if not Path(file).is_file():
-                raise SourceUnavailable(f"no such RealSense recording: {file}")
-            config.enable_device_from_file(file, repeat_playback=False)
+        if self._file:
+            config.enable_device_from_file(self._file, repeat_playback=False)
+            config.enable_stream(rs.stream.depth, rs.format.z16, 0)
+            what = f"RealSense recording {self._file}"
         else:
-            config.enable_stream(rs.stream.depth, 424, 240, rs.format.z16, rate)
+            # Checked first: with no camera, pipeline.start() waits 15 s before it gives up.
+            if len(rs.context().query_devices()) == 0:
+                raise SourceUnavailable(
+                    "no RealSense camera found: is it plugged in (USB 3), and when not root, "
+                    "are librealsense's udev rules installed?"
+                )
+            config.enable_stream(rs.stream.depth, width, height, rs.format.z16, rate)
+            what = f"a RealSense camera for depth {width}x{height} Z16 at {rate} fps"
         try:
+            if self._file:
+                # The pipeline starts the device that resolve() returns. Set up playback before
+                # it starts: set after start, real-time playback has already dropped frames.
+                device = config.resolve(rs.pipeline_wrapper(self._pipeline)).get_device()
+                playback = device.as_playback()
+                playback.set_real_time(False)
+                playback.set_status_changed_callback(self._on_status)
+                self._playback = playback  # the callback lives as long as this handle
             profile = self._pipeline.start(config)
         except RuntimeError as exc:
-            raise SourceUnavailable(f"cannot start the RealSense pipeline: {exc}") from exc
-        if file:
-            profile.get_device().as_playback().set_real_time(False)
-        stream = profile.get_stream(rs.stream.depth).as_video_stream_profile()
-        i = stream.get_intrinsics()
-        scale = profile.get_device().first_depth_sensor().get_depth_scale()
+            raise SourceUnavailable(f"cannot open {what}: {exc}") from exc
+        try:
+            stream = profile.get_stream(rs.stream.depth).as_video_stream_profile()
+            i = stream.get_intrinsics()
+            scale = profile.get_device().first_depth_sensor().get_depth_scale()
+        except RuntimeError as exc:
+            self.shutdown()
+            raise SourceUnavailable(f"{what} has no depth sensor with depth units: {exc}") from exc
         self.intrinsics = Intrinsics(
             width=i.width,
             height=i.height,
-            fx=i.fx,
-            fy=i.fy,
-            ppx=i.ppx,
-            ppy=i.ppy,
+            fx=_f32(i.fx),
+            fy=_f32(i.fy),
+            ppx=_f32(i.ppx),
+            ppy=_f32(i.ppy),
             model=str(i.model).split(".")[-1],
-            coeffs=tuple(i.coeffs),
-            depth_scale=scale,
+            coeffs=tuple(_f32(c) for c in i.coeffs),
+            depth_scale=_f32(scale),
         )
-        self._file = file
-        self._stopped = False
+        self.fps: int = stream.fps()
+
+    def _on_status(self, status: object) -> None:
+        # Runs on librealsense's reading thread. A playback reports "stopped" before it starts
+        # as well, so the end is a stop after play. The stop comes after the last frame has
+        # been handed to the pipeline's queue (the playback flushes its sensors first).
+        name = str(status).rsplit(".", 1)[-1]
+        if name == "playing":
+            self._played = True
+        elif name == "stopped" and self._played:
+            self._ended.set()
 
     def read(self, timeout: float) -> DepthReading | None:
-        ok, frames = self._pipeline.try_wait_for_frames(int(timeout * 1000))
-        if not ok:
-            if self._file:
+        """The next depth frame, ``None`` after ``timeout`` seconds, ``EndOfStream`` at the end
+        of a file; ``OperationError`` if the pipeline fails (or was shut down)."""
+        deadline = time.monotonic() + max(timeout, 0.0)
+        while True:
+            # Read before waiting: once the stop is seen, every frame is already queued.
+            ended = self._ended.is_set()
+            wait_s = min(self._SLICE_S, max(deadline - time.monotonic(), 0.0))
+            try:
+                ok, frames = self._pipeline.try_wait_for_frames(max(1, round(wait_s * 1000)))
+                if ok:
+                    depth = frames.get_depth_frame()
+                    # Copy: the frame's buffer goes back to librealsense's pool.
+                    return DepthReading(
+                        depth=np.asanyarray(depth.get_data()).copy(),
+                        t_ns=round(depth.get_timestamp() * 1e6),
+                    )
+            except RuntimeError as exc:
+                raise OperationError(f"RealSense read failed: {exc}") from exc
+            if ended:
                 raise EndOfStream(self._file)
-            return None
-        depth = frames.get_depth_frame()
-        return DepthReading(depth=np.asanyarray(depth.get_data()).copy())
+            if time.monotonic() >= deadline:
+                return None
 
     def shutdown(self) -> None:
         if not self._stopped:
             self._stopped = True
-            self._pipeline.stop()
+            # A pipeline that failed while starting has nothing to stop.
+            with contextlib.suppress(RuntimeError):
+                self._pipeline.stop()
 
 
 class ReplaySource:
