@@ -1,0 +1,187 @@
+"""Depth sources: a RealSense recording written by pyrealsense2's software device (no camera)
+read back through ``RealSenseSource`` and through the camera service, and the clear
+``SourceUnavailable`` errors when the file, the package or its shared library is missing."""
+
+from __future__ import annotations
+
+import importlib.abc
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from lpc_core.intrinsics import D435_424X240, Intrinsics
+from lpc_core.pipeline import depth_image, intrinsics_from_message
+from schemas import decode
+from services.drivers.depth import EndOfStream, RealSenseSource, SourceUnavailable
+from services.drivers.errors import DeviceUnavailable, OperationError
+from tests.conftest import spawn_service, wait_for
+from tests.realsense_fixture import plane_frames, recording_suffix, write_recording
+
+# Not the D435 default on purpose: every field, the distortion and the 100 µm depth unit must
+# come from the recording, not from a default that happens to match.
+ODD_INTRINSICS = Intrinsics(
+    width=424,
+    height=240,
+    fx=212.87,
+    fy=213.11,
+    ppx=211.64,
+    ppy=119.38,
+    model="brown_conrady",
+    coeffs=(0.01, -0.02, 0.001, -0.002, 0.003),
+    depth_scale=0.0001,
+)
+FPS = 90
+
+
+def recording(directory: Path, count: int, intrinsics: Intrinsics) -> tuple[Path, list]:
+    pytest.importorskip("pyrealsense2")
+    frames = plane_frames(count, intrinsics, seed=7)
+    path = write_recording(directory / f"fixture{recording_suffix()}", frames, intrinsics, FPS)
+    return path, frames
+
+
+def read_all(source: RealSenseSource) -> list:
+    readings = []
+    while True:
+        try:
+            reading = source.read(5.0)
+        except EndOfStream:
+            return readings
+        assert reading is not None, f"timed out after {len(readings)} frames"
+        readings.append(reading)
+
+
+def test_realsense_source_round_trips_a_recording(tmp_path: Path) -> None:
+    path, frames = recording(tmp_path, 10, ODD_INTRINSICS)
+    source = RealSenseSource(path)
+    try:
+        assert source.intrinsics == ODD_INTRINSICS
+        assert source.fps == FPS
+        readings = read_all(source)
+        with pytest.raises(EndOfStream):  # the end stays the end
+            source.read(0.1)
+    finally:
+        source.shutdown()
+    assert len(readings) == 10
+    for reading, frame in zip(readings, frames, strict=True):
+        assert reading.depth.dtype == np.uint16 and reading.depth.shape == (240, 424)
+        np.testing.assert_array_equal(reading.depth, frame)  # exact: Z16 is stored raw
+        assert reading.truth is None
+    # Frame i was stamped i / 90 s (a float64 in milliseconds): within 1 µs.
+    t_ns = np.array([r.t_ns for r in readings])
+    np.testing.assert_allclose(t_ns, np.arange(10) * 1e9 / FPS, rtol=0, atol=1e3)
+
+
+def test_realsense_source_shutdown_is_idempotent_and_ends_reading(tmp_path: Path) -> None:
+    path, _ = recording(tmp_path, 3, D435_424X240)
+    source = RealSenseSource(path)
+    assert source.read(5.0) is not None
+    source.shutdown()
+    source.shutdown()
+    with pytest.raises(OperationError, match="RealSense read failed"):
+        source.read(0.1)
+
+
+def test_realsense_source_missing_file_is_unavailable(tmp_path: Path) -> None:
+    missing = tmp_path / "nowhere.db3"
+    with pytest.raises(
+        SourceUnavailable, match=re.escape(f"no such RealSense recording: {missing}")
+    ):
+        RealSenseSource(missing)
+
+
+def test_realsense_source_unreadable_file_is_unavailable(tmp_path: Path) -> None:
+    pytest.importorskip("pyrealsense2")
+    garbage = tmp_path / "garbage.db3"
+    garbage.write_bytes(b"not a recording\n")
+    with pytest.raises(
+        SourceUnavailable, match=re.escape(f"cannot open RealSense recording {garbage}")
+    ):
+        RealSenseSource(garbage)
+
+
+def test_realsense_source_without_a_camera_is_unavailable() -> None:
+    rs = pytest.importorskip("pyrealsense2")
+    if len(rs.context().query_devices()) > 0:
+        pytest.skip("a RealSense camera is attached")
+    with pytest.raises(SourceUnavailable, match="no RealSense camera found"):
+        RealSenseSource()
+
+
+def test_realsense_source_without_pyrealsense2_is_unavailable(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # import raises ModuleNotFoundError
+    path = tmp_path / "any.db3"
+    path.write_bytes(b"")
+    with pytest.raises(SourceUnavailable, match=r"pip install 'lpc\[realsense\]'") as info:
+        RealSenseSource(path)
+    assert isinstance(info.value, DeviceUnavailable)
+    assert isinstance(info.value.__cause__, ImportError)
+
+
+class _NoLibusb(importlib.abc.MetaPathFinder):
+    """Fails pyrealsense2's import the way a machine without libusb does."""
+
+    def find_spec(self, name: str, path: object, target: object = None) -> None:
+        if name.split(".")[0] == "pyrealsense2":
+            raise ImportError("libusb-1.0.so.0: cannot open shared object file")
+        return None
+
+
+def test_realsense_source_without_libusb_is_unavailable(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    for name in [m for m in sys.modules if m.split(".")[0] == "pyrealsense2"]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setattr(sys, "meta_path", [_NoLibusb(), *sys.meta_path])
+    path = tmp_path / "any.db3"
+    path.write_bytes(b"")
+    with pytest.raises(SourceUnavailable, match=re.escape("apt-get install libusb-1.0-0")):
+        RealSenseSource(path)
+
+
+def test_camera_service_publishes_every_frame_of_a_realsense_file(
+    rendezvous: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    path, frames = recording(tmp_path, 10, D435_424X240)
+    received: list = []
+    logs: list[str] = []
+
+    def on_depth(sample: zenoh.Sample) -> None:
+        received.append(decode("lpc/camera/depth", sample.payload.to_bytes()))
+
+    def on_log(sample: zenoh.Sample) -> None:
+        logs.append(decode("lpc/log/camera", sample.payload.to_bytes()).text)
+
+    subs = [
+        rendezvous.declare_subscriber("lpc/camera/depth", on_depth),
+        rendezvous.declare_subscriber("lpc/log/camera", on_log),
+    ]
+    process = spawn_service(
+        "services.camera", endpoint, "--source", "realsense", "--file", str(path)
+    )
+    try:
+        try:
+            _, stderr = process.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            pytest.fail("the camera service did not stop at the end of the file")
+        assert process.returncode == 0, stderr.decode()
+        wait_for(lambda: any("end of" in text for text in logs), 10.0, "the end-of-file log")
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        for sub in subs:
+            sub.undeclare()
+    assert f"end of {path} after 10 frames" in logs
+    assert [m.seq for m in received] == list(range(10))
+    for message, frame in zip(received, frames, strict=True):
+        assert message.source == "realsense"
+        assert intrinsics_from_message(message.intrinsics) == D435_424X240
+        np.testing.assert_array_equal(depth_image(message), frame)
