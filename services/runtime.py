@@ -49,9 +49,8 @@ class SystemClock:
         return time.time_ns()
 
     async def sleep_until(self, t_ns: int) -> None:
-        delay = (t_ns - time.time_ns()) / 1e9
-        if delay > 0:
-            await asyncio.sleep(delay)
+        # Always suspend, even when late: a loop that never yields never sees SIGTERM.
+        await asyncio.sleep(max(0.0, (t_ns - time.time_ns()) / 1e9))
 
 
 # --------------------------------------------------------------------------- config
@@ -251,6 +250,10 @@ class Subscription:
     async def receive(self) -> tuple[str, Any, int]:
         """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
         while True:
+            if self._queue:
+                # Yield once per message even when backlogged, so signals, health and the
+                # other tasks still run while a slow consumer catches up.
+                await asyncio.sleep(0)
             while not self._queue:
                 self._ready.clear()
                 await self._ready.wait()
