@@ -783,16 +783,18 @@ def _ransac(
     return best, done
 
 
-def _pick(counts: np.ndarray, residual_sums: Callable[[np.ndarray], np.ndarray]) -> int | None:
-    """Row with the most inliers; ties go to the lowest residual sum, then the first row.
-    None if no row has an inlier (every sample was degenerate)."""
+def _pick(
+    counts: np.ndarray, residual_sums: Callable[[np.ndarray], np.ndarray]
+) -> tuple[int, float] | None:
+    """Row with the most inliers and its residual sum; ties go to the lowest residual sum,
+    then the first row. None if no row has an inlier (every sample was degenerate)."""
     top = counts.max()
     if top == 0:
         return None
     tied = np.flatnonzero(counts == top)
-    if tied.size == 1:
-        return int(tied[0])
-    return int(tied[np.argmin(residual_sums(tied))])
+    sums = residual_sums(tied)
+    j = int(np.argmin(sums)) if tied.size > 1 else 0
+    return int(tied[j]), float(sums[j])
 
 
 class _Points:
@@ -845,11 +847,11 @@ def _line_scorer(pts: _Points, threshold: float) -> _Scorer:
         dist = np.abs(coef.T @ basis)
         inl = dist <= limit[:, None]
         counts = inl.sum(axis=1)
-        i = _pick(counts, lambda rows: (dist[rows] * inl[rows]).sum(axis=1) / length[rows])
-        if i is None:
+        picked = _pick(counts, lambda rows: (dist[rows] * inl[rows]).sum(axis=1) / length[rows])
+        if picked is None:
             return None
+        i, total = picked
         li = float(length[i])
-        total = float(dist[i][inl[i]].sum()) / li
         return int(counts[i]), total, (float(coef[0, i]) / li, float(coef[1, i]) / li,
                                        float(coef[2, i]) / li)  # fmt: skip
 
@@ -980,10 +982,10 @@ def _circle_scorer(pts: _Points, threshold: float, limits: tuple[float, float]) 
             d = np.abs(np.hypot(x - cx[rows, None], y - cy[rows, None]) - r[rows, None])
             return np.where(d <= threshold, d, 0.0).sum(axis=1)
 
-        i = _pick(counts, residual_sums)
-        if i is None:
+        picked = _pick(counts, residual_sums)
+        if picked is None:
             return None
-        total = float(residual_sums(np.array([i]))[0])
+        i, total = picked
         return int(counts[i]), total, (float(cx[i]), float(cy[i]), float(r[i]))
 
     return score
