@@ -19,7 +19,7 @@ Suites (reference/paper.tex, "Results" and "Testing of Irregularly Shaped Object
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +65,7 @@ class View:
     seq: int
     depth: np.ndarray
     truth: scene.ObjectTruth
+    square_face: bool = False  # a box pierced on a square face: its axis is ambiguous by 90 deg
 
 
 def _table_scene(*objects: scene.SceneObject) -> scene.Scene:
@@ -168,20 +169,41 @@ def aim_target(obj: scene.SceneObject, back: np.ndarray) -> np.ndarray:
     return box.center + normals[k] * half[k]
 
 
+def _square_face(obj: scene.SceneObject, pose: np.ndarray) -> bool:
+    if obj.box is None:
+        return False
+    box = obj.box.transformed(scene.invert_pose(pose))
+    zero, one = np.zeros(()), np.ones(())
+    t, face = box.slab_hit(zero, zero, one)
+    if not np.isfinite(t):
+        return False
+    i, j = [a for a in range(3) if a != int(face)]
+    return bool(abs(box.size[i] - box.size[j]) <= 0.05 * max(box.size[i], box.size[j]))
+
+
 def _uniform(rng: np.random.Generator, limits: tuple[float, float]) -> float:
     return float(rng.uniform(*limits)) if limits[0] != limits[1] else float(limits[0])
 
 
 def views(
-    suite: str, trials: int, frames: int, seed: int, subjects: list[Subject] | None = None
+    suite: str,
+    trials: int,
+    frames: int,
+    seed: int,
+    subjects: list[Subject] | None = None,
+    names: Collection[str] | None = None,
 ) -> Iterator[View]:
-    """``trials`` approaches of ``frames`` frames to each subject of ``suite``."""
+    """``trials`` approaches of ``frames`` frames to each subject of ``suite`` (or only to
+    those called ``names``: the others' views are skipped, not changed)."""
     if suite not in SUBJECTS:
         raise ValueError(f"suite must be one of {SUITES}, got {suite!r}")
     subjects = SUBJECTS[suite]() if subjects is None else subjects
     suite_id = SUITES.index(suite)
     seq = 0
     for s, subject in enumerate(subjects):
+        if names is not None and subject.name not in names:
+            seq += trials * frames
+            continue
         a = subject.approach
         for trial in range(trials):
             base = np.random.default_rng([seed, suite_id, s, trial])
@@ -207,10 +229,13 @@ def views(
                 depth = scene.render_depth(subject.world, INTRINSICS, pose, rng)
                 yield View(
                     suite, subject.name, subject.detail, trial, frame, seq, depth,
-                    subject.obj.truth(pose),
+                    subject.obj.truth(pose), _square_face(subject.obj, pose),
                 )  # fmt: skip
                 seq += 1
 
 
-def count(suite: str, trials: int, frames: int) -> int:
-    return len(SUBJECTS[suite]()) * trials * frames
+def count(suite: str, trials: int, frames: int, names: Collection[str] | None = None) -> int:
+    subjects = SUBJECTS[suite]()
+    if names is not None:
+        subjects = [s for s in subjects if s.name in names]
+    return len(subjects) * trials * frames
