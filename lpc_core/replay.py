@@ -330,7 +330,8 @@ def check(
     field (a tactor command by its frame's ``t_ns``), others by position. A recorded output
     whose frame was never offered to its producer (its input is not in the recording) is
     skipped. Replayed outputs the recording lacks are differences, except past the end of a
-    ``cut`` recording, or with ``all_frames`` (no gating) for frames the live service skipped.
+    ``cut`` recording (or a replay of only its beginning: then only the overlap is compared),
+    or with ``all_frames`` (no gating) for frames the live service skipped.
     """
     volatile = volatile or {}
     result = CheckResult()
@@ -355,6 +356,9 @@ def check(
             rec_by = {ident(m): m for m in rec if seen is None or ident(m) in seen}
             rep_by = {ident(m): m for m in rep}
             last = max(rec_by, default=-1)
+            if cut and rep_by:  # the recording may go on past what was replayed
+                end = max(rep_by)
+                rec_by = {k: m for k, m in rec_by.items() if k <= end}
             for frame in sorted(set(rec_by) | set(rep_by)):
                 a, b = rec_by.get(frame), rep_by.get(frame)
                 where = f"frame {frame}" if by_frame else f"{field_}={frame}"
@@ -374,7 +378,7 @@ def check(
                 diff = first_difference(a, b, ignore)
                 if diff is not None:
                     add(Difference(key, f"#{i}", *diff))
-            if len(rec) > len(rep):
+            if len(rec) > len(rep) and not cut:
                 add(
                     Difference(
                         key, f"#{len(rep)}", "", f"{len(rec)} messages", f"{len(rep)} messages"

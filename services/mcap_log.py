@@ -199,6 +199,13 @@ class LogWriter:
         self._channels[key] = channel
         return channel
 
+    def declare(self, key: str) -> None:
+        """Register ``key``'s channel now, even if no message comes: a reader then knows the
+        topic was recorded, and empty."""
+        if self._writer is None:
+            raise ValueError(f"{self.path}: declare after finish()")
+        self._channel(key)
+
     def write_raw(
         self,
         key: str,
@@ -475,11 +482,13 @@ class McapLog:
         return records
 
     def topics(self) -> set[str]:
-        """The topics of the log's messages: from the summary of a complete file, otherwise by
-        reading the file through."""
+        """The topics of the log's channels (a channel may hold no message): from the summary
+        of a complete file, otherwise by reading the file through."""
         if self.complete and self._summary_topics:
             return set(self._summary_topics)
-        return {m.key for m in self.messages(ordered=False)}
+        for _ in self.messages(ordered=False):
+            pass
+        return {c.topic for c in self.channels.values()}
 
     # -- messages
 

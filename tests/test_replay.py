@@ -269,7 +269,11 @@ def depth_images() -> list[np.ndarray]:
 
 
 def record_session(
-    path: Path, images: list[np.ndarray], n_frames: int = 24, params: ScanParams | None = None
+    path: Path,
+    images: list[np.ndarray],
+    n_frames: int = 24,
+    params: ScanParams | None = None,
+    declare: tuple[str, ...] = (),
 ) -> None:
     """A live-like session: depth at 90 Hz, EMG and hand state at 100 Hz, and the scans of
     two frames in three (the live service skipped the rest) reaching the recorder 2 ms late."""
@@ -294,6 +298,8 @@ def record_session(
         events.append((t + 200_000, "lpc/prosthesis/state", hand))
     events.sort(key=lambda e: e[0])
     with LogWriter(path) as writer:
+        for key in declare:  # recorded, but the live service published nothing
+            writer.declare(key)
         for t, key, message in events:
             writer.write(key, message, t)
 
@@ -414,3 +420,22 @@ def test_check_pairs_messages_without_frame_by_a_named_field() -> None:
         (f"t_ns={T0 + 1}", ""),
         (f"t_ns={T0 + 3}", "amplitudes[0]"),
     ]
+
+
+def test_replay_cli_recorded_empty_topic_gates_its_node_off(
+    tmp_path: Path, depth_images: list[np.ndarray], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The reconstructor ran live but kept up with no frame: replay must not reconstruct any,
+    # and its own output, replayed with --until, must come back byte for byte.
+    record_session(
+        tmp_path / "rec.mcap", depth_images, n_frames=12, declare=("lpc/reconstruction",)
+    )
+    out1, out2 = tmp_path / "out1.mcap", tmp_path / "out2.mcap"
+    assert lpc(["replay", str(tmp_path / "rec.mcap"), "--until", "0.1", "--out", str(out1)]) == 0
+    out = capsys.readouterr().out
+    assert "inputs the live services skipped: {'reconstructor': 6, 'scans': 3}" in out
+    assert lpc(["replay", str(out1), "--check", "--out", str(out2)]) == 0
+    assert "check: no differences (compared lpc/aim/cue 6" in capsys.readouterr().out
+    assert out1.read_bytes() == out2.read_bytes()
+    with McapLog(out1) as log:
+        assert {"lpc/reconstruction", "lpc/grasp/target"} <= log.topics()

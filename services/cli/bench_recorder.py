@@ -223,17 +223,9 @@ def bench_replay(path: Path) -> None:
     from services.cli import replay
 
     print(f"replay: lpc replay {path} --fast")
-    args = argparse.Namespace(
-        file=str(path),
-        out=None,
-        check=False,
-        speed=None,
-        fast=True,
-        all_frames=False,
-        compression="zstd",
-        horizon=2.0,
-        max_differences=5,
-    )
+    parser = argparse.ArgumentParser()
+    replay.add_arguments(parser)
+    args = parser.parse_args([str(path), "--fast"])
     replay.run(args)
 
 

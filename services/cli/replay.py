@@ -83,6 +83,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "lpc/camera/depth replays from the recorded scans",
     )
     parser.add_argument(
+        "--until",
+        type=float,
+        metavar="S",
+        help="replay only the inputs of the first S seconds (log time) of the recording",
+    )
+    parser.add_argument(
         "--horizon",
         type=float,
         default=2.0,
@@ -99,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail("--speed must be positive")
     if not args.horizon >= 0:
         return _fail("--horizon must be >= 0")
+    if args.until is not None and not args.until > 0:
+        return _fail("--until must be positive")
     path = Path(args.file)
     try:
         log = McapLog(path)
@@ -149,6 +157,11 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     reader = _ReadAhead(log, replay, frames, args)
     out_tmp = Path(f"{args.out}.partial") if args.out else None
     writer = LogWriter(out_tmp, compression=args.compression) if out_tmp else None
+    if writer is not None:
+        # Every output topic, even one that stays empty: replaying the output file then gates
+        # the same nodes (a node whose recorded topic is empty handles no frame).
+        for key in sorted(replay.outputs):
+            writer.declare(key)
     replayed: dict[str, list[Any]] = defaultdict(list)
     counts: Counter[str] = Counter()
     first_ns = last_ns = 0
@@ -263,6 +276,7 @@ class _ReadAhead:
         self.check = args.check
         self.speed = args.speed
         self.horizon_ns = int(args.horizon * 1e9)
+        self.until_ns = None if args.until is None else int(args.until * 1e9)
         self.keep_payload = bool(args.out)
         self.recorded: dict[str, list[tuple[int, int, Any]]] = defaultdict(list)
         self.bad_recorded: Counter[str] = Counter()
@@ -273,10 +287,15 @@ class _ReadAhead:
     def inputs(self) -> Iterator[Recorded]:
         inputs, outputs = self.replay.inputs, self.replay.outputs
         pending: deque[LoggedMessage] = deque()
+        end_ns = None
         for m in self.log.messages():
+            if end_ns is None and self.until_ns is not None and m.key in inputs:
+                end_ns = m.log_time + self.until_ns
+            if end_ns is not None and m.log_time > end_ns + self.horizon_ns:
+                break
             if m.key in outputs:
                 self._index(m)
-            elif m.key in inputs:
+            elif m.key in inputs and (end_ns is None or m.log_time <= end_ns):
                 pending.append(m)
             while pending and pending[0].log_time + self.horizon_ns <= m.log_time:
                 item = self._input(pending.popleft())
@@ -330,7 +349,7 @@ def _report_check(
     replayed: dict[str, list[Any]],
     cut: Cut | None,
 ) -> int:
-    compared = sorted(k for k in replay.outputs if k in reader.recorded)
+    compared = sorted(replay.outputs & replay.recorded_keys)
     if not compared:
         print(
             f"check: {args.file} holds none of the outputs "
@@ -346,7 +365,7 @@ def _report_check(
         volatile=volatile_fields(replay.plan.nodes),
         offered=replay.offered,
         match_by=match_fields(replay.plan.nodes),
-        cut=cut is not None,
+        cut=cut is not None or args.until is not None,
         all_frames=args.all_frames,
         limit=args.max_differences,
     )
