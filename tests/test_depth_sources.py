@@ -5,10 +5,12 @@ read back through ``RealSenseSource`` and through the camera service, and the cl
 from __future__ import annotations
 
 import importlib.abc
+import os
 import re
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -38,8 +40,21 @@ ODD_INTRINSICS = Intrinsics(
 FPS = 90
 
 
+def require_pyrealsense2() -> ModuleType:
+    """pyrealsense2, or a skip saying why; with LPC_REQUIRE_REALSENSE=1 (CI) a failure instead,
+    so a CI image that lost the extra or libusb cannot pass by skipping."""
+    try:
+        import pyrealsense2
+    except ImportError as exc:  # not installed, or installed without libusb-1.0-0
+        reason = f"pyrealsense2 unavailable ({exc}): pip install 'lpc[realsense]', apt libusb-1.0-0"
+        if os.environ.get("LPC_REQUIRE_REALSENSE") == "1":
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return pyrealsense2
+
+
 def recording(directory: Path, count: int, intrinsics: Intrinsics) -> tuple[Path, list]:
-    pytest.importorskip("pyrealsense2")
+    require_pyrealsense2()
     frames = plane_frames(count, intrinsics, seed=7)
     path = write_recording(directory / f"fixture{recording_suffix()}", frames, intrinsics, FPS)
     return path, frames
@@ -96,7 +111,7 @@ def test_realsense_source_missing_file_is_unavailable(tmp_path: Path) -> None:
 
 
 def test_realsense_source_unreadable_file_is_unavailable(tmp_path: Path) -> None:
-    pytest.importorskip("pyrealsense2")
+    require_pyrealsense2()
     garbage = tmp_path / "garbage.db3"
     garbage.write_bytes(b"not a recording\n")
     with pytest.raises(
@@ -106,7 +121,7 @@ def test_realsense_source_unreadable_file_is_unavailable(tmp_path: Path) -> None
 
 
 def test_realsense_source_without_a_camera_is_unavailable() -> None:
-    rs = pytest.importorskip("pyrealsense2")
+    rs = require_pyrealsense2()
     if len(rs.context().query_devices()) > 0:
         pytest.skip("a RealSense camera is attached")
     with pytest.raises(SourceUnavailable, match="no RealSense camera found"):
