@@ -83,10 +83,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "lpc/camera/depth replays from the recorded scans",
     )
     parser.add_argument(
+        "--from",
+        dest="start",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="skip the inputs of the first S seconds (log time) of the recording",
+    )
+    parser.add_argument(
         "--until",
         type=float,
         metavar="S",
-        help="replay only the inputs of the first S seconds (log time) of the recording",
+        help="skip the inputs after S seconds (log time) from the start of the recording",
     )
     parser.add_argument(
         "--horizon",
@@ -105,8 +113,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail("--speed must be positive")
     if not args.horizon >= 0:
         return _fail("--horizon must be >= 0")
-    if args.until is not None and not args.until > 0:
-        return _fail("--until must be positive")
+    if not args.start >= 0:
+        return _fail("--from must be >= 0")
+    if args.until is not None and not args.until > args.start:
+        return _fail("--until must be after --from")
     path = Path(args.file)
     try:
         log = McapLog(path)
@@ -276,26 +286,36 @@ class _ReadAhead:
         self.check = args.check
         self.speed = args.speed
         self.horizon_ns = int(args.horizon * 1e9)
+        self.start_ns = int(args.start * 1e9)
         self.until_ns = None if args.until is None else int(args.until * 1e9)
         self.keep_payload = bool(args.out)
         self.recorded: dict[str, list[tuple[int, int, Any]]] = defaultdict(list)
         self.bad_recorded: Counter[str] = Counter()
         self.undecodable: Counter[str] = Counter()
         self.late = 0
+        self.begin_ns = 0  # log time of the first input replayed
         self._start: tuple[float, int] | None = None
 
     def inputs(self) -> Iterator[Recorded]:
         inputs, outputs = self.replay.inputs, self.replay.outputs
         pending: deque[LoggedMessage] = deque()
-        end_ns = None
+        first_ns = begin_ns = end_ns = None
         for m in self.log.messages():
-            if end_ns is None and self.until_ns is not None and m.key in inputs:
-                end_ns = m.log_time + self.until_ns
+            if first_ns is None and m.key in inputs:
+                first_ns = m.log_time
+                begin_ns = self.begin_ns = first_ns + self.start_ns
+                if self.until_ns is not None:
+                    end_ns = first_ns + self.until_ns
             if end_ns is not None and m.log_time > end_ns + self.horizon_ns:
                 break
             if m.key in outputs:
                 self._index(m)
-            elif m.key in inputs and (end_ns is None or m.log_time <= end_ns):
+            elif (
+                m.key in inputs
+                and begin_ns is not None
+                and m.log_time >= begin_ns
+                and (end_ns is None or m.log_time <= end_ns)
+            ):
                 pending.append(m)
             while pending and pending[0].log_time + self.horizon_ns <= m.log_time:
                 item = self._input(pending.popleft())
@@ -357,7 +377,10 @@ def _report_check(
         )
         return 1
     recorded = {
-        k: [m for *_, m in sorted(reader.recorded[k], key=lambda r: r[:2])] for k in compared
+        k: [
+            m for t, _, m in sorted(reader.recorded[k], key=lambda r: r[:2]) if t >= reader.begin_ns
+        ]
+        for k in compared
     }
     result = check(
         recorded,
@@ -365,7 +388,7 @@ def _report_check(
         volatile=volatile_fields(replay.plan.nodes),
         offered=replay.offered,
         match_by=match_fields(replay.plan.nodes),
-        cut=cut is not None or args.until is not None,
+        cut=cut is not None or args.until is not None or args.start > 0,
         all_frames=args.all_frames,
         limit=args.max_differences,
     )
