@@ -170,15 +170,22 @@ def aim_target(obj: scene.SceneObject, back: np.ndarray) -> np.ndarray:
 
 
 def _square_face(obj: scene.SceneObject, pose: np.ndarray) -> bool:
+    """Whether the optical axis enters ``obj``'s box through a square face (slab test)."""
     if obj.box is None:
         return False
-    box = obj.box.transformed(scene.invert_pose(pose))
-    zero, one = np.zeros(()), np.ones(())
-    t, face = box.slab_hit(zero, zero, one)
-    if not np.isfinite(t):
+    cam_from_world = scene.invert_pose(pose)
+    rotation = cam_from_world[:3, :3] @ obj.box.rotation
+    center = cam_from_world[:3, :3] @ obj.box.center + cam_from_world[:3, 3]
+    half = np.asarray(obj.box.size) / 2
+    origin, direction = rotation.T @ -center, rotation.T @ np.array([0.0, 0.0, 1.0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (-half - origin) / direction, (half - origin) / direction
+    near = np.nan_to_num(np.minimum(t1, t2), nan=-np.inf)
+    far = np.nan_to_num(np.maximum(t1, t2), nan=np.inf)
+    if near.max() > far.min() or far.min() <= 0:
         return False
-    i, j = [a for a in range(3) if a != int(face)]
-    return bool(abs(box.size[i] - box.size[j]) <= 0.05 * max(box.size[i], box.size[j]))
+    i, j = [a for a in range(3) if a != int(np.argmax(near))]
+    return bool(abs(half[i] - half[j]) <= 0.05 * max(half[i], half[j]))
 
 
 def _uniform(rng: np.random.Generator, limits: tuple[float, float]) -> float:

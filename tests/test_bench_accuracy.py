@@ -1,0 +1,29 @@
+"""``lpc bench accuracy`` runs end to end on a few frames and prints the paper beside ours."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from services.cli import bench_accuracy
+
+
+def _run(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser()
+    bench_accuracy.add_arguments(parser)
+    return bench_accuracy.run(parser.parse_args(argv))
+
+
+def test_bench_accuracy_one_object_prints_table(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--suite", "functional", "--object", "sphere_small", "--trials", "1", "--frames", "3"]
+    assert _run(argv) == 0
+    captured = capsys.readouterr()
+    assert "sphere" in captured.out and "96.5" in captured.out  # the paper's figure beside
+    assert "CPU per frame" in captured.out
+    assert "functional: 3/3 frames" in captured.err
+
+
+def test_bench_accuracy_rejects_zero_frames(capsys: pytest.CaptureFixture[str]) -> None:
+    assert _run(["--frames", "0"]) == 2
+    assert "--frames" in capsys.readouterr().err
