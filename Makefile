@@ -7,6 +7,11 @@ PY := $(VENV)/bin/python
 .PHONY: demo test lint
 
 $(VENV)/.installed: pyproject.toml
+	@# pyrealsense2 needs Debian's libusb-1.0-0; install it when we can (root with apt).
+	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    apt-get update -qq && apt-get install -y -qq --no-install-recommends libusb-1.0-0; \
+	  else echo "note: libusb-1.0-0 is missing: the RealSense tests will be skipped"; fi; fi
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'

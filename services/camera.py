@@ -57,6 +57,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 if reading is None:
                     bus.health.counters["timeouts"] += 1
                     continue
+                if args.file and reading.t_ns is not None:  # a file keeps its frame spacing
+                    first_recorded_ns = first_recorded_ns or reading.t_ns
+                    await bus.clock.sleep_until(start_ns + reading.t_ns - first_recorded_ns)
                 t_ns = bus.clock.now_ns()
             else:
                 due = start_ns + seq * period_ns
