@@ -192,6 +192,9 @@ class ControllerParams:
     grip_off_pct: float = 3.0
     release_open_mm: float = 10.0
     direct_idle_s: float = 8.0
+    # Direct control moves the hand only on fresh EMG: the velocity drops to zero when the
+    # newest sample is older than this, well before the topic counts as stale (and stops).
+    velocity_hold_ms: float = 30.0
     heartbeat_ms: float = 100.0
 
     def __post_init__(self) -> None:
@@ -544,10 +547,13 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
         wrist = _servo(wr_err, p.wrist_gain_per_deg, p.wrist_tol_deg, holding, p)
         core = dataclasses.replace(core, holding=grasp == 0.0 and wrist == 0.0)
     elif core.mode is S.DIRECT:
+        emg_ns = core.seen_ns.get(EMG)
+        fresh = emg_ns is not None and now_ns - emg_ns <= p.velocity_hold_ms * 1e6
+        velocity = core.velocity if fresh else 0.0
         if core.dof == "grasp":
-            grasp = core.velocity
+            grasp = velocity
         else:
-            wrist = core.velocity
+            wrist = velocity
     seq = core.command_seq + 1
     out.append(ProsthesisCommand(seq=seq, t_ns=now_ns, grasp=float(grasp), wrist=float(wrist)))
     return dataclasses.replace(core, command_seq=seq)

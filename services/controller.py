@@ -37,25 +37,31 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     }
     inbox: asyncio.Queue = asyncio.Queue()
 
+    # Each input carries the time it happened (received, or the tick's time), so that a stall
+    # of this process is not taken for silence of its inputs.
     async def pump(key: str, latest: bool) -> None:
         # EMG is FIFO: the detector's timing rules need every sample, in order.
-        async for message in bus.subscribe(key, latest=latest):
-            inbox.put_nowait(message)
+        sub = bus.subscribe(key, latest=latest)
+        while True:
+            _, message, received_ns = await sub.receive()
+            inbox.put_nowait((received_ns, message))
 
     async def ticks() -> None:
         t_ns = bus.clock.now_ns()
         while True:
             t_ns = max(t_ns + TICK_NS, bus.clock.now_ns() - TICK_NS)
             await bus.clock.sleep_until(t_ns)
-            inbox.put_nowait(Tick(t_ns))
+            inbox.put_nowait((t_ns, Tick(t_ns)))
 
     tasks = [asyncio.create_task(pump(k, latest)) for k, latest in INPUTS.items()]
     tasks.append(asyncio.create_task(ticks()))
     try:
+        now_ns = 0
         while True:
-            message = await inbox.get()
+            t_ns, message = await inbox.get()
+            now_ns = max(now_ns, t_ns)  # the controller's time never goes back
             try:
-                core, outputs = controller_step(core, message, bus.clock.now_ns())
+                core, outputs = controller_step(core, message, now_ns)
             except TransitionError as exc:
                 bus.health.counters["transition_errors"] += 1
                 bus.log("warning", str(exc))

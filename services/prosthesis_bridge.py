@@ -39,7 +39,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             )
         )
         if seq % 100 == 0:
-            bus.health.counters.update(link.counters)
+            report()
+
+    def report() -> None:
+        for name, count in link.counters.items():  # totals: assign, do not add
+            bus.health.counters[name] = count
 
     sim = None
     if args.sim_hand:
@@ -65,7 +69,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         link.stop()
         if sim is not None:
             sim.stop()
-        bus.health.counters.update(link.counters)
+        report()
 
 
 def main(argv: list[str] | None = None) -> int:

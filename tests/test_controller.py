@@ -395,6 +395,19 @@ def test_controller_stale_emg_stops_the_hand_and_recovers() -> None:
     assert rig.mode is State.IDLE
 
 
+def test_controller_direct_velocity_drops_at_once_when_emg_pauses() -> None:
+    rig = Rig()
+    rig.run(0.05)
+    rig.quick_extension()
+    rig.run(0.3, flexor=0.6)
+    assert rig.commands()[-1].grasp > 0
+    rig.emg_on = False
+    rig.run(0.03)
+    assert rig.commands()[-1].grasp > 0  # 30 ms: within the hold
+    rig.run(0.01)
+    assert rig.mode is State.DIRECT and rig.commands()[-1].grasp == 0.0  # stopped, not stale
+
+
 def test_controller_stale_hand_commands_zero_on_every_tick() -> None:
     rig = Rig()
     rig.run(0.05)

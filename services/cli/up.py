@@ -67,8 +67,24 @@ SERVICES: dict[str, ServiceSpec] = {
         lambda args: ["--tactor-port", p] if (p := getattr(args, "tactor_port", None)) else [],
     ),
     "aim": ServiceSpec("services.aim"),
+    # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand.
+    "prosthesis_bridge": ServiceSpec("services.prosthesis_bridge", lambda args: ["--sim-hand"]),
+    # The simulated camera does not turn with the simulated wrist: --camera-fixed.
+    "controller": ServiceSpec(
+        "services.controller",
+        lambda args: ["--sim-user", "--camera-fixed"] if _sim_user(args) else [],
+    ),
+    "emg": ServiceSpec(
+        "services.emg",
+        lambda args: ["--source", "sim", "--seed", str(args.seed)] if _sim_user(args) else [],
+    ),
     "camera": ServiceSpec("services.camera", _camera_argv),
 }
+
+
+def _sim_user(args: argparse.Namespace) -> bool:
+    """The scripted EMG user unless an EMG device was asked for."""
+    return getattr(args, "emg", "sim") == "sim"
 
 
 @dataclass
