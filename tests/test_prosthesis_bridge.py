@@ -14,7 +14,7 @@ import zenoh
 from lpc_core import can_protocol as cp
 from lpc_core.hand import HandCommand, HandStatus
 from schemas import ProsthesisCommand, decode, encode
-from services.drivers.errors import DeviceUnavailable, OperationError
+from services.drivers.errors import DeviceUnavailable, DriverError, OperationError
 from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand
 from services.drivers.hand_sim import SimulatedHand
 from tests.conftest import spawn_service, wait_for
@@ -129,6 +129,12 @@ def test_open_hand_unknown_profile_or_interface_is_unavailable(channel: str) -> 
         open_hand("michelangelo", channel=channel)
     with pytest.raises(DeviceUnavailable):
         open_hand("lpc", interface="no-such-interface", channel=channel)
+
+
+def test_open_hand_missing_socketcan_device_is_a_driver_error() -> None:
+    # No such interface (or no AF_CAN in this kernel): a DriverError, never a python-can error.
+    with pytest.raises(DriverError, match="socketcan:lpc-no-such-can"):
+        open_hand("lpc", interface="socketcan", channel="lpc-no-such-can")
 
 
 def test_simulated_hand_stops_on_its_own_watchdog(channel: str) -> None:
