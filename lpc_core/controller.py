@@ -179,6 +179,7 @@ class ControllerParams:
     aperture_gain_per_mm: float = 1.0 / 25.0
     wrist_gain_per_deg: float = 1.0 / 30.0
     min_speed: float = 0.08
+    settle_fraction: float = 0.3
     aperture_range_mm: tuple[float, float] = (0.0, 110.0)
     wrist_range_deg: tuple[float, float] = (-160.0, 160.0)
     wrist_offset_deg: float = 0.0  # hand rotation that aligns the grasp with axis angle 0
@@ -207,6 +208,8 @@ class ControllerParams:
         for name in ("slack_mm", "aperture_tol_mm", "wrist_tol_deg", "heartbeat_ms"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0")
+        if not 0 < self.settle_fraction <= 1:
+            raise ValueError(f"settle_fraction must be in (0, 1], got {self.settle_fraction}")
         if not self.grip_off_pct < self.grip_on_pct:
             raise ValueError("grip_off_pct must be below grip_on_pct")
 
@@ -243,7 +246,9 @@ class ControllerCore:
     cue_off_since: int | None = None
     setpoint: Setpoint | None = None
     at_target: bool = False
-    holding: bool = False  # in tolerance: servo off until the error exceeds twice it
+    # Per axis (aperture, wrist): at rest near the set-point; it moves again only when the
+    # error leaves the tolerance.
+    holding: tuple[bool, bool] = (False, False)
     grasped: bool = False
     contact_mm: float | None = None
     active_ns: int = 0  # last EMG activity
@@ -324,7 +329,7 @@ def _enter(core: ControllerCore, state: State, now_ns: int, out: list[Output]) -
     """Entry actions of a state."""
     if state is S.PRESHAPING:
         setpoint = _setpoint(core)
-        return dataclasses.replace(core, setpoint=setpoint, at_target=False, holding=False)
+        return dataclasses.replace(core, setpoint=setpoint, at_target=False, holding=(False, False))
     if state is S.DIRECT:
         return dataclasses.replace(
             core, dof="grasp", grasped=False, contact_mm=None, active_ns=now_ns
@@ -467,7 +472,7 @@ def _on_hand(
     if core.mode is S.PRESHAPING and core.setpoint is not None:
         ap_err, wr_err = _errors(core.setpoint, hand)
         inside = abs(ap_err) <= p.aperture_tol_mm and abs(wr_err) <= p.wrist_tol_deg
-        if inside and not core.at_target:
+        if inside and all(core.holding) and not core.at_target:  # reached, and come to rest
             sp = core.setpoint
             wrist = f"{sp.wrist_deg:.1f}" if sp.wrist_deg is not None else "kept"
             reason = (
@@ -528,13 +533,17 @@ def _errors(setpoint: Setpoint, hand: ProsthesisState) -> tuple[float, float]:
     return ap, wr
 
 
-def _servo(error: float, gain: float, tol: float, holding: bool, p: ControllerParams) -> float:
-    # Inside the tolerance the axis rests; once resting it stays until the error doubles.
-    if abs(error) <= (2 * tol if holding else tol):
-        return 0.0
+def _servo(
+    error: float, gain: float, tol: float, holding: bool, p: ControllerParams
+) -> tuple[float, bool]:
+    """(velocity, holding): a moving axis comes to rest within ``settle_fraction`` of the
+    tolerance (aiming at the set-point, not the edge of the band); a resting axis moves
+    again only when the error leaves the tolerance."""
+    if abs(error) <= (tol if holding else tol * p.settle_fraction):
+        return 0.0, True
     v = error * gain
     v = math.copysign(max(abs(v), p.min_speed), v)
-    return max(min(v, 1.0), -1.0)
+    return max(min(v, 1.0), -1.0), False
 
 
 def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> ControllerCore:
@@ -542,10 +551,10 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
     p = core.params
     if core.mode is S.PRESHAPING and core.setpoint is not None and core.hand is not None:
         ap_err, wr_err = _errors(core.setpoint, core.hand)
-        holding = core.holding
-        grasp = _servo(ap_err, p.aperture_gain_per_mm, p.aperture_tol_mm, holding, p)
-        wrist = _servo(wr_err, p.wrist_gain_per_deg, p.wrist_tol_deg, holding, p)
-        core = dataclasses.replace(core, holding=grasp == 0.0 and wrist == 0.0)
+        hold_ap, hold_wr = core.holding
+        grasp, hold_ap = _servo(ap_err, p.aperture_gain_per_mm, p.aperture_tol_mm, hold_ap, p)
+        wrist, hold_wr = _servo(wr_err, p.wrist_gain_per_deg, p.wrist_tol_deg, hold_wr, p)
+        core = dataclasses.replace(core, holding=(hold_ap, hold_wr))
     elif core.mode is S.DIRECT:
         emg_ns = core.seen_ns.get(EMG)
         fresh = emg_ns is not None and now_ns - emg_ns <= p.velocity_hold_ms * 1e6
