@@ -442,6 +442,19 @@ def test_controller_stale_target_stops_only_where_vision_matters() -> None:
     assert rig.mode is State.DIRECT
 
 
+def test_controller_gestures_are_ignored_while_stopped() -> None:
+    rig = Rig()
+    rig.run(0.05)
+    rig.hand_on = False
+    rig.run(0.2)
+    assert rig.mode is State.STOPPED
+    rig.quick_extension()
+    assert rig.mode is State.STOPPED
+    last = rig.events()[-1]
+    assert last.event == "take_over" and "ignored while stopped" in last.reason
+    assert all(c.grasp == 0.0 and c.wrist == 0.0 for c in rig.commands()[-30:])
+
+
 def test_controller_per_topic_thresholds_come_from_the_params() -> None:
     params = ControllerParams(profile=PROFILE, stale_ms={EMG: 300.0, HAND: 100.0})
     rig = Rig(params)
