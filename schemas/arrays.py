@@ -22,7 +22,10 @@ def from_wire(message: NDArray, *, finite: bool = True) -> np.ndarray:
     Raises ``ValueError`` when the byte count does not match dtype and shape, or when
     ``finite`` is set and a float array holds NaN or inf.
     """
-    dtype = np.dtype(message.dtype)
+    try:
+        dtype = np.dtype(message.dtype)
+    except TypeError as exc:
+        raise ValueError(f"unknown array dtype {message.dtype!r}") from exc
     expected = int(np.prod(message.shape, dtype=np.int64)) * dtype.itemsize
     if len(message.data) != expected:
         raise ValueError(

@@ -35,7 +35,7 @@ class NDArray(Struct, frozen=True):
     """A numpy array on the wire: raw little-endian bytes, numpy dtype string and shape."""
 
     data: bytes
-    dtype: Annotated[str, Meta(pattern=r"^[<|][fiub][1248]$")]
+    dtype: Annotated[str, Meta(pattern=r"^(<f[248]|<[iu][248]|\|[iu]1|\|b1)$")]
     shape: list[Annotated[int, Meta(ge=0)]]
 
 

@@ -76,7 +76,8 @@ class Topic:
             message = self.decoder.decode(payload)
         except msgspec.ValidationError as exc:
             raise BadMessage(key, f"invalid {self.type.__name__}: {exc}") from exc
-        except msgspec.DecodeError as exc:
+        except (msgspec.DecodeError, ValueError) as exc:
+            # ValueError covers what msgspec lets through, such as broken UTF-8 in a string.
             raise BadMessage(key, f"malformed payload: {exc}") from exc
         if message.version != 1:
             raise BadMessage(key, f"version {message.version} not supported (expected 1)")

@@ -222,13 +222,6 @@ def test_decoders_reject_flipped_bytes(key: str, data: st.DataObject) -> None:
     _check_decoded(key, bytes(payload))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=UnicodeDecodeError,
-    reason="schemas/registry.py: Topic.decode lets msgspec's UnicodeDecodeError through "
-    "instead of BadMessage, and the runtime's Subscription.receive catches only BadMessage, so "
-    "one payload with a broken string stops any subscriber's loop",
-)
 def test_decoders_reject_invalid_utf8_as_bad_message() -> None:
     payload = encode(EXAMPLE_MESSAGES["lpc/log/scans"]).replace(b"hello", b"\x80ello")
     with pytest.raises(BadMessage):
@@ -315,12 +308,6 @@ def test_from_wire_rejects_inconsistent_arrays(array: NDArray) -> None:
     assert non_finite(out) is None
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=TypeError,
-    reason="schemas: the NDArray dtype pattern admits '<b8', '<f1', '<f2'... that numpy does "
-    "not understand; from_wire raises TypeError, which services do not catch",
-)
 def test_from_wire_rejects_dtypes_numpy_does_not_know() -> None:
     for dtype in ("<b8", "<f1", "|b2"):
         array = decode("lpc/scans", encode(EXAMPLE_MESSAGES["lpc/scans"]))

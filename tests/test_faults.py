@@ -34,7 +34,7 @@ import pytest
 import zenoh
 
 from lpc_core import can_protocol as cp
-from schemas import DepthFrame, Health, TactorCommand, decode, encode, to_wire
+from schemas import BadMessage, DepthFrame, Health, TactorCommand, decode, encode, to_wire
 from services import prosthesis_bridge
 from services.cli.up import SERVICES
 from services.drivers.tactor_sim import TactorSim
@@ -532,18 +532,11 @@ def test_faults_camera_unplugged_and_plugged_back() -> None:
     raise AssertionError("not reached")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="schemas/registry.py lets UnicodeDecodeError out of Topic.decode and "
-    "services/runtime.py Subscription.receive catches only BadMessage: one payload with broken "
-    "text stops the service (lpc up then restarts it)",
-)
 def test_faults_service_survives_a_payload_with_broken_text(endpoint: str) -> None:
     good = _depth_frame(1)
     bad = good.replace(b"\xa3sim", b"\xa3s\x80m")  # the 'source' string, no longer UTF-8
     assert bad != good
-    with pytest.raises(UnicodeDecodeError):
+    with pytest.raises(BadMessage, match="malformed"):
         decode("lpc/camera/depth", bad)
     with zenoh.open(zenoh_config(connect=[], listen=[endpoint])) as z:
         watch = BusWatch(z)
