@@ -22,7 +22,9 @@ Arm movement
 
 Aiming by eye
     The user cannot see the optical axis: a visual aim lands around the object's centre with
-    SD ``visual_aim_sd_m`` across the axis and ``depth_aim_sd_m`` along it.
+    SD ``visual_aim_sd_m`` across the axis and ``depth_aim_sd_m`` along it, offset by the
+    person's bias ``aim_bias_m`` (the camera sits on the back of the hand, so its axis is not
+    where the hand seems to point); both shrink with practice.
 
 Following the tactors
     The user feels the four amplitudes (``schemas.TactorCommand``), reads a direction as their
@@ -51,8 +53,10 @@ Judging the pre-shape
     back and aims again, as the paper's participants did, at most ``max_reaims`` times per trial.
 
 Steps and practice
-    The participants waited for the experimenter's voice command before each step. Each step
-    therefore starts after ``step_pause_s`` (the instruction and the person's deliberation).
+    The participants waited for the experimenter's voice command before each step (move
+    toward the object, trigger, take control, close and carry). The last three therefore start
+    after ``step_pause_s`` (the instruction and the person's deliberation; the first starts
+    the TAT clock).
     Skills improve with practice: a ``Learned`` parameter takes the value
     ``final + (first - final) exp(-(n - 1) / practice_tau_trials)`` on the n-th trial with a
     controller, the exponential law of practice (Heathcote, Brown and Mewhort 2000; it fits
@@ -137,8 +141,12 @@ class UserParams:
     # Endpoint noise, signal-dependent (Harris and Wolpert 1998): SD = floor + ratio * distance.
     motor_noise_ratio: float = 0.06
     motor_noise_floor_m: float = 0.0015
-    # Aiming by eye at an axis one cannot see (assumption, learned).
+    # Aiming by eye at an axis one cannot see (assumption, learned): scatter, and a bias the
+    # size of the camera's mounting offset (a few degrees at 0.19 m), in a direction that is
+    # the person's own (``aim_bias_angle_deg``, drawn by ``individual``).
     visual_aim_sd_m: Learned = field(default_factory=lambda: Learned(0.016, 0.009))
+    aim_bias_m: Learned = field(default_factory=lambda: Learned(0.025, 0.008))
+    aim_bias_angle_deg: float = 0.0
     depth_aim_sd_m: float = 0.012
     # Holding still: postural sway (OU) and physiological tremor (Elble 1986).
     sway_sd_m: float = 0.0015
@@ -204,7 +212,8 @@ class UserParams:
 
 # Parameters a person has more or less of: scaled together by ``individual``.
 _INDIVIDUAL = (
-    "fitts_a_s", "fitts_b_s_per_bit", "visual_aim_sd_m", "depth_aim_sd_m", "sway_sd_m",
+    "fitts_a_s", "fitts_b_s_per_bit", "visual_aim_sd_m", "aim_bias_m", "depth_aim_sd_m",
+    "sway_sd_m",
     "tactile_rt_s", "simple_rt_s", "visual_rt_s", "cue_direction_sd_deg", "step_pause_s",
     "motor_noise_ratio", "practice_tau_trials",
 )  # fmt: skip
@@ -222,6 +231,7 @@ def individual(params: UserParams, rng: np.random.Generator) -> UserParams:
         changes[name] = value.scaled(factor) if isinstance(value, Learned) else value * factor
     level = params.quick_level + rng.normal(0.0, params.quick_level_sd)
     changes["quick_level"] = float(np.clip(level, 0.6, 1.0))
+    changes["aim_bias_angle_deg"] = float(rng.uniform(-180.0, 180.0))
     return dataclasses.replace(params, **changes)  # type: ignore[arg-type]
 
 
@@ -531,9 +541,12 @@ def _visual_aim(
     p = state.params
     state, rng = _rng(state)
     sd = learned(state, p.visual_aim_sd_m) * scale
+    bias = learned(state, p.aim_bias_m)
+    bias_x = bias * math.cos(math.radians(p.aim_bias_angle_deg))
+    bias_y = bias * math.sin(math.radians(p.aim_bias_angle_deg))
     goal = (
-        float(rng.normal(-beside_m, sd)),
-        float(rng.normal(0.0, sd)),
+        float(rng.normal(bias_x - beside_m, sd)),
+        float(rng.normal(bias_y, sd)),
         float(rng.normal(0.0, p.depth_aim_sd_m * scale)),
     )
     state = _evolve(state, corrections=state.corrections + 1)
@@ -702,8 +715,9 @@ def _decide(state: UserState, percept: Percept, t: float, events: list[str]) -> 
             return state
         events.append("take_over")
         state = _log(state, t, "take_over")
-        # Reach around the object once the gesture is done.
-        t0 = state.act_s + 2 * 0.02 + p.quick_hold_s + p.simple_rt_s
+        # Reach around the object once the gesture is done, at the next step's command.
+        state, pause = _pause(state, learned(state, p.step_pause_s))
+        t0 = state.act_s + 2 * 0.02 + p.quick_hold_s + p.simple_rt_s + pause
         here = state.move.at(t0)
         goal = (here[0], here[1], here[2] + p.standoff_m)
         clearance = max(
