@@ -16,8 +16,9 @@ accepts and ignores (a self-transition).
 
 ``controller_step(state, message, now_ns) -> (state, outputs)`` is pure. Outputs are
 ``ControllerState`` messages (every transition, with its reason, and a 10 Hz heartbeat) and one
-``ProsthesisCommand`` per ``ProsthesisState`` received (the hand's 100 Hz clock), or per
-``Tick`` while the hand's state is stale, so a stale pipeline always commands zero velocity.
+``ProsthesisCommand`` per ``ProsthesisState`` received (the hand's 100 Hz clock), and one on a
+``Tick`` (the 100 Hz timer) when no status came since the previous tick: a late or dropped
+status does not thin the command stream, and a stale hand is commanded zero velocity.
 """
 
 from __future__ import annotations
@@ -254,6 +255,7 @@ class ControllerCore:
     active_ns: int = 0  # last EMG activity
     state_seq: int = 0
     command_seq: int = 0
+    commanded_since_tick: bool = False
     published_ns: int | None = None
     vision_since_ns: int | None = None  # when the controller began relying on the grasp target
 
@@ -290,9 +292,14 @@ def controller_step(
             core = _on_hand(core, message, now_ns, out)
             core = _command(core, now_ns, out)
         case Tick():
+            # The hand's status paces the commands; when a status is late or was dropped (a
+            # slow moment of this process), or the hand is silent, the timer keeps the
+            # command stream at 100 Hz (zero velocity while the hand is stale).
             commanded = any(isinstance(o, ProsthesisCommand) for o in out)
-            if not commanded and (HAND in core.stale or HAND not in core.seen_ns):
-                core = _command(core, now_ns, out)  # the hand's clock is gone: keep saying stop
+            hand_gone = HAND in core.stale or HAND not in core.seen_ns
+            if not commanded and (hand_gone or not core.commanded_since_tick):
+                core = _command(core, now_ns, out)
+            core = dataclasses.replace(core, commanded_since_tick=False)
         case _:
             raise ValueError(f"message: the controller does not take {type(message).__name__}")
 
@@ -565,7 +572,7 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
             wrist = velocity
     seq = core.command_seq + 1
     out.append(ProsthesisCommand(seq=seq, t_ns=now_ns, grasp=float(grasp), wrist=float(wrist)))
-    return dataclasses.replace(core, command_seq=seq)
+    return dataclasses.replace(core, command_seq=seq, commanded_since_tick=True)
 
 
 def _publish(

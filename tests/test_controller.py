@@ -495,6 +495,16 @@ def test_controller_heartbeat_at_10_hz_and_one_command_per_hand_state() -> None:
     assert len(rig.commands()) - n_commands == 100
 
 
+def test_controller_timer_fills_in_commands_for_late_hand_status() -> None:
+    rig = Rig()
+    rig.run(0.05)
+    n = len(rig.commands())
+    for k in range(60):  # the hand's status arrives only every third step (30 ms apart)
+        rig.hand_on = k % 3 == 0
+        rig.step()
+    assert len(rig.commands()) - n == 60  # still one command per 10 ms
+
+
 def test_controller_wrist_target_takes_the_nearest_equivalent_axis() -> None:
     rig = ready_rig(wrist_deg=150.0)
     rig.target(width=60.0, angle=80.0)  # 150 + 80 = 230 is out of range; 50 is the same axis
