@@ -170,8 +170,11 @@ class ControllerParams:
     profile: EmgProfile = field(default_factory=EmgProfile)
     # Per-topic staleness thresholds. The grasp target stops the hand only in the states that
     # act on it (aiming, ready, preshaping): in direct control the user drives without vision.
+    # EMG: direct control already holds still after ``velocity_hold_ms``; the state machine
+    # stops only after a longer silence, so a hiccup of the EMG source does not throw the
+    # user out of direct control.
     stale_ms: Mapping[str, float] = field(
-        default_factory=lambda: MappingProxyType({EMG: 100.0, HAND: 100.0, TARGET: 1000.0})
+        default_factory=lambda: MappingProxyType({EMG: 250.0, HAND: 100.0, TARGET: 1000.0})
     )
     # Pre-shape: open wider than the object by the slack, stop within the tolerances.
     slack_mm: float = 15.0

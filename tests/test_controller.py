@@ -384,8 +384,9 @@ def test_controller_stale_emg_stops_the_hand_and_recovers() -> None:
     rig.run(0.3, flexor=0.6)
     assert rig.commands()[-1].grasp > 0
     rig.emg_on = False
-    rig.run(0.09)
-    assert rig.mode is State.DIRECT  # 90 ms without EMG: within the 100 ms threshold
+    rig.run(0.24)
+    assert rig.mode is State.DIRECT  # 240 ms without EMG: within the 250 ms threshold
+    assert rig.commands()[-1].grasp == 0.0  # but no longer moving (velocity hold, 30 ms)
     rig.run(0.03)
     assert rig.mode is State.STOPPED
     assert EMG in rig.events()[-1].reason
