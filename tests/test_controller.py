@@ -457,12 +457,12 @@ def test_controller_gestures_are_ignored_while_stopped() -> None:
 
 
 def test_controller_per_topic_thresholds_come_from_the_params() -> None:
-    params = ControllerParams(profile=PROFILE, stale_ms={EMG: 300.0, HAND: 100.0})
+    params = ControllerParams(profile=PROFILE, stale_ms={EMG: 500.0, HAND: 100.0})
     rig = Rig(params)
     rig.run(0.05)
     rig.emg_on = False
-    rig.run(0.25)
-    assert rig.mode is State.IDLE
+    rig.run(0.45)
+    assert rig.mode is State.IDLE  # past the default 250 ms, within this profile's 500 ms
     rig.run(0.1)
     assert rig.mode is State.STOPPED
     with pytest.raises(ValueError, match="stale_ms"):
