@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
     "replay": ("services.cli.replay", "re-run the pipeline on a recording; --check compares"),
     "export": ("services.cli.export", "re-log a recording in Foxglove's schemas (--foxglove)"),
+    "trials": ("services.cli.trials", "the paper's pick-and-place experiment with virtual users"),
 }
 
 

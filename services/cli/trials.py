@@ -52,7 +52,7 @@ from lpc_core.trials import (
     wilcoxon_p,
 )
 
-PAPER_NAME = {"laser": "prototype (laser scans, tactors)", "cloud": "benchmark (full cloud)"}
+PAPER_NAME = {"laser": "prototype", "cloud": "benchmark"}
 PAPER_DIFF_S = (6.3, 3.7)  # prototype minus benchmark, block 1 and block 5 (Results)
 PAPER_FAILED = {"laser": 13, "cloud": 17}  # failed trials beyond the 1000 recorded
 
@@ -366,7 +366,8 @@ def report(conditions: list[Condition]) -> str:
             ref[4] = _cell(*paper[1])
         note = "block 5 < block 1 (p<=0.05)" if c.method == "laser" else "n.s."
         if (c.method == "laser") == c.feedback:
-            lines.append(f"{'  paper: ' + PAPER_NAME[c.method]:<28}{''.join(ref)}{note}")
+            label = "  paper: " + PAPER_NAME[c.method]
+            lines.append(f"{label:<28}{''.join(ref)}{note}")
         if test is not None:
             pair = next((pr for pr in test.pairs if pr[0] == 0 and pr[1] == blocks - 1), None)
             if pair is not None:
@@ -390,6 +391,14 @@ def report(conditions: list[Condition]) -> str:
                     diff = float(np.nanmedian(x) - np.nanmedian(y)) if n else math.nan
                     parts.append(f"b{k + 1} {diff:+.1f} s p={_p(p)}")
                 lines.append(f"  {a.name} - {b.name} (n={len(common)}): " + ", ".join(parts))
+                last = min(a.blocks, b.blocks) - 1
+                if last >= 1:
+                    gap = ma[ia] - mb[ib]
+                    p, n = wilcoxon_p(gap[:, 0], gap[:, last])
+                    lines.append(
+                        f"    the gap, block 1 vs {last + 1}: {np.nanmedian(gap[:, 0]):+.1f} s -> "
+                        f"{np.nanmedian(gap[:, last]):+.1f} s, Wilcoxon p={_p(p)} (n={n})"
+                    )
         lines.append(
             f"  paper: prototype - benchmark {PAPER_DIFF_S[0]:+.1f} s in block 1, "
             f"{PAPER_DIFF_S[1]:+.1f} s in block 5; the benchmark faster in every block "
@@ -463,7 +472,7 @@ def plot(conditions: list[Condition], path: Path) -> Path | None:
             px = [1 + offset] + ([5 + offset] if blocks >= 5 else [])
             py = [paper[0][0]] + ([paper[1][0]] if blocks >= 5 else [])
             pe = [paper[0][1] / 2] + ([paper[1][1] / 2] if blocks >= 5 else [])
-            label = f"paper: {PAPER_NAME[c.method].split(' ')[0]} (median, IQR)"
+            label = f"paper: {PAPER_NAME[c.method]} (median, IQR)"
             ax.errorbar(
                 px, py, yerr=pe, fmt="D", color=color, mec="black", ms=6, capsize=3, label=label
             )
@@ -481,7 +490,7 @@ def plot(conditions: list[Condition], path: Path) -> Path | None:
     ax.set_ylabel("TAT (s)")
     ax.set_ylim(0, top * 1.12 if top else None)
     ax.set_title("Time to accomplish the task per block (simulated users)")
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="lower left")
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
