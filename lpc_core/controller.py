@@ -218,6 +218,17 @@ class ControllerParams:
             raise ValueError("grip_off_pct must be below grip_on_pct")
 
 
+def sim_user_params(camera_on_hand: bool = False) -> ControllerParams:
+    """The parameters ``lpc up --source sim`` runs the controller with: the simulated user's
+    calibration (``lpc_core.emg_sim``) and a camera that does not turn with the wrist. A
+    replay of a simulated session needs the same to reproduce it."""
+    from lpc_core.emg_sim import MuscleParams
+
+    m = MuscleParams()
+    profile = EmgProfile(rest=m.rest, maximal=m.maximal, user="sim", unit="V")
+    return ControllerParams(profile=profile, camera_on_hand=camera_on_hand)
+
+
 @dataclass(frozen=True)
 class Setpoint:
     """Where pre-shaping drives the hand."""

@@ -19,6 +19,7 @@ from lpc_core.controller import (
     Tick,
     TransitionError,
     controller_step,
+    sim_user_params,
 )
 from lpc_core.emg import EmgProfile
 from schemas import ControllerState
@@ -100,13 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     if min(args.stale_emg_ms, args.stale_hand_ms, args.stale_target_ms) < 0:
         parser.error("--stale-*-ms must be >= 0 (0 turns that watchdog off)")
     try:
-        if args.sim_user:
-            from lpc_core.emg_sim import MuscleParams
-
-            m = MuscleParams()
-            profile: EmgProfile | None = EmgProfile(rest=m.rest, maximal=m.maximal, user="sim")
-        else:
-            profile = load_emg_profile(args.profile)
+        profile = sim_user_params().profile if args.sim_user else load_emg_profile(args.profile)
         stale = {EMG: args.stale_emg_ms, HAND: args.stale_hand_ms, TARGET: args.stale_target_ms}
         args.params = ControllerParams(
             profile=profile or EmgProfile(),
