@@ -715,11 +715,6 @@ def test_info_reports_a_corrupt_recording_as_cut(corrupt_files: dict[str, Path])
     assert "CUT SHORT" in result.stdout and "no message before the cut" in result.stdout
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="services/cli/up.py: _validate accepts --duration nan (nan <= 0 is False), and "
-    "the session then never ends",
-)
 def test_up_rejects_a_duration_of_nan() -> None:
     import argparse
 

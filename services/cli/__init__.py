@@ -21,6 +21,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "emg": ("services.cli.emg", "EMG: record rest and maximal contraction (emg calibrate)"),
     "info": ("services.cli.info", "summarise an MCAP recording: topics, counts, rates, duration"),
     "replay": ("services.cli.replay", "re-run the pipeline on a recording; --check compares"),
+    "reconstruct": (
+        "services.cli.reconstruct",
+        "shape, grasp width and wrist angle of depth frames, one JSON line each",
+    ),
+    "certs": ("services.cli.certs", "make a local CA and per-service certificates (secure mode)"),
     "export": ("services.cli.export", "re-log a recording in Foxglove's schemas (--foxglove)"),
     "trials": ("services.cli.trials", "the paper's pick-and-place experiment with virtual users"),
 }

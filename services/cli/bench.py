@@ -7,6 +7,12 @@ import importlib
 
 # name -> (module, one-line help); each module defines add_arguments(parser) and run(args).
 BENCHES: dict[str, tuple[str, str]] = {
+    "accuracy": (
+        "services.cli.bench_accuracy",
+        "shape, width and angle accuracy on the paper's suites",
+    ),
+    "speed": ("services.cli.bench_speed", "per-stage time of the four-line method, with a profile"),
+    "soak": ("services.cli.bench_soak", "the whole set for N minutes: rates, drops, memory slope"),
     "latency": ("services.cli.bench_latency", "depth frame capture to bytes on the tactor line"),
     "compare": ("services.cli.bench_compare", "the four-line method against the full cloud"),
     "render": ("services.cli.bench_render", "simulated camera and scan-cut speed"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import ctypes
 import json
 import signal
 import sys
@@ -61,10 +62,12 @@ SERVICES: dict[str, ServiceSpec] = {
         "services.foxglove_bridge", _foxglove_argv, lambda args: getattr(args, "foxglove", False)
     ),
     "scans": ServiceSpec("services.scans"),
+    "reconstructor": ServiceSpec("services.reconstructor"),
     # No --tactor-port: the bridge drives a simulated controller on a pseudo-terminal.
     "tactor_bridge": ServiceSpec(
         "services.tactor_bridge",
-        lambda args: ["--tactor-port", p] if (p := getattr(args, "tactor_port", None)) else [],
+        lambda args: ["--driver", args.tactor_driver]
+        + (["--tactor-port", args.tactor_port] if args.tactor_port else []),
     ),
     "aim": ServiceSpec("services.aim"),
     # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand.
@@ -135,6 +138,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-restart", action="store_true", help="do not restart a service that crashes"
     )
     parser.add_argument(
+        "--tactor-port",
+        metavar="PORT",
+        help="serial port of the tactor controller (default: a simulated one on a pty)",
+    )
+    parser.add_argument(
+        "--tactor-driver",
+        choices=("eai", "line"),
+        default="eai",
+        help="tactor protocol: EAI controller framing (default) or the DIY line protocol",
+    )
+    parser.add_argument(
         "--foxglove",
         action="store_true",
         help="also serve everything to Foxglove (WebSocket on 127.0.0.1; needs lpc[foxglove])",
@@ -154,7 +168,7 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--source sim takes no file"
     if len(args.source) > 2:
         return "--source takes at most a kind and a file"
-    if args.duration is not None and args.duration <= 0:
+    if args.duration is not None and not args.duration > 0:  # also rejects nan
         return "--duration must be positive"
     if not 0 < args.rate <= 1000:
         return "--rate must be in (0, 1000] Hz"
@@ -235,6 +249,9 @@ def _store_health(by_name: dict[str, Child], key: str, payload: bytes) -> None:
     child = by_name.get(health.service)
     if child is not None:
         child.health = health
+        # Health proves the service is up even when its liveliness token is slow to arrive.
+        if health.status != "stopping" and child.process is not None:
+            child.alive = True
 
 
 def _set_alive(by_name: dict[str, Child], name: str, up: bool) -> None:
@@ -253,7 +270,15 @@ async def _spawn(child: Child, endpoint: str) -> None:
         "--quiet",
         *child.argv,
         stdin=asyncio.subprocess.DEVNULL,
+        preexec_fn=_die_with_parent,
     )
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: get SIGTERM if the supervisor dies, so no service is orphaned."""
+    with contextlib.suppress(OSError, AttributeError):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 async def _run_children(
