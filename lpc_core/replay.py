@@ -452,9 +452,15 @@ def _short(value: Any, width: int = 80) -> str:
 # --------------------------------------------------------------------------- the table
 
 
-def default_nodes() -> tuple[Node, ...]:
-    """The pipeline as the services run it, in data-flow order: input topic -> step."""
+def default_nodes(controller_params: Any = None) -> tuple[Node, ...]:
+    """The pipeline as the services run it, in data-flow order: input topic -> step.
+
+    ``controller_params`` (a ``ControllerParams``) are the controller service's, which come
+    from its flags and the user's profile; the other services run on their defaults.
+    """
     from lpc_core import aim, controller, pipeline, reconstructor
+
+    params = controller_params or controller.ControllerParams()
 
     return (
         Node(
@@ -486,7 +492,7 @@ def default_nodes() -> tuple[Node, ...]:
         ),
         Node(
             name="controller",
-            init=controller.ControllerCore,
+            init=lambda: controller.ControllerCore(params=params),
             routes=(
                 Route("lpc/emg", controller.controller_step),
                 Route("lpc/grasp/target", controller.controller_step),

@@ -347,8 +347,8 @@ def test_replay_cli_catches_a_changed_algorithm(
 ) -> None:
     record_session(tmp_path / "rec.mcap", depth_images, n_frames=6)
 
-    def wider_band() -> tuple[Node, ...]:
-        nodes = default_nodes()
+    def wider_band(controller_params: Any = None) -> tuple[Node, ...]:
+        nodes = default_nodes(controller_params)
         scans = replace(nodes[0], init=lambda: ScansState(params=ScanParams(band_m=0.002)))
         return (scans, *nodes[1:])
 
@@ -439,3 +439,45 @@ def test_replay_cli_recorded_empty_topic_gates_its_node_off(
     assert out1.read_bytes() == out2.read_bytes()
     with McapLog(out1) as log:
         assert {"lpc/reconstruction", "lpc/grasp/target"} <= log.topics()
+
+
+# --------------------------------------------------------------------------- the goldens
+
+RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
+SESSIONS = ("depth", "shapes", "grasp", "faults")
+
+
+@pytest.mark.parametrize("name", SESSIONS)
+def test_recording_replays_without_differences(
+    name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every recorded session replays to the same outputs, byte for byte. When an algorithm
+    changes on purpose, regenerate them (recordings/README.md):
+
+        for f in recordings/*.mcap; do .venv/bin/lpc replay "$f" --out "$f"; done
+    """
+    path = RECORDINGS / f"{name}.mcap"
+    assert path.is_file(), f"{path} is missing: see recordings/README.md"
+    assert path.stat().st_size < 5_000_000
+    code = lpc(["replay", str(path), "--check", "--out", str(tmp_path / "again.mcap")])
+    out = capsys.readouterr().out
+    assert code == 0, out[out.find("check:") :]
+    assert "check: no differences" in out
+    assert (tmp_path / "again.mcap").read_bytes() == path.read_bytes()
+
+
+def test_recording_catches_a_changed_algorithm(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def blind_aim(controller_params: Any = None) -> tuple[Node, ...]:
+        from lpc_core.aim import AimParams, AimState
+
+        nodes = default_nodes(controller_params)
+        aim = next(n for n in nodes if n.name == "aim")
+        changed = replace(aim, init=lambda: AimState(params=AimParams(min_points=100_000)))
+        return tuple(changed if n is aim else n for n in nodes)
+
+    monkeypatch.setattr(replay_cli, "default_nodes", blind_aim)
+    assert lpc(["replay", str(RECORDINGS / "depth.mcap"), "--check"]) == 1
+    out = capsys.readouterr().out
+    assert "lpc/aim/cue frame" in out and "differences" in out

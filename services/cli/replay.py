@@ -104,6 +104,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="how far ahead, in log time, an input's recorded outputs may come (default 2 s)",
     )
     parser.add_argument(
+        "--profile",
+        metavar="FILE",
+        help="the user profile the controller ran with (default: the simulated user's "
+        "calibration when the recorded EMG is simulated, as 'lpc up' runs it; else the "
+        "default profile)",
+    )
+    parser.add_argument(
+        "--camera-fixed",
+        action="store_true",
+        help="the controller ran with --camera-fixed (implied for a simulated user)",
+    )
+    parser.add_argument(
         "--max-differences", type=int, default=20, metavar="N", help="print at most N (20)"
     )
 
@@ -152,9 +164,34 @@ def _timed(nodes: tuple[Node, ...], spent: Counter[str]) -> tuple[Node, ...]:
     )
 
 
+def _controller_params(args: argparse.Namespace, log: McapLog) -> tuple[Any, str]:
+    """The controller's parameters as its service had them live, and how they were chosen."""
+    from lpc_core.controller import ControllerParams, sim_user_params
+    from lpc_core.emg import EmgProfile
+    from services.drivers.emg import load_emg_profile
+
+    first = next(log.messages(["lpc/emg"], decode=True, ordered=False), None)
+    if args.profile is None and first is not None and getattr(first.message, "source", "") == "sim":
+        return (
+            sim_user_params(),
+            "simulated user's calibration, camera fixed (the EMG is simulated: as 'lpc up')",
+        )
+    profile = load_emg_profile(args.profile)
+    how = f"profile {args.profile}" if args.profile else "the default profile"
+    if profile is None:
+        how = "no EMG profile: the default calibration"
+    camera = "camera fixed" if args.camera_fixed else "camera on the hand"
+    params = ControllerParams(profile=profile or EmgProfile(), camera_on_hand=not args.camera_fixed)
+    return params, f"{how}, {camera}"
+
+
 def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     spent: Counter[str] = Counter()
-    nodes = _timed(default_nodes(), spent)
+    try:
+        controller_params, how = _controller_params(args, log)
+    except ValueError as exc:
+        return _fail(str(exc))
+    nodes = _timed(default_nodes(controller_params), spent)
     frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
     keys = log.topics() - set(args.without)
     replay = Replay(nodes, keys, frames, all_frames=args.all_frames)
@@ -204,6 +241,7 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     if out_tmp is not None:
         os.replace(out_tmp, args.out)
     _report_run(args, path, replay, reader, counts, (last_ns - first_ns) / 1e9, elapsed)
+    print(f"  controller: {how}")
     steps = ", ".join(
         f"{name} {spent[name]:.3f} s" for name in sorted(spent, key=spent.get, reverse=True)
     )
