@@ -6,8 +6,9 @@ zone 0.5 m away. The time to accomplish the task (TAT) runs from the start of th
 the object is released. A trial whose grasp fails (the hand hits the object, or the object
 slips) is repeated, and counted as a failure.
 
-Each 10 ms tick of simulated time, in this order:
+Each 10 ms tick of simulated time, in this order (the order ``lpc replay`` reproduces):
 
+0. the controller's 100 Hz timer tick;
 1. reconstructions due now leave the reconstructor and pass the 10-frame window; the grasp
    target goes to the aim step and the controller;
 2. the virtual user (``lpc_core.virtual_user``) perceives the tactors, the hand and the
@@ -64,6 +65,7 @@ from lpc_core import scene as sc
 from lpc_core.aim import AimParams, AimState, aim_step
 from lpc_core.cloud import CloudParams, reconstruct_cloud
 from lpc_core.controller import ControllerCore, ControllerParams, controller_step
+from lpc_core.controller import Tick as ControllerTick
 from lpc_core.emg import EmgProfile, calibrate
 from lpc_core.emg_sim import PERIOD_NS, MuscleParams, MuscleState, simulate_emg
 from lpc_core.hand import HandCommand, HandParams, HandState, hand_step
@@ -128,6 +130,9 @@ PAPER_TAT_S: dict[str, tuple[tuple[float, float], ...]] = {
 }
 
 BASE_NS = 1_000_000_000
+EMG_SOURCE = "virtual-user"
+"""``EmgSample.source`` of the trials: not ``"sim"``, which replay takes for ``lpc up``'s
+scripted user (its calibration, a fixed camera)."""
 _VISION_MODES = frozenset({"idle", "aiming", "ready", "preshaping"})
 
 
@@ -493,6 +498,10 @@ def _run_attempt(
         t_ns = t0_ns + k * PERIOD_NS
         k += 1
         t_s = (t_ns - start_ns) / 1e9
+        if k > 1:
+            # The controller's 100 Hz timer, before anything else at this instant; it starts
+            # one period after the first input (as the live service's and replay's do).
+            to_controller(ControllerTick(t_ns), t_ns)
         # 1. Reconstructions finishing now.
         for seq in sorted(s for s, (due, _) in running.items() if due <= t_ns):
             _, message = running.pop(seq)
@@ -524,7 +533,9 @@ def _run_attempt(
                 result.failure = "slipped"
                 fail_at_ns = t_ns + 300_000_000
         # 3. Muscles, controller and hand.
-        emg = EmgSample(seq=counters.emg_seq, t_ns=t_ns, channels=list(action.emg))
+        emg = EmgSample(
+            seq=counters.emg_seq, t_ns=t_ns, channels=list(action.emg), source=EMG_SOURCE
+        )
         counters.emg_seq += 1
         _emit(sink, emg, t_ns)
         to_controller(emg, t_ns)

@@ -11,6 +11,7 @@ import pytest
 
 from lpc_core.trials import TrialOutcome
 from services.cli import build_parser
+from services.cli import replay as replay_cli
 from services.cli import trials as cli
 from services.mcap_log import read_messages
 
@@ -37,6 +38,14 @@ def test_trials_command_runs_records_and_reports(tmp_path: Path, capsys) -> None
     assert (tmp_path / "tat_per_block.png").stat().st_size > 10_000
     assert "laser-feedback-on" in out.out and "16.7" in out.out  # the paper's figure
     assert "[   1/1] user  0 block 1" in out.err  # progress
+    # The recording is what the step functions do: a replay with the user's calibration
+    # reproduces every output.
+    profile = condition / "mcap" / "profile-u00.json"
+    replay = build_parser("replay").parse_args(
+        ["replay", "--check", "--profile", str(profile), str(recording)]
+    )
+    assert replay_cli.run(replay) == 0
+    assert "check: no differences" in capsys.readouterr().out
 
 
 def synthetic(users: int, blocks: int, base: float, gain: float, seed: int) -> list[TrialOutcome]:

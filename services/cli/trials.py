@@ -7,7 +7,9 @@ frames through the services' own step functions (``lpc_core.trials``), in simula
 
 Writes, under ``--out DIR``, one directory per condition (``laser-feedback-on``, ...) with
 each trial's MCAP recording (``mcap/u03_b2_t07.mcap``: the topics of a live session; depth
-frames only with ``--record-depth``), ``trials.jsonl`` (one outcome per line) and
+frames only with ``--record-depth``) and each user's EMG calibration
+(``mcap/profile-u03.json``; ``lpc replay --check --profile mcap/profile-u03.json
+mcap/u03_b2_t07.mcap`` re-runs a four-line trial), ``trials.jsonl`` (one outcome per line) and
 ``summary.json``. Then it reports every condition found in DIR (and in the ``--compare``
 directories) side by side with the paper's figures, runs the paper's statistics (Friedman
 across blocks with Bonferroni-corrected Wilcoxon post hoc tests; Wilcoxon signed-rank between
@@ -117,6 +119,11 @@ def run_job(job: Job) -> list[TrialOutcome]:
 
     person = make_person(job.config, job.user, job.seed)
     writers: list[Any] = []
+    if job.record_dir is not None:
+        # The calibration the controller ran with: 'lpc replay --profile' needs it.
+        from services.drivers.emg import save_emg_profile
+
+        save_emg_profile(person.profile, Path(job.record_dir) / f"profile-u{job.user:02d}.json")
 
     def sink_for(spec: TrialSpec) -> Any:
         if job.record_dir is None:
