@@ -73,7 +73,9 @@ ELLIPSE_TRIALS = (128, 256)
 # this many points; the best few are then rescored on every point.
 ELLIPSE_SCORE_POINTS = 32
 ELLIPSE_TOP = 4
-# Gauss-Newton steps of the geometric (orthogonal distance) polish of the ellipse refit.
+# Gauss-Newton steps of the geometric (orthogonal distance) polish of the ellipse refit. On
+# partial arcs (40x20 mm, 10x40 mm) 1 step halves the direct fit's 3-5 mm shrink and recovers
+# most of the lost inliers, 3 steps converge (~0.5 mm); each step costs ~40 us.
 ELLIPSE_GN_STEPS = 3
 
 
@@ -605,7 +607,7 @@ def _ellipse_lsq(x: np.ndarray, y: np.ndarray) -> EllipseModel | FailedFit:
 
 
 def _ellipse_geometric(
-    x: np.ndarray, y: np.ndarray, start: EllipseModel, steps: int = ELLIPSE_GN_STEPS
+    x: np.ndarray, y: np.ndarray, start: EllipseModel, steps: int | None = None
 ) -> EllipseModel | None:
     """Polish an ellipse by Gauss-Newton on the orthogonal distances of ``x, y``.
 
@@ -620,6 +622,7 @@ def _ellipse_geometric(
     n = x.shape[0]
     if n < 5:
         return None
+    steps = ELLIPSE_GN_STEPS if steps is None else steps
     (cx0, cy0), (a, b), theta = start.center, start.axis_lengths, start.theta
     # Work centred on the start's centre and scaled by its major axis.
     scale = a
