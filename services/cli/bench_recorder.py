@@ -37,6 +37,7 @@ from schemas import (
     EmgSample,
     ProsthesisState,
     TactorCommand,
+    decode,
     encode,
     to_wire,
 )
@@ -58,6 +59,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--compression", choices=sorted(COMPRESSIONS), default="zstd", help="recorder's (zstd)"
     )
     parser.add_argument("--keep", metavar="PATH", help="keep the recorder's file here")
+    parser.add_argument(
+        "--tx-queue",
+        type=int,
+        metavar="N",
+        help="the publisher's data queue in 64 KB batches (Zenoh's default: 2)",
+    )
+    parser.add_argument(
+        "--wait-before-drop-ms",
+        type=float,
+        metavar="MS",
+        help="how long a full queue may hold a sensor sample before dropping it (default 1)",
+    )
 
 
 def _frames(n: int) -> list[DepthFrame]:
@@ -121,7 +134,15 @@ def _cpu_s(pid: int) -> float:
 def bench_recorder(frames: list[DepthFrame], args: argparse.Namespace, out: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     scans = [scans_step(ScansState(), f, 0)[1] for f in frames]
-    with zenoh.open(zenoh_config(connect=[], listen=[endpoint])) as session:
+    conf = zenoh_config(connect=[], listen=[endpoint])
+    if args.tx_queue:
+        conf.insert_json5("transport/link/tx/queue/size/data", str(args.tx_queue))
+    if args.wait_before_drop_ms:
+        conf.insert_json5(
+            "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
+            str(int(args.wait_before_drop_ms * 1000)),
+        )
+    with zenoh.open(conf) as session:
         recorder = subprocess.Popen(
             [
                 sys.executable,
@@ -137,9 +158,23 @@ def bench_recorder(frames: list[DepthFrame], args: argparse.Namespace, out: Path
             ],
             stdin=subprocess.DEVNULL,
         )
+        received: list[int] = []
+        health = session.declare_subscriber(
+            "lpc/health/recorder",
+            lambda sample: received.append(
+                decode(str(sample.key_expr), sample.payload.to_bytes()).counters["received"]
+            ),
+        )
         try:
             sent = _publish(session, frames, scans, args.duration, recorder.pid)
+            # As 'lpc up' does, stop the recorder once the sources are quiet: here, once its
+            # health (1 Hz) counts all that was sent, or after 5 s.
+            total = sum(sent["count"].values())
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline and not (received and received[-1] >= total):
+                time.sleep(0.05)
         finally:
+            health.undeclare()
             recorder.send_signal(signal.SIGTERM)
             code = recorder.wait(timeout=30)
     with McapLog(out) as log:
