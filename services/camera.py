@@ -85,6 +85,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         bus.log("info", f"end of {args.file} after {seq} frames")
     finally:
         source.shutdown()
+    # Stay up (and healthy) after the end of a file: the session ends when 'lpc up' says so.
+    await asyncio.Event().wait()
 
 
 def main(argv: list[str] | None = None) -> int:

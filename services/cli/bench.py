@@ -16,6 +16,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "fit": ("services.cli.bench_fit", "time the scan-line fits (line, circle, ellipse, all three)"),
     "latency": ("services.cli.bench_latency", "depth frame capture to bytes on the tactor line"),
     "compare": ("services.cli.bench_compare", "the four-line method against the full cloud"),
+    "recorder": ("services.cli.bench_recorder", "MCAP write cost, recorder loss, replay speed"),
     "render": ("services.cli.bench_render", "simulated camera and scan-cut speed"),
     "foxglove": ("services.cli.bench_foxglove", "Foxglove conversion, export and bridge figures"),
 }
