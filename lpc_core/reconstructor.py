@@ -1,10 +1,14 @@
-"""The reconstructor's logic: scan lines in, reconstructions and the grasp target out.
+"""The reconstructor's logic: scan lines (or whole depth frames) in, reconstructions and the
+grasp target out.
 
-Two ways to run it, with the same results per frame:
+Two methods: ``laser``, the four-line method on ``lpc/scans``, and ``cloud``, the full-point-
+cloud benchmark on ``lpc/camera/depth`` (``lpc_core.cloud``). Two ways to run either, with the
+same results per frame:
 
-- ``reconstruct_step(state, scans, now_ns)``: one frame, in-process (tests, replay). Its
-  ``compute_ms`` is 0: nothing here reads a clock.
-- The service (``services/reconstructor.py``) runs ``reconstruct_message`` in a process pool
+- ``reconstruct_step(state, scans, now_ns)`` / ``reconstruct_cloud_step(state, frame, now_ns)``:
+  one frame, in-process (tests, replay). Their ``compute_ms`` is 0: nothing here reads a clock.
+- The service (``services/reconstructor.py``) runs ``reconstruct_message`` or
+  ``reconstruct_cloud_message`` in a process pool
   and keeps order with ``frame_arrived`` / ``frame_done``: frames go to free workers in
   arrival order; at most ``max_pending`` more wait, and when another arrives the oldest
   waiting frame is dropped and counted; results are released in ``seq`` order, each then going
@@ -20,11 +24,27 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from lpc_core.cloud import CloudParams, reconstruct_cloud
+from lpc_core.intrinsics import Intrinsics
 from lpc_core.laser import LaserParams, reconstruct_laser
+from lpc_core.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
 from lpc_core.reconstruction import Reconstruction as CoreReconstruction
 from lpc_core.scans import ScanLines as CoreScanLines
 from lpc_core.window import WindowParams, WindowResult, WindowState, window_step
-from schemas import GraspTarget, LineModel, Reconstruction, ScanLines, from_wire
+from schemas import (
+    DepthFrame,
+    GraspTarget,
+    LineModel,
+    Reconstruction,
+    ScanLines,
+    from_wire,
+    to_wire,
+)
+
+# The topic each method reconstructs from.
+INPUT_TOPICS: MappingProxyType[str, str] = MappingProxyType(
+    {"laser": "lpc/scans", "cloud": "lpc/camera/depth"}
+)
 
 Job = TypeVar("Job")
 
@@ -47,9 +67,14 @@ def _finite(value: float | None) -> float | None:
 
 
 def reconstruction_message(
-    result: CoreReconstruction, scans: ScanLines, compute_ms: float = 0.0
+    result: CoreReconstruction, source: ScanLines | DepthFrame, compute_ms: float = 0.0
 ) -> Reconstruction:
-    """The ``lpc/reconstruction`` message of one frame (``seq`` and ``t_ns`` of its scans)."""
+    """The ``lpc/reconstruction`` message of one frame.
+
+    ``seq``, ``t_ns`` and ``truth`` are those of ``source``, the message reconstructed: the
+    scans (whose ``frame_seq`` names the depth frame) or the depth frame itself.
+    """
+    frame_seq = source.frame_seq if isinstance(source, ScanLines) else source.seq
     lines = [
         LineModel(
             angle_deg=ln.angle_deg,
@@ -61,9 +86,9 @@ def reconstruction_message(
         for ln in result.lines
     ]
     return Reconstruction(
-        seq=scans.seq,
-        t_ns=scans.t_ns,
-        frame_seq=scans.frame_seq,
+        seq=source.seq,
+        t_ns=source.t_ns,
+        frame_seq=frame_seq,
         method=result.method,  # type: ignore[arg-type]
         shape=result.shape,
         grasp_width_mm=_finite(result.grasp_width_mm),
@@ -75,11 +100,12 @@ def reconstruction_message(
         reason=result.reason,
         points=result.points,
         compute_ms=max(compute_ms, 0.0),
-        truth=scans.truth,
+        truth=source.truth,
     )
 
 
 _DEFAULT = LaserParams()
+_CLOUD = CloudParams()
 
 
 def reconstruct_message(
@@ -88,6 +114,36 @@ def reconstruct_message(
     """Reconstruct one ``lpc/scans`` message; RANSAC is seeded by the depth frame's ``seq``."""
     result = reconstruct_laser(scan_lines_from_message(scans), params, seed=scans.frame_seq)
     return reconstruction_message(result, scans, compute_ms)
+
+
+def reconstruct_cloud_message(
+    frame: DepthFrame, params: CloudParams = _CLOUD, compute_ms: float = 0.0
+) -> Reconstruction:
+    """Reconstruct one ``lpc/camera/depth`` frame by the cloud method, seeded by its ``seq``.
+
+    ``ValueError`` if the depth array does not match the frame's intrinsics.
+    """
+    intrinsics = intrinsics_from_message(frame.intrinsics)
+    result = reconstruct_cloud(depth_image(frame), intrinsics, params, seed=frame.seq)
+    return reconstruction_message(result, frame, compute_ms)
+
+
+def warmup_frame(intrinsics: Intrinsics | None = None) -> DepthFrame:
+    """A 50 mm ball 200 mm ahead of a wall at 240 mm, noise-free.
+
+    The service's workers reconstruct it once at start, so that the first real frame does not
+    pay for the imports and first calls (about 0.5-0.8 s) and get the frames behind it dropped.
+    """
+    intr = intrinsics or Intrinsics()
+    rx, ry = intr.pixel_rays()
+    # Ray (rx, ry, 1) t meets the sphere |p - c| = r where t^2 |d|^2 - 2 t d.c + |c|^2 - r^2 = 0.
+    center_z, radius, wall_z = 0.2, 0.025, 0.24
+    a = rx * rx + ry * ry + 1.0
+    disc = center_z**2 - a * (center_z**2 - radius**2)
+    with np.errstate(invalid="ignore"):
+        z = np.where(disc >= 0, (center_z - np.sqrt(disc)) / a, wall_z)
+    depth = np.round(z / intr.depth_scale).astype(np.uint16)
+    return DepthFrame(seq=0, t_ns=0, intrinsics=intrinsics_to_message(intr), depth=to_wire(depth))
 
 
 # --------------------------------------------------------------------------- the window
@@ -128,8 +184,11 @@ def window_message(state: WindowState, message: Reconstruction) -> tuple[WindowS
 
 @dataclass(frozen=True)
 class ReconstructState:
+    """Either method's in-process state: its parameters and the 10-frame window."""
+
     params: LaserParams = field(default_factory=LaserParams)
     window: WindowState = field(default_factory=WindowState)
+    cloud: CloudParams = field(default_factory=CloudParams)
 
 
 def reconstruct_step(
@@ -138,6 +197,16 @@ def reconstruct_step(
     """One frame in-process: its reconstruction, then the window's grasp target."""
     del now_ns  # outputs carry the capture time of their frame
     message = reconstruct_message(scans, state.params)
+    window, target = window_message(state.window, message)
+    return replace(state, window=window), [message, target]
+
+
+def reconstruct_cloud_step(
+    state: ReconstructState, frame: DepthFrame, now_ns: int
+) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
+    """One depth frame in-process by the cloud method: its reconstruction, then the window's."""
+    del now_ns  # outputs carry the capture time of their frame
+    message = reconstruct_cloud_message(frame, state.cloud)
     window, target = window_message(state.window, message)
     return replace(state, window=window), [message, target]
 
@@ -245,6 +314,7 @@ def _release(state: PoolState, outputs: list[Output]) -> tuple[PoolState, list[O
 
 
 __all__ = [
+    "INPUT_TOPICS",
     "Dropped",
     "PoolParams",
     "PoolState",
@@ -255,9 +325,12 @@ __all__ = [
     "frame_arrived",
     "frame_done",
     "grasp_target_message",
+    "reconstruct_cloud_message",
+    "reconstruct_cloud_step",
     "reconstruct_message",
     "reconstruct_step",
     "reconstruction_message",
     "scan_lines_from_message",
+    "warmup_frame",
     "window_message",
 ]

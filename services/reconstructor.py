@@ -1,9 +1,13 @@
-"""Reconstructor service: ``lpc/scans`` in; ``lpc/reconstruction`` and ``lpc/grasp/target`` out.
+"""Reconstructor service: ``lpc/scans`` (``--method laser``) or ``lpc/camera/depth``
+(``--method cloud``) in; ``lpc/reconstruction`` and ``lpc/grasp/target`` out.
 
 Frames are reconstructed in a process pool (spawn: forking after the Zenoh session is open
 hangs), one frame per task, and published in ``seq`` order. At most ``--max-pending`` frames
 wait for a worker; when another arrives the oldest waiting frame is dropped and counted
-(``dropped_frames``). The ordering is ``lpc_core.reconstructor``'s pure bookkeeping.
+(``dropped_frames``). The ordering is ``lpc_core.reconstructor``'s pure bookkeeping. Each
+worker reconstructs one synthetic frame before the service subscribes, so start-up costs
+(imports, first calls) never count as drops. Depth is a sensor topic: when even the pump falls
+behind, only the newest frame is kept.
 """
 
 from __future__ import annotations
@@ -19,7 +23,9 @@ from concurrent.futures import ProcessPoolExecutor
 import msgspec
 
 from lpc_core.laser import LaserParams
+from lpc_core.pipeline import ScansState, scans_step
 from lpc_core.reconstructor import (
+    INPUT_TOPICS,
     Dropped,
     PoolParams,
     PoolState,
@@ -27,7 +33,9 @@ from lpc_core.reconstructor import (
     Submit,
     frame_arrived,
     frame_done,
+    reconstruct_cloud_message,
     reconstruct_message,
+    warmup_frame,
     window_message,
 )
 from lpc_core.window import WindowState
@@ -35,22 +43,28 @@ from schemas import BadMessage, decode, encode
 from services.mcap_log import read_header
 from services.runtime import Bus, run_service, service_parser
 
+_METHOD = "laser"
 _PARAMS = LaserParams()
 
 
-def _init_worker(variant: str) -> None:
-    global _PARAMS
-    _PARAMS = LaserParams(variant=variant)  # type: ignore[arg-type]
+def _init_worker(method: str, variant: str) -> None:
+    global _METHOD, _PARAMS
+    _METHOD, _PARAMS = method, LaserParams(variant=variant)  # type: ignore[arg-type]
+    frame = warmup_frame()
+    work(encode(frame if method == "cloud" else scans_step(ScansState(), frame, 0)[1]))
 
 
 def work(payload: bytes) -> bytes | str:
-    """In a worker: one ``lpc/scans`` payload to an encoded reconstruction, or why not."""
+    """In a worker: one input payload to an encoded reconstruction, or why not."""
     try:
-        scans = decode("lpc/scans", payload)
+        message = decode(INPUT_TOPICS[_METHOD], payload)
         start = time.process_time()
-        message = reconstruct_message(scans, _PARAMS)
+        if _METHOD == "cloud":
+            result = reconstruct_cloud_message(message)
+        else:
+            result = reconstruct_message(message, _PARAMS)
         compute_ms = 1000.0 * (time.process_time() - start)
-        return encode(msgspec.structs.replace(message, compute_ms=compute_ms))
+        return encode(msgspec.structs.replace(result, compute_ms=compute_ms))
     except (BadMessage, ValueError) as exc:
         return str(exc)
 
@@ -63,17 +77,19 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     window = WindowState()
     reconstructions = bus.publisher("lpc/reconstruction")
     targets = bus.publisher("lpc/grasp/target")
-    pool = ProcessPoolExecutor(
-        args.workers, multiprocessing.get_context("spawn"), _init_worker, (args.method,)
-    )
+    topic = INPUT_TOPICS[args.method]
+    spawn = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(args.workers, spawn, _init_worker, (args.method, args.variant))
 
     async def pump() -> None:
-        scans = bus.subscribe("lpc/scans", latest=False, capacity=256, decode=False)
+        # Depth frames are big: keep the newest only. Scans all queue, for in-order release.
+        latest = args.method == "cloud"
+        frames = bus.subscribe(topic, latest=latest, capacity=256, decode=False)
         while True:
-            _, payload, _ = await scans.receive()
+            _, payload, _ = await frames.receive()
             header = read_header(payload)
             if header is None:
-                bus.reject("lpc/scans", "no seq/t_ns header")
+                bus.reject(topic, "no seq/t_ns header")
                 continue
             inbox.put_nowait(("frame", header[0], payload))
 
@@ -83,8 +99,15 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         error = future.exception()
         inbox.put_nowait(("done", seq, f"worker failed: {error!r}" if error else future.result()))
 
-    reader = asyncio.create_task(pump())
+    reader: asyncio.Task[None] | None = None
     try:
+        # A submission starts a worker while none is idle, so all of them warm up at once;
+        # subscribing only then keeps the start-up out of the drop count.
+        started = time.monotonic()
+        await asyncio.gather(*(loop.run_in_executor(pool, os.getpid) for _ in range(args.workers)))
+        ready_s = time.monotonic() - started
+        bus.log("info", f"{args.workers} {args.method} worker(s) ready in {ready_s:.1f} s")
+        reader = asyncio.create_task(pump())
         while True:
             kind, seq, item = await inbox.get()
             if kind == "frame":
@@ -103,9 +126,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     window, target = window_message(window, message)
                     targets.put(target)
                 elif isinstance(out, Release):
-                    bus.reject("lpc/scans", str(out.result))
+                    bus.reject(topic, str(out.result))
     finally:
-        reader.cancel()
+        if reader is not None:
+            reader.cancel()
         pool.shutdown(wait=False, cancel_futures=True)
 
 
@@ -116,7 +140,14 @@ def main(argv: list[str] | None = None) -> int:
         "--max-pending", type=int, default=1, help="frames that may wait for a worker (default 1)"
     )
     parser.add_argument(
-        "--method", choices=("lpc", "paper"), default="lpc", help="the laser method's variant"
+        "--method",
+        choices=tuple(INPUT_TOPICS),
+        default="laser",
+        help="laser: the four scan lines (lpc/scans); cloud: the full point cloud of each depth "
+        "frame (lpc/camera/depth) (default laser)",
+    )
+    parser.add_argument(
+        "--variant", choices=("lpc", "paper"), default="lpc", help="the laser method's variant"
     )
     args = parser.parse_args(argv)
     try:

@@ -1,14 +1,18 @@
-"""The reconstructor: pool bookkeeping (order, backpressure), the in-process step, the service."""
+"""The reconstructor: pool bookkeeping (order, backpressure), the in-process steps of both
+methods, the service with either method."""
 
 from __future__ import annotations
 
 import collections
-import time
 
+import msgspec
 import numpy as np
 import pytest
 import zenoh
 
+from lpc_core.cloud import reconstruct_cloud
+from lpc_core.intrinsics import Intrinsics
+from lpc_core.pipeline import ScansState, intrinsics_to_message, scans_step
 from lpc_core.reconstructor import (
     Dropped,
     PoolParams,
@@ -18,11 +22,25 @@ from lpc_core.reconstructor import (
     Submit,
     frame_arrived,
     frame_done,
+    reconstruct_cloud_message,
+    reconstruct_cloud_step,
     reconstruct_message,
     reconstruct_step,
     scan_lines_from_message,
+    warmup_frame,
 )
-from schemas import GraspTarget, Reconstruction, ScanLine, ScanLines, decode, encode, to_wire
+from lpc_core.scene import Plane, Scene, cylinder_object, render_depth, sphere_object
+from schemas import (
+    DepthFrame,
+    GraspTarget,
+    ObjectTruth,
+    Reconstruction,
+    ScanLine,
+    ScanLines,
+    decode,
+    encode,
+    to_wire,
+)
 from tests.conftest import spawn_service, wait_for
 from tests.test_laser import cylinder, scan, sphere
 
@@ -40,6 +58,33 @@ def _message(seq: int, lines, t_ns: int | None = None) -> ScanLines:
 
 
 BALL = scan(sphere((0.0, 0.002, 0.21), 0.025), seed=1)
+
+# Depth frames for the cloud method: a 40 mm ball or a 65 mm can (axis along y) before a wall,
+# rendered with the D435 noise model (range noise, flying pixels, holes, shadow).
+INTR = Intrinsics()
+WALL = Plane(np.array([0.0, 0.0, 0.26]), np.array([0.0, 0.0, -1.0]))
+OBJECTS = {
+    "ball": sphere_object("ball", (0.0, 0.005, 0.2), 0.02),
+    "can": cylinder_object("can", (0.0, 0.0, 0.21), (0.0, 1.0, 0.0), 0.0325, 0.12),
+}
+
+
+def _depth(seq: int, name: str) -> np.ndarray:
+    scene = Scene((OBJECTS[name],), WALL)
+    return render_depth(scene, INTR, np.eye(4), np.random.default_rng(seq))
+
+
+def _depth_frame(seq: int, name: str) -> DepthFrame:
+    obj, depth = OBJECTS[name], _depth(seq, name)
+    assert obj.grasp_width_m is not None
+    truth = ObjectTruth(name=name, shape=obj.shape, grasp_width_mm=1000 * obj.grasp_width_m)
+    return DepthFrame(
+        seq=seq,
+        t_ns=1_000_000_000 + seq * 11_111_111,
+        intrinsics=intrinsics_to_message(INTR),
+        depth=to_wire(depth),
+        truth=truth,
+    )
 
 
 # --------------------------------------------------------------------------- bookkeeping
@@ -145,6 +190,40 @@ def test_reconstruct_message_reports_reason_when_nothing_fits() -> None:
     assert rec.shape == "none" and "too few points" in rec.reason
 
 
+def test_reconstruct_cloud_step_equals_reconstruct_cloud_then_window() -> None:
+    state = ReconstructState()
+    for seq in range(100, 110):
+        frame = _depth_frame(seq, "ball")
+        state, (rec, target) = reconstruct_cloud_step(state, frame, 0)
+        direct = reconstruct_cloud(_depth(seq, "ball"), INTR, seed=seq)
+        assert rec.method == "cloud" and rec.shape == direct.shape == "sphere"
+        assert rec.grasp_width_mm == direct.grasp_width_mm
+        assert rec.center_m == list(direct.center_m or ())
+        assert (rec.points, rec.confidence) == (direct.points, direct.confidence)
+        assert (rec.seq, rec.frame_seq, rec.t_ns, rec.truth) == (seq, seq, frame.t_ns, frame.truth)
+        assert rec.compute_ms == 0.0 and rec.lines == []
+        assert decode("lpc/reconstruction", encode(rec)) == rec
+    assert isinstance(target, GraspTarget) and target.reconstructed and target.frames == 10
+    assert target.shape == "sphere" and target.frame_seq == 109
+    assert target.grasp_width_mm == pytest.approx(40.0, abs=5.0)
+
+
+def test_reconstruct_cloud_message_rejects_depth_not_matching_intrinsics() -> None:
+    frame = _depth_frame(1, "ball")
+    small = msgspec.structs.replace(frame, depth=to_wire(np.zeros((10, 10), np.uint16)))
+    with pytest.raises(ValueError, match="expected uint16"):
+        reconstruct_cloud_message(small)
+
+
+def test_warmup_frame_is_a_50_mm_ball_for_both_methods() -> None:
+    frame = warmup_frame()
+    cloud = reconstruct_cloud_message(frame)
+    laser = reconstruct_message(scans_step(ScansState(), frame, 0)[1])
+    for rec in (cloud, laser):
+        assert rec.shape == "sphere"
+        assert rec.grasp_width_mm == pytest.approx(50.0, abs=1.0)
+
+
 # --------------------------------------------------------------------------- the service
 
 
@@ -162,16 +241,10 @@ def test_reconstructor_service_publishes_in_order(rendezvous: zenoh.Session, end
     )
     can = scan(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), seed=2)
     try:
-        # Until the workers are up, frames may be missed by the subscriber: probe first.
-        probe = 1000
-        while not got["lpc/reconstruction"]:
-            scans.put(encode(_message(probe, BALL)))
-            probe += 1
-            time.sleep(0.2)
-            assert process.poll() is None, process.stderr.read().decode() if process.stderr else ""
+        # The service subscribes once its workers are warm.
+        _wait_subscribed(scans, process)
         for k in range(12):
             scans.put(encode(_message(2000 + k, can if k % 2 else BALL)))
-            time.sleep(0.01)
 
         def ours() -> list[Reconstruction]:
             return [r for r in got["lpc/reconstruction"] if r.seq >= 2000]
@@ -191,3 +264,61 @@ def test_reconstructor_service_publishes_in_order(rendezvous: zenoh.Session, end
         for sub in subs:
             sub.undeclare()
     assert process.returncode == 0
+
+
+def test_reconstructor_service_cloud_publishes_newest_frames_in_order(
+    rendezvous: zenoh.Session, endpoint: str
+) -> None:
+    got: dict[str, list] = collections.defaultdict(list)
+    subs = [
+        rendezvous.declare_subscriber(
+            key, lambda s, key=key: got[key].append(decode(key, s.payload.to_bytes()))
+        )
+        for key in ("lpc/reconstruction", "lpc/grasp/target")
+    ]
+    # BLOCK: the test's frames must reach the service, whose own subscriber skips stale ones.
+    depth = rendezvous.declare_publisher(
+        "lpc/camera/depth", congestion_control=zenoh.CongestionControl.BLOCK
+    )
+    process = spawn_service(
+        "services.reconstructor", endpoint, "--method", "cloud", "--workers", "2"
+    )
+    frames = [_depth_frame(3000 + k, "can" if k % 2 else "ball") for k in range(12)]
+    try:
+        _wait_subscribed(depth, process)
+        for frame in frames:
+            depth.put(encode(frame))
+        # Depth is a sensor topic: frames may be skipped, but never the newest.
+        wait_for(
+            lambda: any(r.seq == frames[-1].seq for r in got["lpc/reconstruction"]),
+            30.0,
+            "the last frame's reconstruction",
+        )
+        recs = list(got["lpc/reconstruction"])
+        wait_for(lambda: got["lpc/grasp/target"][-1].frame_seq == frames[-1].seq, 10.0, "target")
+    finally:
+        process.terminate()
+        process.wait(timeout=20)
+        for sub in subs:
+            sub.undeclare()
+    assert process.returncode == 0
+    seqs = [r.seq for r in recs]
+    assert seqs == sorted(set(seqs)) and set(seqs) <= {f.seq for f in frames}
+    sent = {f.seq: f for f in frames}
+    for rec in recs:
+        truth = sent[rec.seq].truth
+        assert rec.method == "cloud" and rec.frame_seq == rec.seq
+        assert rec.t_ns == sent[rec.seq].t_ns and rec.truth == truth
+        assert truth is not None and rec.shape == truth.shape
+        assert rec.grasp_width_mm == pytest.approx(truth.grasp_width_mm, abs=5.0)
+        assert rec.points > 1000 and rec.compute_ms > 0
+
+
+def _wait_subscribed(publisher: zenoh.Publisher, process) -> None:
+    """Until the service's subscriber matches ``publisher`` (after its workers warmed up)."""
+
+    def matching() -> bool:
+        assert process.poll() is None, process.stderr.read().decode() if process.stderr else ""
+        return publisher.matching_status.matching
+
+    wait_for(matching, 60.0, "the reconstructor's subscriber")
