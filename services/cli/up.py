@@ -62,7 +62,9 @@ SERVICES: dict[str, ServiceSpec] = {
         "services.foxglove_bridge", _foxglove_argv, lambda args: getattr(args, "foxglove", False)
     ),
     "scans": ServiceSpec("services.scans"),
-    "reconstructor": ServiceSpec("services.reconstructor"),
+    "reconstructor": ServiceSpec(
+        "services.reconstructor", lambda args: ["--method", getattr(args, "method", "laser")]
+    ),
     # No --tactor-port: the bridge drives a simulated controller on a pseudo-terminal.
     "tactor_bridge": ServiceSpec(
         "services.tactor_bridge",
@@ -147,6 +149,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("eai", "line"),
         default="eai",
         help="tactor protocol: EAI controller framing (default) or the DIY line protocol",
+    )
+    parser.add_argument(
+        "--method",
+        choices=("laser", "cloud"),
+        default="laser",
+        help="reconstruction: the four scan lines (default) or the full point cloud",
     )
     parser.add_argument(
         "--foxglove",
