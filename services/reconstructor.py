@@ -50,6 +50,7 @@ _PARAMS = LaserParams()
 def _init_worker(method: str, variant: str) -> None:
     global _METHOD, _PARAMS
     _METHOD, _PARAMS = method, LaserParams(variant=variant)  # type: ignore[arg-type]
+    # Pay the imports and first calls now, before the service subscribes.
     frame = warmup_frame()
     work(encode(frame if method == "cloud" else scans_step(ScansState(), frame, 0)[1]))
 
