@@ -14,6 +14,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "speed": ("services.cli.bench_speed", "per-stage time of the four-line method, with a profile"),
     "soak": ("services.cli.bench_soak", "the whole set for N minutes: rates, drops, memory slope"),
     "fit": ("services.cli.bench_fit", "time the scan-line fits (line, circle, ellipse, all three)"),
+    "loop": ("services.cli.bench_loop", "closed-loop session: states, pre-shapes, 100 Hz rates"),
     "latency": ("services.cli.bench_latency", "depth frame capture to bytes on the tactor line"),
     "compare": ("services.cli.bench_compare", "the four-line method against the full cloud"),
     "recorder": ("services.cli.bench_recorder", "MCAP write cost, recorder loss, replay speed"),
