@@ -170,11 +170,12 @@ class ControllerParams:
     profile: EmgProfile = field(default_factory=EmgProfile)
     # Per-topic staleness thresholds. The grasp target stops the hand only in the states that
     # act on it (aiming, ready, preshaping): in direct control the user drives without vision.
-    # EMG: direct control already holds still after ``velocity_hold_ms``; the state machine
-    # stops only after a longer silence, so a hiccup of the EMG source does not throw the
-    # user out of direct control.
+    # EMG and hand status: motion already holds still when the newest sample is older than
+    # ``velocity_hold_ms`` (direct control needs fresh EMG, the pre-shape servo a fresh
+    # position); the state machine stops only after a longer silence, so that a hiccup of a
+    # loaded machine does not throw the user out of direct control or a pre-shape.
     stale_ms: Mapping[str, float] = field(
-        default_factory=lambda: MappingProxyType({EMG: 250.0, HAND: 100.0, TARGET: 1000.0})
+        default_factory=lambda: MappingProxyType({EMG: 250.0, HAND: 200.0, TARGET: 1000.0})
     )
     # Pre-shape: open wider than the object by the slack, stop within the tolerances.
     slack_mm: float = 15.0
@@ -197,8 +198,9 @@ class ControllerParams:
     grip_off_pct: float = 3.0
     release_open_mm: float = 10.0
     direct_idle_s: float = 8.0
-    # Direct control moves the hand only on fresh EMG: the velocity drops to zero when the
-    # newest sample is older than this, well before the topic counts as stale (and stops).
+    # Motion needs fresh inputs: direct control's velocity drops to zero when the newest EMG
+    # sample is older than this, the pre-shape servo when the newest hand status is, well
+    # before either topic counts as stale (and stops the state machine).
     velocity_hold_ms: float = 30.0
     heartbeat_ms: float = 100.0
 
@@ -570,8 +572,12 @@ def _servo(
 def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> ControllerCore:
     grasp = wrist = 0.0
     p = core.params
+    hand_ns = core.seen_ns.get(HAND)
+    hand_fresh = hand_ns is not None and now_ns - hand_ns <= p.velocity_hold_ms * 1e6
     if core.mode is S.PRESHAPING and core.setpoint is not None and core.hand is not None:
         ap_err, wr_err = _errors(core.setpoint, core.hand)
+        if not hand_fresh:
+            ap_err = wr_err = 0.0  # never servo on an old position: hold still
         hold_ap, hold_wr = core.holding
         grasp, hold_ap = _servo(ap_err, p.aperture_gain_per_mm, p.aperture_tol_mm, hold_ap, p)
         wrist, hold_wr = _servo(wr_err, p.wrist_gain_per_deg, p.wrist_tol_deg, hold_wr, p)

@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         help="calibration of the simulated user (lpc_core.emg_sim defaults) instead of a profile",
     )
     parser.add_argument("--stale-emg-ms", type=float, default=250.0)
-    parser.add_argument("--stale-hand-ms", type=float, default=100.0)
+    parser.add_argument("--stale-hand-ms", type=float, default=200.0)
     parser.add_argument(
         "--stale-target-ms", type=float, default=1000.0, help="0: do not watch the grasp target"
     )

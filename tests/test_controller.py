@@ -409,6 +409,20 @@ def test_controller_direct_velocity_drops_at_once_when_emg_pauses() -> None:
     assert rig.mode is State.DIRECT and rig.commands()[-1].grasp == 0.0  # stopped, not stale
 
 
+def test_controller_preshape_holds_still_on_an_old_hand_position() -> None:
+    rig = ready_rig(aperture_mm=110.0)
+    rig.target(width=5.0)  # a thin object: a long way to close, 110 -> 20 mm
+    rig.quick_flexion()
+    assert rig.hand.aperture_mm > 30.0 and rig.commands()[-1].grasp > 0  # still closing
+    rig.hand_on = False
+    rig.run(0.04)
+    assert rig.mode is State.PRESHAPING  # not stale yet (200 ms)
+    assert rig.commands()[-1].grasp == 0.0  # but no servo on a 40 ms old position
+    rig.hand_on = True
+    rig.run(0.05)
+    assert rig.commands()[-1].grasp > 0  # fresh again: on its way
+
+
 def test_controller_stale_hand_commands_zero_on_every_tick() -> None:
     rig = Rig()
     rig.run(0.05)
@@ -447,7 +461,7 @@ def test_controller_gestures_are_ignored_while_stopped() -> None:
     rig = Rig()
     rig.run(0.05)
     rig.hand_on = False
-    rig.run(0.2)
+    rig.run(0.3)
     assert rig.mode is State.STOPPED
     rig.quick_extension()
     assert rig.mode is State.STOPPED
