@@ -176,7 +176,7 @@ def test_user_with_feedback_reaches_beside_the_object_and_follows_the_cue() -> N
         tactors = guiding if t_s < reach_end + 0.3 else on
         return Percept(tactors=tactors if t_s > 0.1 else None, width_mm=50.0)
 
-    state, times, offsets, _, _ = run(start(), 3.0, percept)
+    state, times, offsets, _, _ = run(start(), 4.0, percept)
     reached = offsets[np.searchsorted(times, reach_end + 0.01)]
     assert reached[0] == pytest.approx(-beside, abs=1e-9)
     moved = offsets[-1] - reached
@@ -186,6 +186,10 @@ def test_user_with_feedback_reaches_beside_the_object_and_follows_the_cue() -> N
     correction_start = times[1:][steps & (times[1:] > reach_end + 0.01)][0]
     # the look waits for the next 10 ms tick, and so does the first visible step
     assert correction_start - reach_end == pytest.approx(EXACT.tactile_rt_s.first, abs=0.03)
+    # A tactor-led move is slower than Fitts' law by the (novice) slowdown.
+    correction_end = times[1:][steps][-1]
+    duration = fitts_time(0.0525, width_m, EXACT) * EXACT.tactile_move_slowdown.first
+    assert correction_end - correction_start == pytest.approx(duration, abs=0.03)
     assert state.corrections == 1
     assert state.phase == "aim"  # on target: holding, waiting for the pulse
 
