@@ -16,6 +16,11 @@ so the amplitude rises as the hull comes closer and is shared linearly between t
 around ``theta`` (the shares sum to one). On target, all four vibrate; on target with a
 reconstructed grasp target, all four pulse together (the bridge renders the pulse).
 
+While the controller has stopped the hand (a stale grasp target, EMG or hand status: its state
+``stopped`` on ``lpc/controller/state``), the cues are off: every frame still gives a cue and
+a tactor command, with state ``nothing`` and all amplitudes 0, so the tactor bridge keeps
+sending all-off; they come back with the first frame after the controller leaves ``stopped``.
+
 Where lpc departs from the paper:
 
 - Two objects in view are not merged into one hull (the paper's known weakness, whose cue can
@@ -39,7 +44,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from schemas import AimCue, GraspTarget, ScanLines, TactorCommand, from_wire
+from schemas import AimCue, ControllerState, GraspTarget, ScanLines, TactorCommand, from_wire
 
 N_TACTORS = 4
 CueState = Literal["nothing", "guiding", "on_target", "ready"]
@@ -285,12 +290,21 @@ class AimState:
     chosen_xy: tuple[float, float] | None = None
     target: GraspTarget | None = None
     seq: int = 0
+    # The controller's newest state; None until it is heard from (cues on: aiming works with
+    # no controller running).
+    controller: str | None = None
+
+    @property
+    def cues_off(self) -> bool:
+        """The controller has stopped the hand: the cues are off."""
+        return self.controller == "stopped"
 
 
 def aim_step(
-    state: AimState, message: ScanLines | GraspTarget, now_ns: int
+    state: AimState, message: ScanLines | GraspTarget | ControllerState, now_ns: int
 ) -> tuple[AimState, list[AimCue | TactorCommand]]:
-    """One step: a grasp target updates the state; scan lines give a cue and a tactor command.
+    """One step: a grasp target or a controller state updates the state; scan lines give a
+    cue and a tactor command (all off while the controller is ``stopped``).
 
     Both outputs carry the scans' capture ``t_ns``, so the tactor bridge can tell a stale cue
     and a latency measurement can follow a frame to the serial line.
@@ -298,11 +312,17 @@ def aim_step(
     del now_ns  # ages are measured between capture times, which replay reproduces
     if isinstance(message, GraspTarget):
         return replace(state, target=message), []
+    if isinstance(message, ControllerState):
+        return replace(state, controller=message.state), []
     if not isinstance(message, ScanLines):
-        raise ValueError(f"message must be ScanLines or GraspTarget, got {type(message)}")
+        raise ValueError(
+            f"message must be ScanLines, GraspTarget or ControllerState, got {type(message)}"
+        )
     params = state.params
     points = capture_points([from_wire(line.points) for line in message.lines], params)
-    g = guide(points, params, was_on_target=state.on_target, chosen_xy=state.chosen_xy)
+    tracked = guide(points, params, was_on_target=state.on_target, chosen_xy=state.chosen_xy)
+    # Stopped: the geometry is still tracked, so the cue resumes where it would have been.
+    g = Guidance("nothing", objects=tracked.objects) if state.cues_off else tracked
     target = state.target
     ready = (
         g.state == "on_target"
@@ -329,5 +349,7 @@ def aim_step(
         pulse=ready,
         frequency_hz=params.frequency_hz,
     )
-    new_state = replace(state, on_target=g.state == "on_target", chosen_xy=g.chosen_xy, seq=seq)
+    new_state = replace(
+        state, on_target=tracked.state == "on_target", chosen_xy=tracked.chosen_xy, seq=seq
+    )
     return new_state, [cue, command]

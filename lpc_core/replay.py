@@ -50,6 +50,9 @@ class Route:
     key: str
     step: Step
     gated: bool = False  # handle only the frames whose output was recorded (see module doc)
+    # Fed back from a node later in the data flow (the controller's state to the aim step):
+    # such a route alone does not enable its node.
+    feedback: bool = False
 
 
 @dataclass(frozen=True)
@@ -129,7 +132,7 @@ def plan(nodes: Sequence[Node], recorded_keys: Collection[str]) -> Plan:
     produced: set[str] = set()
     enabled: list[Node] = []
     for node in nodes:
-        if any(r.key in produced or r.key in recorded_keys for r in node.routes):
+        if any(r.key in produced or r.key in recorded_keys for r in node.routes if not r.feedback):
             enabled.append(node)
             produced.update(node.outputs)
     inputs = {
@@ -485,6 +488,8 @@ def default_nodes(controller_params: Any = None) -> tuple[Node, ...]:
             routes=(
                 Route("lpc/scans", aim.aim_step, gated=True),
                 Route("lpc/grasp/target", aim.aim_step),
+                # Cues off while the controller has stopped the hand.
+                Route("lpc/controller/state", aim.aim_step, feedback=True),
             ),
             outputs=("lpc/aim/cue", "lpc/tactors/command"),
             gate="lpc/aim/cue",

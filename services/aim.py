@@ -1,5 +1,6 @@
-"""Aim guidance: ``lpc/scans`` and ``lpc/grasp/target`` in; ``lpc/tactors/command`` and
-``lpc/aim/cue`` out, one of each per frame."""
+"""Aim guidance: ``lpc/scans``, ``lpc/grasp/target`` and ``lpc/controller/state`` in;
+``lpc/tactors/command`` and ``lpc/aim/cue`` out, one of each per frame (all off while the
+controller has stopped the hand)."""
 
 from __future__ import annotations
 
@@ -30,13 +31,15 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     commands = bus.publisher("lpc/tactors/command")
     cues = bus.publisher("lpc/aim/cue")
 
-    async def follow_targets() -> None:
-        # The second subscription only updates the shared state; frames drive the outputs.
+    async def follow(key: str) -> None:
+        # These subscriptions only update the shared state; frames drive the outputs.
         nonlocal state
-        async for target in bus.subscribe("lpc/grasp/target"):
-            state, _ = aim_step(state, target, bus.clock.now_ns())
+        async for message in bus.subscribe(key):
+            state, _ = aim_step(state, message, bus.clock.now_ns())
 
-    targets = asyncio.create_task(follow_targets())
+    followers = [
+        asyncio.create_task(follow(key)) for key in ("lpc/grasp/target", "lpc/controller/state")
+    ]
     try:
         async for scans in bus.subscribe("lpc/scans"):
             try:
@@ -52,7 +55,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 if isinstance(out, AimCue):
                     cues.put(out)
     finally:
-        targets.cancel()
+        for task in followers:
+            task.cancel()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -20,7 +21,16 @@ from lpc_core.aim import (
     tactor_placement,
     tactor_shares,
 )
-from schemas import GraspTarget, ScanLine, ScanLines, decode, encode, to_wire
+from schemas import (
+    ControllerState,
+    GraspTarget,
+    ScanLine,
+    ScanLines,
+    TactorCommand,
+    decode,
+    encode,
+    to_wire,
+)
 from tests.conftest import spawn_service, wait_for
 
 Z = 0.200  # depth of the test objects, inside the 150-250 mm capture volume
@@ -241,6 +251,49 @@ def test_aim_step_nothing_in_view_commands_all_off() -> None:
     assert command.amplitudes == [0.0] * 4
 
 
+def controller(state: str, seq: int = 1) -> ControllerState:
+    return ControllerState(seq=seq, t_ns=T0, state=state)  # type: ignore[arg-type]
+
+
+def test_aim_step_cues_off_while_the_controller_has_stopped_the_hand() -> None:
+    right = ray(0.0, 0.030, 0.045)
+    on = patch(-0.01, 0.01, -0.01, 0.01)
+    state, _ = aim_step(AimState(), target(reconstructed=True), T0)
+    state, out = aim_step(state, controller("stopped"), T0)
+    assert out == [] and state.controller == "stopped"
+    for i, points in enumerate((right, on, np.empty((0, 3)))):
+        state, (cue, command) = aim_step(state, scans(points, seq=2 + i), T0)
+        # A cue and a command every frame, so the bridge keeps sending all-off.
+        assert cue.state == "nothing" and cue.frame_seq == 2 + i
+        assert cue.amplitudes == command.amplitudes == [0.0] * 4
+        assert not command.pulse
+    assert state.seq == 3
+    # Leaving "stopped" (the controller recovered to idle): the cues are back at once.
+    state, _ = aim_step(state, controller("idle"), T0)
+    state, (cue, command) = aim_step(state, scans(right, seq=5), T0)
+    assert cue.state == "guiding" and command.amplitudes == pytest.approx([0.7, 0, 0, 0], abs=1e-6)
+    state, _ = aim_step(state, controller("ready"), T0)
+    _, (cue, command) = aim_step(state, scans(on, seq=6), T0)
+    assert cue.state == "ready" and command.pulse and command.amplitudes == [1.0] * 4
+
+
+def test_aim_step_stopped_keeps_tracking_the_chosen_object() -> None:
+    # Two objects at equal distance: the one chosen before the stop is still chosen after it.
+    left = patch(-0.040, -0.015, -0.005, 0.005)
+    right = patch(0.015, 0.040, -0.005, 0.005)
+    state, (cue, _) = aim_step(AimState(), scans(left), T0)
+    chosen = state.chosen_xy
+    assert chosen is not None and chosen[0] < 0
+    state, _ = aim_step(state, controller("stopped"), T0)
+    state, (cue, _) = aim_step(state, scans(np.concatenate([right, left])), T0)
+    assert cue.state == "nothing" and cue.objects == 2
+    assert state.chosen_xy == pytest.approx(chosen, abs=1e-9)
+    state, _ = aim_step(state, controller("aiming"), T0)
+    _, (cue, command) = aim_step(state, scans(np.concatenate([right, left])), T0)
+    assert cue.theta_deg % 360.0 == pytest.approx(180.0, abs=1e-6)  # still the left one
+    assert command.amplitudes == pytest.approx([0, 0, 0.85, 0], abs=1e-6)
+
+
 def test_aim_step_bad_points_shape_raises_value_error() -> None:
     bad = ScanLines(
         seq=1,
@@ -288,6 +341,27 @@ def test_aim_service_publishes_command_and_cue_per_frame(
             cues = list(got["lpc/aim/cue"])
         assert first.amplitudes == pytest.approx([0.7, 0, 0, 0], abs=1e-6)
         assert any(c.state == "guiding" and c.t_ns == T0 for c in cues)
+
+        # The controller stops the hand: the same view gives all-off, frame after frame. An
+        # all-off command acknowledges that the service has taken "stopped" in.
+        def commands(t_ns: int) -> list[TactorCommand]:
+            with lock:
+                return [c for c in got["lpc/tactors/command"] if c.t_ns == t_ns]
+
+        def put_until(t_ns: int, state: str, amplitudes: list[float]) -> Callable[[], bool]:
+            def seen() -> bool:
+                rendezvous.put("lpc/controller/state", encode(controller(state)))
+                rendezvous.put("lpc/scans", encode(scans(ray(0.0, 0.030, 0.045), t_ns=t_ns)))
+                return any(c.amplitudes == pytest.approx(amplitudes) for c in commands(t_ns))
+
+            return seen
+
+        wait_for(put_until(T0 + 2, "stopped", [0.0] * 4), 10.0, "an all-off command")
+        wait_for(put_until(T0 + 3, "stopped", [0.0] * 4), 10.0, "a second all-off command")
+        assert all(c.amplitudes == [0.0] * 4 for c in commands(T0 + 3))
+        with lock:
+            assert all(c.state == "nothing" for c in got["lpc/aim/cue"] if c.t_ns == T0 + 3)
+        wait_for(put_until(T0 + 4, "idle", [0.7, 0, 0, 0]), 10.0, "the cue back once recovered")
     finally:
         proc.terminate()
         proc.wait(timeout=10)

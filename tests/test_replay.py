@@ -117,6 +117,19 @@ def test_plan_depth_makes_recorded_scans_an_output() -> None:
     assert plan(nodes, {"lpc/health/x"}).inputs == frozenset()
 
 
+def test_plan_feedback_route_alone_does_not_enable_its_node() -> None:
+    # A controller-only recording: the aim step (fed the controller's state back) stays off,
+    # so the recorded cues remain the controller's input.
+    keys = {"lpc/emg", "lpc/prosthesis/state", "lpc/aim/cue", "lpc/controller/state"}
+    p = plan(default_nodes(), keys)
+    assert [n.name for n in p.nodes] == ["controller"]
+    assert p.inputs == {"lpc/emg", "lpc/prosthesis/state", "lpc/aim/cue"}
+    # With scans, the aim step runs and takes the replayed controller state, not the recorded.
+    p = plan(default_nodes(), keys | {"lpc/scans"})
+    assert [n.name for n in p.nodes] == ["reconstructor", "aim", "controller"]
+    assert "lpc/controller/state" in p.outputs and "lpc/controller/state" not in p.inputs
+
+
 def test_replay_merges_by_log_time_then_file_order_with_recorded_clock() -> None:
     inputs = [
         Recorded("lpc/emg", emg(0, T0), T0 + 1 * MS, 0),
