@@ -455,15 +455,30 @@ def _short(value: Any, width: int = 80) -> str:
 # --------------------------------------------------------------------------- the table
 
 
-def default_nodes(controller_params: Any = None) -> tuple[Node, ...]:
+def default_nodes(
+    controller_params: Any = None, reconstructor_method: str = "laser"
+) -> tuple[Node, ...]:
     """The pipeline as the services run it, in data-flow order: input topic -> step.
 
     ``controller_params`` (a ``ControllerParams``) are the controller service's, which come
-    from its flags and the user's profile; the other services run on their defaults.
+    from its flags and the user's profile; ``reconstructor_method`` is the reconstructor's
+    ``--method``: ``laser`` reconstructs the scan lines, ``cloud`` the whole depth frame. The
+    other services run on their defaults.
     """
     from lpc_core import aim, controller, pipeline, reconstructor
 
     params = controller_params or controller.ControllerParams()
+    if reconstructor_method == "laser":
+        reconstruct = Route("lpc/scans", reconstructor.reconstruct_step, gated=True)
+        # Live, compute_ms is the worker's measured time; seq follows the scans'.
+        volatile = frozenset({"seq", "compute_ms"})
+    elif reconstructor_method == "cloud":
+        reconstruct = Route("lpc/camera/depth", reconstructor.reconstruct_cloud_step, gated=True)
+        volatile = frozenset({"compute_ms"})  # seq is the depth frame's
+    else:
+        raise ValueError(
+            f"reconstructor_method must be 'laser' or 'cloud', got {reconstructor_method!r}"
+        )
 
     return (
         Node(
@@ -476,11 +491,10 @@ def default_nodes(controller_params: Any = None) -> tuple[Node, ...]:
         Node(
             name="reconstructor",
             init=reconstructor.ReconstructState,
-            routes=(Route("lpc/scans", reconstructor.reconstruct_step, gated=True),),
+            routes=(reconstruct,),
             outputs=("lpc/reconstruction", "lpc/grasp/target"),
             gate="lpc/reconstruction",
-            # Live, compute_ms is the worker's measured time; seq follows the scans'.
-            volatile=frozenset({"seq", "compute_ms"}),
+            volatile=volatile,
         ),
         Node(
             name="aim",

@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 from lpc_core import scene as sc
+from lpc_core.cloud import CloudParams
 from lpc_core.intrinsics import Intrinsics
 from lpc_core.pipeline import ScansState, intrinsics_to_message, scans_step
+from lpc_core.reconstructor import ReconstructState, reconstruct_cloud_step
 from lpc_core.replay import (
     TICK,
     Node,
@@ -360,8 +362,8 @@ def test_replay_cli_catches_a_changed_algorithm(
 ) -> None:
     record_session(tmp_path / "rec.mcap", depth_images, n_frames=6)
 
-    def wider_band(controller_params: Any = None) -> tuple[Node, ...]:
-        nodes = default_nodes(controller_params)
+    def wider_band(controller_params: Any = None, **kwargs: Any) -> tuple[Node, ...]:
+        nodes = default_nodes(controller_params, **kwargs)
         scans = replace(nodes[0], init=lambda: ScansState(params=ScanParams(band_m=0.002)))
         return (scans, *nodes[1:])
 
@@ -454,6 +456,60 @@ def test_replay_cli_recorded_empty_topic_gates_its_node_off(
         assert {"lpc/reconstruction", "lpc/grasp/target"} <= log.topics()
 
 
+def record_cloud_session(path: Path, images: list[np.ndarray], n_frames: int = 9) -> None:
+    """A live-like ``--method cloud`` session: ``record_session``'s frames and scans, and the
+    cloud reconstruction of one frame in three (the pool was busy with the others), recorded
+    5 ms late with a measured compute time, then its window's grasp target."""
+    record_session(path.with_suffix(".base.mcap"), images, n_frames=n_frames)
+    state = ReconstructState()
+    events: list[tuple[int, str, Any]] = []
+    with McapLog(path.with_suffix(".base.mcap")) as log:
+        for m in log.messages(decode=True):
+            events.append((m.log_time, m.key, m.message))
+            if m.key == "lpc/camera/depth" and m.message.seq % 3 == 0:
+                state, (rec, target) = reconstruct_cloud_step(state, m.message, m.log_time)
+                live = msgspec.structs.replace(rec, compute_ms=30.0 + m.message.seq)
+                events.append((m.log_time + 5 * MS, "lpc/reconstruction", live))
+                events.append((m.log_time + 5 * MS, "lpc/grasp/target", target))
+    events.sort(key=lambda e: e[0])
+    with LogWriter(path) as writer:
+        for t, key, message in events:
+            writer.write(key, message, t)
+
+
+def test_replay_cli_cloud_recording_replays_by_the_cloud_method(
+    tmp_path: Path,
+    depth_images: list[np.ndarray],
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    record_cloud_session(tmp_path / "cloud.mcap", depth_images)
+    assert lpc(["replay", str(tmp_path / "cloud.mcap"), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert "reconstructor: cloud (the recorded lpc/reconstruction's)" in out
+    assert "check: no differences" in out and "lpc/reconstruction 3," in out
+    assert "inputs the live services skipped: {'reconstructor': 6, 'scans': 3}" in out
+    # The laser method on the same recording reconstructs other frames, from the scans.
+    assert lpc(["replay", str(tmp_path / "cloud.mcap"), "--check", "--method", "laser"]) == 1
+    capsys.readouterr()
+
+    def coarser_voxel(controller_params: Any = None, **kwargs: Any) -> tuple[Node, ...]:
+        nodes = default_nodes(controller_params, **kwargs)
+        cloud = ReconstructState(cloud=CloudParams(voxel_m=0.004))
+        changed = replace(nodes[1], init=lambda: cloud)
+        return (nodes[0], changed, *nodes[2:])
+
+    monkeypatch.setattr(replay_cli, "default_nodes", coarser_voxel)
+    assert lpc(["replay", str(tmp_path / "cloud.mcap"), "--check"]) == 1
+    out = capsys.readouterr().out
+    assert "lpc/reconstruction frame 0 " in out
+
+
+def test_default_nodes_reject_an_unknown_reconstructor_method() -> None:
+    with pytest.raises(ValueError, match="reconstructor_method"):
+        default_nodes(reconstructor_method="mesh")
+
+
 # --------------------------------------------------------------------------- the goldens
 
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
@@ -482,10 +538,10 @@ def test_recording_replays_without_differences(
 def test_recording_catches_a_changed_algorithm(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    def blind_aim(controller_params: Any = None) -> tuple[Node, ...]:
+    def blind_aim(controller_params: Any = None, **kwargs: Any) -> tuple[Node, ...]:
         from lpc_core.aim import AimParams, AimState
 
-        nodes = default_nodes(controller_params)
+        nodes = default_nodes(controller_params, **kwargs)
         aim = next(n for n in nodes if n.name == "aim")
         changed = replace(aim, init=lambda: AimState(params=AimParams(min_points=100_000)))
         return tuple(changed if n is aim else n for n in nodes)

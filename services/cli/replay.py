@@ -2,7 +2,9 @@
 
 The recorded inputs (depth or scans, EMG, prosthesis state) are merged by log time, then file
 order, and handed to the same step functions the services run, with the recorded clock (see
-``lpc_core.replay``). ``--out`` writes the inputs and the new outputs to an MCAP file (itself
+``lpc_core.replay``). The reconstructor runs the method its service ran live, as the recorded
+``lpc/reconstruction`` names it: ``laser`` on the scans, ``cloud`` on the depth frames
+(``--method`` overrides). ``--out`` writes the inputs and the new outputs to an MCAP file (itself
 replayable: replaying it reproduces it byte for byte). ``--check`` compares the new outputs
 with the recorded ones, topic by topic, prints the first differences and exits 1 if any.
 
@@ -111,6 +113,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "default profile)",
     )
     parser.add_argument(
+        "--method",
+        choices=("laser", "cloud"),
+        help="the reconstructor's method (default: the one the recorded lpc/reconstruction "
+        "names; laser if none is recorded)",
+    )
+    parser.add_argument(
         "--camera-fixed",
         action="store_true",
         help="the controller ran with --camera-fixed (implied for a simulated user)",
@@ -185,13 +193,39 @@ def _controller_params(args: argparse.Namespace, log: McapLog) -> tuple[Any, str
     return params, f"{how}, {camera}"
 
 
+class _MethodOf(msgspec.Struct):
+    """Just enough of a reconstruction to name its method."""
+
+    method: str = "laser"
+
+
+_METHOD_DECODER = msgspec.msgpack.Decoder(_MethodOf)
+
+
+def _reconstructor_method(args: argparse.Namespace, log: McapLog) -> tuple[str, str]:
+    """The reconstructor's method as its service ran it live, and how it was chosen."""
+    if args.method is not None:
+        return args.method, "--method"
+    first = next(log.messages(["lpc/reconstruction"], ordered=False), None)
+    if first is None:
+        return "laser", "the default: no lpc/reconstruction recorded"
+    try:
+        method = _METHOD_DECODER.decode(first.payload).method
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return "laser", "the default: the first lpc/reconstruction does not decode"
+    if method not in ("laser", "cloud"):
+        raise ValueError(f"the recorded lpc/reconstruction names an unknown method {method!r}")
+    return method, "the recorded lpc/reconstruction's"
+
+
 def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     spent: Counter[str] = Counter()
     try:
         controller_params, how = _controller_params(args, log)
+        method, method_how = _reconstructor_method(args, log)
     except ValueError as exc:
         return _fail(str(exc))
-    nodes = _timed(default_nodes(controller_params), spent)
+    nodes = _timed(default_nodes(controller_params, reconstructor_method=method), spent)
     frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
     keys = log.topics() - set(args.without)
     replay = Replay(nodes, keys, frames, all_frames=args.all_frames)
@@ -242,6 +276,7 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
         os.replace(out_tmp, args.out)
     _report_run(args, path, replay, reader, counts, (last_ns - first_ns) / 1e9, elapsed)
     print(f"  controller: {how}")
+    print(f"  reconstructor: {method} ({method_how})")
     steps = ", ".join(
         f"{name} {spent[name]:.3f} s" for name in sorted(spent, key=spent.get, reverse=True)
     )
