@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import zenoh
 
@@ -53,6 +54,31 @@ def _foxglove_argv(args: argparse.Namespace) -> list[str]:
     return ["--port", str(args.foxglove_port)]
 
 
+def _emg_argv(args: argparse.Namespace) -> list[str]:
+    """The EMG device flags (``_validate`` has checked they are there), or the scripted user."""
+    match getattr(args, "emg", "sim"):
+        case "serial":
+            return ["--source", "serial", "--port", args.emg_port]
+        case "can":
+            return ["--source", "can", "--can", args.can_channel, "--interface", args.can_interface]
+        case _:
+            return ["--source", "sim", "--seed", str(args.seed)]
+
+
+def _controller_argv(args: argparse.Namespace) -> list[str]:
+    # The hand is always the simulated one (--sim-hand), and no camera turns with its wrist.
+    # A real EMG needs the person's calibration; the scripted user has its own.
+    user = ["--sim-user"] if _sim_user(args) else ["--profile", str(_profile_path(args))]
+    return [*user, "--camera-fixed"]
+
+
+def _profile_path(args: argparse.Namespace) -> Path:
+    """The user profile: ``--profile``, else where ``lpc emg calibrate`` writes it."""
+    from services.drivers.emg import DEFAULT_PROFILE
+
+    return Path(getattr(args, "profile", None) or DEFAULT_PROFILE).expanduser()
+
+
 # Start order: the recorder first (it must see everything), sources last. Stop order: reverse.
 SERVICES: dict[str, ServiceSpec] = {
     "recorder": ServiceSpec(
@@ -74,15 +100,8 @@ SERVICES: dict[str, ServiceSpec] = {
     "aim": ServiceSpec("services.aim"),
     # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand.
     "prosthesis_bridge": ServiceSpec("services.prosthesis_bridge", lambda args: ["--sim-hand"]),
-    # The simulated camera does not turn with the simulated wrist: --camera-fixed.
-    "controller": ServiceSpec(
-        "services.controller",
-        lambda args: ["--sim-user", "--camera-fixed"] if _sim_user(args) else [],
-    ),
-    "emg": ServiceSpec(
-        "services.emg",
-        lambda args: ["--source", "sim", "--seed", str(args.seed)] if _sim_user(args) else [],
-    ),
+    "controller": ServiceSpec("services.controller", _controller_argv),
+    "emg": ServiceSpec("services.emg", _emg_argv),
     "camera": ServiceSpec("services.camera", _camera_argv),
 }
 
@@ -157,6 +176,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="reconstruction: the four scan lines (default) or the full point cloud",
     )
     parser.add_argument(
+        "--emg",
+        choices=("sim", "serial", "can"),
+        default="sim",
+        help="EMG source: a scripted simulated user (default), a serial amplifier (--emg-port) "
+        "or the hand's CAN status (--can-channel); a real EMG runs the controller on the "
+        "calibrated --profile",
+    )
+    parser.add_argument(
+        "--emg-port", metavar="PORT", help="serial port of the EMG amplifier (--emg serial)"
+    )
+    parser.add_argument(
+        "--can-channel", metavar="CHANNEL", help="CAN channel carrying the EMG (--emg can)"
+    )
+    parser.add_argument(
+        "--can-interface",
+        default="socketcan",
+        metavar="NAME",
+        help="python-can interface of --can-channel (default socketcan)",
+    )
+    parser.add_argument(
+        "--profile",
+        metavar="FILE",
+        help="user profile with the EMG calibration (--emg serial|can; default the one "
+        "'lpc emg calibrate' writes, ~/.config/lpc/profile.json)",
+    )
+    parser.add_argument(
         "--foxglove",
         action="store_true",
         help="also serve everything to Foxglove (WebSocket on 127.0.0.1; needs lpc[foxglove])",
@@ -187,6 +232,48 @@ def _validate(args: argparse.Namespace) -> str | None:
     unknown = sorted(set(args.services or []) - set(SERVICES))
     if unknown:
         return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"
+    return _validate_emg(args)
+
+
+def _validate_emg(args: argparse.Namespace) -> str | None:
+    """Each EMG source has its device flags and no other's; a real EMG, a calibration."""
+    emg = getattr(args, "emg", "sim")
+    given = {
+        flag: getattr(args, attr, None) is not None
+        for flag, attr in (
+            ("--emg-port", "emg_port"),
+            ("--can-channel", "can_channel"),
+            ("--profile", "profile"),
+        )
+    }
+    needs = {"sim": (), "serial": ("--emg-port",), "can": ("--can-channel",)}[emg]
+    for flag in needs:
+        if not given[flag]:
+            example = "/dev/ttyUSB0" if flag == "--emg-port" else "can0"
+            return f"--emg {emg} needs {flag} (e.g. {flag} {example})"
+    allowed = {*needs, "--profile"} if emg != "sim" else set()
+    for flag, present in given.items():
+        if present and flag not in allowed:
+            if flag == "--profile":
+                return (
+                    "--profile is for a real EMG (--emg serial|can); the simulated user has "
+                    "its own calibration"
+                )
+            return f"{flag} does not apply to --emg {emg}"
+    if emg == "sim" or "controller" not in (args.services or SERVICES):
+        return None
+    from services.drivers.emg import load_emg_profile
+
+    path = _profile_path(args)
+    calibrate = f"run 'lpc emg calibrate --source {emg} ...' first, or give --profile FILE"
+    if not path.exists():
+        return f"--emg {emg} needs the user's EMG calibration; {path} does not exist: {calibrate}"
+    try:
+        profile = load_emg_profile(path)
+    except ValueError as exc:
+        return str(exc)
+    if profile is None:
+        return f"no EMG calibration (emg section) in {path}: {calibrate}"
     return None
 
 

@@ -1,0 +1,136 @@
+"""``lpc up``'s flags to the services it starts: the EMG source and the controller's
+calibration (pure argv construction and validation; no process is started)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from lpc_core.emg import EmgProfile
+from services.cli import up
+from services.drivers.emg import save_emg_profile
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    up.add_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+def argv_of(name: str, args: argparse.Namespace) -> list[str]:
+    return up.SERVICES[name].argv(args)
+
+
+@pytest.fixture
+def profile(tmp_path: Path) -> Path:
+    """A profile as ``lpc emg calibrate`` writes it, beside another section."""
+    path = tmp_path / "profile.json"
+    path.write_text(json.dumps({"tactors": {"arm": "left"}}))
+    save_emg_profile(EmgProfile(rest=(0.01, 0.02), maximal=(0.9, 0.8), user="p1"), path)
+    return path
+
+
+def test_up_args_default_runs_the_scripted_user() -> None:
+    args = parse("--seed", "3")
+    assert up._validate(args) is None
+    assert argv_of("emg", args) == ["--source", "sim", "--seed", "3"]
+    assert argv_of("controller", args) == ["--sim-user", "--camera-fixed"]
+
+
+def test_up_args_serial_emg_passes_the_port_and_the_profile(profile: Path) -> None:
+    args = parse("--emg", "serial", "--emg-port", "/dev/ttyACM1", "--profile", str(profile))
+    assert up._validate(args) is None
+    assert argv_of("emg", args) == ["--source", "serial", "--port", "/dev/ttyACM1"]
+    controller = argv_of("controller", args)
+    assert "--sim-user" not in controller
+    assert controller == ["--profile", str(profile), "--camera-fixed"]
+
+
+def test_up_args_can_emg_passes_channel_and_interface(profile: Path) -> None:
+    args = parse("--emg", "can", "--can-channel", "vcan0", "--profile", str(profile))
+    assert up._validate(args) is None
+    assert argv_of("emg", args) == ["--source", "can", "--can", "vcan0", "--interface", "socketcan"]
+    args = parse(
+        "--emg", "can", "--can-channel", "1", "--can-interface", "pcan", "--profile", str(profile)
+    )
+    assert argv_of("emg", args)[-2:] == ["--interface", "pcan"]
+
+
+def test_up_args_real_emg_defaults_to_the_calibrated_profile(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Where 'lpc emg calibrate' writes by default (~ expanded).
+    monkeypatch.setenv("HOME", str(tmp_path))
+    args = parse("--emg", "serial", "--emg-port", "loop://")
+    problem = up._validate(args)
+    assert problem is not None
+    assert "needs the user's EMG calibration" in problem and "lpc emg calibrate" in problem
+    assert str(tmp_path / ".config/lpc/profile.json") in problem
+    save_emg_profile(EmgProfile(), None)
+    assert up._validate(args) is None
+    expected = str(tmp_path / ".config/lpc/profile.json")
+    assert argv_of("controller", args) == ["--profile", expected, "--camera-fixed"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (("--emg", "serial"), "--emg serial needs --emg-port"),
+        (("--emg", "can"), "--emg can needs --can-channel"),
+        (("--emg-port", "/dev/ttyUSB0"), "--emg-port does not apply to --emg sim"),
+        (("--emg", "can", "--can-channel", "can0", "--emg-port", "x"), "does not apply"),
+        (("--emg", "serial", "--emg-port", "x", "--can-channel", "can0"), "does not apply"),
+        (("--profile", "p.json"), "--profile is for a real EMG"),
+    ],
+)
+def test_up_args_missing_or_stray_device_flags_are_clear_errors(
+    argv: tuple[str, ...], needle: str
+) -> None:
+    problem = up._validate(parse(*argv))
+    assert problem is not None and needle in problem
+
+
+def test_up_args_profile_without_emg_section_or_missing_is_an_error(tmp_path: Path) -> None:
+    bare = tmp_path / "bare.json"
+    bare.write_text(json.dumps({"tactors": {}}))
+    problem = up._validate(parse("--emg", "serial", "--emg-port", "x", "--profile", str(bare)))
+    assert problem is not None and "no EMG calibration" in problem
+    missing = tmp_path / "missing.json"
+    problem = up._validate(parse("--emg", "serial", "--emg-port", "x", "--profile", str(missing)))
+    assert problem is not None and "does not exist" in problem
+    # Without the controller, nothing needs the calibration.
+    args = parse("--emg", "serial", "--emg-port", "x", "--services", "emg", "recorder")
+    assert up._validate(args) is None
+
+
+def test_up_args_services_take_what_up_passes(
+    profile: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Each service's own parser takes the argv (a stray flag would exit 2), and the controller
+    # ends up with the calibrated profile, not the simulated user's.
+    from services import controller, emg
+
+    started: dict[str, argparse.Namespace] = {}
+
+    def capture(name: str, serve: object, args: argparse.Namespace) -> int:
+        started[name] = args
+        return 0
+
+    monkeypatch.setattr(emg, "run_service", capture)
+    monkeypatch.setattr(controller, "run_service", capture)
+    args = parse("--emg", "serial", "--emg-port", "loop://", "--profile", str(profile))
+    assert emg.main(argv_of("emg", args)) == 0
+    assert controller.main(argv_of("controller", args)) == 0
+    assert started["emg"].source == "serial" and started["emg"].port == "loop://"
+    assert started["controller"].params.profile.user == "p1"
+    assert started["controller"].params.profile.maximal == pytest.approx((0.9, 0.8))
+    assert not started["controller"].params.camera_on_hand
+    args = parse("--emg", "can", "--can-channel", "vcan0", "--profile", str(profile))
+    assert emg.main(argv_of("emg", args)) == 0
+    assert (started["emg"].source, started["emg"].can) == ("can", "vcan0")
+    assert emg.main(argv_of("emg", parse())) == 0
+    assert controller.main(argv_of("controller", parse())) == 0
+    assert started["emg"].source == "sim" and started["controller"].params.profile.user == "sim"
