@@ -1,6 +1,7 @@
 """Prosthesis bridge: ``lpc/prosthesis/command`` to the hand over CAN, the hand's status to
 ``lpc/prosthesis/state``. A watchdog sends zero velocity when no fresh command has come for
-50 ms; a command older than that when it arrives is dropped and counted. Bus errors are
+40 ms (default), so that the hand is stopped within 50 ms of the last command even with
+scheduling jitter; a command older than that when it arrives is dropped and counted. Bus errors are
 logged and counted, and the bridge reopens the bus with backoff. ``--sim-hand`` runs the
 simulated hand on the same bus (required with python-can's in-process virtual bus)."""
 
@@ -79,7 +80,12 @@ def main(argv: list[str] | None = None) -> int:
         "--interface", default="virtual", help="python-can interface (virtual, socketcan, ...)"
     )
     parser.add_argument("--channel", default=DEFAULT_CHANNEL, help="CAN channel (e.g. can0)")
-    parser.add_argument("--watchdog-ms", type=float, default=50.0, help="zero velocity after")
+    parser.add_argument(
+        "--watchdog-ms",
+        type=float,
+        default=40.0,
+        help="zero velocity when no fresh command came for this long (default 40 ms)",
+    )
     parser.add_argument("--sim-hand", action="store_true", help="run the simulated hand too")
     parser.add_argument(
         "--object-mm", type=float, default=60.0, help="simulated object width (default 60 mm)"

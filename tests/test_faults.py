@@ -44,7 +44,7 @@ from tests.conftest import free_port, spawn_service, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 REPEATS = int(os.environ.get("LPC_FAULT_REPEATS", "12"))
-WATCHDOG_S = 0.05
+WATCHDOG_S = 0.04  # the prosthesis bridge's default
 # What each service publishes: the session has resumed when it flows again after a restart.
 OUTPUT = {
     "camera": "lpc/camera/depth",

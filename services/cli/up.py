@@ -94,8 +94,10 @@ SERVICES: dict[str, ServiceSpec] = {
     # No --tactor-port: the bridge drives a simulated controller on a pseudo-terminal.
     "tactor_bridge": ServiceSpec(
         "services.tactor_bridge",
-        lambda args: ["--driver", args.tactor_driver]
-        + (["--tactor-port", args.tactor_port] if args.tactor_port else []),
+        lambda args: (
+            ["--driver", args.tactor_driver]
+            + (["--tactor-port", args.tactor_port] if args.tactor_port else [])
+        ),
     ),
     "aim": ServiceSpec("services.aim"),
     # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand.
