@@ -27,7 +27,7 @@ per-hypothesis work is a handful of array expressions over all hypotheses at onc
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar, NamedTuple, Protocol, Self, runtime_checkable
 
@@ -49,10 +49,14 @@ __all__ = [
     "LineFit",
     "LineModel",
     "ScanLineFits",
+    "Segments",
     "fit_all",
     "fit_circle",
+    "fit_circles",
     "fit_ellipse",
+    "fit_ellipses",
     "fit_line",
+    "fit_lines",
 ]
 
 RADIUS_LIMITS_M = (0.005, 0.05)
@@ -357,6 +361,44 @@ def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
     return CircleModel(center=(cx, cy), radius=r)
 
 
+def _circle_kasa_batch(
+    x: np.ndarray, y: np.ndarray, inl: np.ndarray
+) -> list[tuple[float, float, float] | None]:
+    """Kasa's circle on each row's points ``inl`` of ``x, y`` (L, W), all rows at once: the
+    start of :func:`_circle_lsq` without its Gauss-Newton polish (radius: the mean distance
+    to the centre). ``(cx, cy, r)`` per row, None where degenerate."""
+    with np.errstate(all="ignore"):
+        m = inl.sum(axis=1)
+        mx = np.where(inl, x, 0.0).sum(axis=1) / m
+        my = np.where(inl, y, 0.0).sum(axis=1) / m
+        xs, ys = np.where(inl, x - mx[:, None], 0.0), np.where(inl, y - my[:, None], 0.0)
+        scale = np.sqrt((xs * xs + ys * ys).sum(axis=1) / m)
+        inv = 1.0 / scale[:, None]
+        xs, ys = xs * inv, ys * inv
+        moments = np.stack([xs, ys, xs * xs + ys * ys], axis=1)  # (L, 3, W)
+        g = (moments @ moments.transpose(0, 2, 1)).reshape(-1, 9)[:, [0, 1, 4, 2, 5]]
+    centres = []
+    for mk, (sxx, sxy, syy, sxz, syz), sk in zip(
+        m.tolist(), g.tolist(), scale.tolist(), strict=True
+    ):
+        det = sxx * syy - sxy * sxy
+        if mk < 3 or not sk > 0.0 or not det > 1e-12 * (sxx + syy) ** 2:
+            centres.append((math.nan, math.nan))
+            continue
+        centres.append((0.5 * (syy * sxz - sxy * syz) / det, 0.5 * (sxx * syz - sxy * sxz) / det))
+    cx, cy = (_column(v) for v in zip(*centres, strict=True))
+    with np.errstate(all="ignore"):
+        dx, dy = xs - cx, ys - cy
+        r = np.where(inl, np.sqrt(dx * dx + dy * dy), 0.0).sum(axis=1) / m
+    out: list[tuple[float, float, float] | None] = []
+    for (cxk, cyk), rk, sk, mxk, myk in zip(
+        centres, r.tolist(), scale.tolist(), mx.tolist(), my.tolist(), strict=True
+    ):
+        circle = (mxk + sk * cxk, myk + sk * cyk, sk * rk)
+        out.append(circle if all(map(math.isfinite, circle)) else None)
+    return out
+
+
 # --------------------------------------------------------------------------- ellipse
 
 
@@ -487,14 +529,15 @@ def _ellipse_distance(
     k0 = r0 * z0
     c0, c1 = k0 * k0, z1 * z1
     s = np.maximum(z1 - 1.0, k0 - r0)
-    tol = 1e-12 * (1.0 + float(np.abs(s).max()))
+    # fmax ignores NaN: padded entries of a batch of scan lines neither set nor block the stop.
+    tol = 1e-12 * (1.0 + float(np.fmax.reduce(np.abs(s), axis=None)))
     for _ in range(40):
         w0, w1 = s + r0, s + 1.0
         q0, q1 = c0 / (w0 * w0), c1 / (w1 * w1)
         total = q0 + q1
         step = total * (np.sqrt(total) - 1.0) / (q0 / w0 + q1 / w1)
         s += step
-        if not np.abs(step).max() > tol:
+        if not np.fmax.reduce(np.abs(step), axis=None) > tol:
             break
     # x - y without cancellation: x0 - y0 = -s y0 / (s + r0), x1 - y1 = -s y1 / (s + 1).
     d = np.abs(s) * np.hypot(y0 / (s + r0), y1 / (s + 1.0))
@@ -604,6 +647,65 @@ def _ellipse_lsq(x: np.ndarray, y: np.ndarray) -> EllipseModel | FailedFit:
     return EllipseModel(
         center=(mx + scale * cx, my + scale * cy), axis_lengths=(scale * a, scale * b), theta=theta
     )
+
+
+def _ellipse_direct_batch(
+    x: np.ndarray, y: np.ndarray, inl: np.ndarray
+) -> list[EllipseModel | FailedFit]:
+    """:func:`_ellipse_lsq` on each row's points ``inl`` of ``x, y`` (L, W), all rows at once
+    (the scatter matrices in one product, the 3x3 eigenproblems in Python floats)."""
+    with np.errstate(all="ignore"):
+        m = inl.sum(axis=1)
+        mx = np.where(inl, x, 0.0).sum(axis=1) / m
+        my = np.where(inl, y, 0.0).sum(axis=1) / m
+        xs, ys = np.where(inl, x - mx[:, None], 0.0), np.where(inl, y - my[:, None], 0.0)
+        spread2 = (xs * xs + ys * ys).sum(axis=1)
+        scale = np.sqrt(spread2 / m)
+        inv = 1.0 / scale[:, None]
+        xs, ys = xs * inv, ys * inv
+        # Halir & Flusser's blocks of D'D, D = [x^2, xy, y^2 | x, y, 1], in one product.
+        d = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, inl.astype(np.float64)], axis=1)
+        scatter = d @ d.transpose(0, 2, 1)  # (L, 6, 6)
+    s1, s2, s3 = scatter[:, :3, :3], scatter[:, :3, 3:], scatter[:, 3:, 3:]
+    s3_det = s3[:, 0, 0] * s3[:, 1, 1] - s3[:, 0, 1] ** 2
+    bad = ~(s3_det > 1e-10 * (s3[:, 0, 0] + s3[:, 1, 1]) ** 2)
+    # Collinear rows get a stand-in so one failure does not stop the batched solve.
+    s3 = np.where(bad[:, None, None], np.eye(3), s3)
+    t = -np.linalg.solve(s3, s2.transpose(0, 2, 1))
+    reduced = (s1 + s2 @ t).tolist()
+    out: list[EllipseModel | FailedFit] = []
+    for k, (mk, sp, sk, mxk, myk) in enumerate(
+        zip(m.tolist(), spread2.tolist(), scale.tolist(), mx.tolist(), my.tolist(), strict=True)
+    ):
+        if mk < 5:
+            out.append(FailedFit(f"an ellipse needs at least 5 points, got {mk}"))
+            continue
+        if _coincide(sp, mk, mxk, myk) or not math.isfinite(sk):
+            out.append(FailedFit("ellipse: all points coincide"))
+            continue
+        if bad[k]:
+            out.append(FailedFit("ellipse: points are collinear"))
+            continue
+        mr = reduced[k]
+        found = None
+        for lam, a1 in _eig3([[0.5 * v for v in mr[2]], [-v for v in mr[1]],
+                              [0.5 * v for v in mr[0]]]):  # fmt: skip
+            if 4.0 * a1[0] * a1[2] - a1[1] * a1[1] > 0.0 and (found is None or abs(lam) < found[0]):
+                found = (abs(lam), a1)
+        if found is None:
+            out.append(FailedFit("ellipse: no elliptic solution"))
+            continue
+        a1 = found[1]
+        tk = t[k].tolist()
+        a2 = [tk[i][0] * a1[0] + tk[i][1] * a1[1] + tk[i][2] * a1[2] for i in range(3)]
+        params = _conic_params(*a1, *a2)
+        if params is None:
+            out.append(FailedFit("ellipse: degenerate conic"))
+            continue
+        cx, cy, a, b, theta = params
+        out.append(EllipseModel(center=(mxk + sk * cx, myk + sk * cy),
+                                axis_lengths=(sk * a, sk * b), theta=theta))  # fmt: skip
+    return out
 
 
 def _ellipse_geometric(
@@ -717,23 +819,30 @@ def _check_trials(trials: tuple[int, int], confidence: float, name: str = "trial
         raise ValueError(f"confidence must be within (0, 1), got {confidence}")
 
 
-def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
-    """``(size, k)`` indices into ``range(n)``, distinct within each row.
+def _draw_batch(rng: np.random.Generator, n: np.ndarray, size: int, k: int) -> np.ndarray:
+    """``(L, size, k)`` indices, row ``l`` into ``range(n[l])``, distinct within each sample.
 
-    Floyd's algorithm, one column at a time for all rows: for j = n-k .. n-1 draw v uniform in
-    [0, j] and take v, or j if v is already in the row. Every k-subset is equally likely (the
-    order within a row is not uniform, which no model here cares about); no sorting.
+    Floyd's algorithm, one column at a time for all samples: for j = n-k .. n-1 draw v
+    uniform in [0, j] and take v, or j if v is already in the sample. Every k-subset is equally
+    likely (the order within a sample is not uniform, which no model here cares about); no
+    sorting. With one row it draws exactly what ``_draw_samples`` draws.
     """
-    v = (rng.random((size, k)) * (np.arange(n - k, n) + 1.0)).astype(np.intp)
+    v = (rng.random((n.shape[0], size, k)) * (n[:, None, None] - k + np.arange(1.0, k + 1.0)))
+    v = v.astype(np.intp)
     for col in range(1, k):
-        j = n - k + col
-        taken = v[:, :1] == v[:, col : col + 1] if col == 1 else (
-            np.logical_or.reduce(v[:, :col] == v[:, col : col + 1], axis=1, keepdims=True))
-        v[:, col : col + 1] = np.where(taken, j, v[:, col : col + 1])
+        current = v[:, :, col]
+        taken = (v[:, :, 0] == current) if col == 1 else (
+            (v[:, :, :col] == current[:, :, None]).any(axis=2))  # fmt: skip
+        v[:, :, col] = np.where(taken, n[:, None] - k + col, current)
     return v
 
 
-def _trials_needed(n_inliers: int, n: int, k: int, confidence: float) -> float:
+def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
+    """``(size, k)`` indices into ``range(n)``, distinct within each row (see ``_draw_batch``)."""
+    return _draw_batch(rng, np.array([n]), size, k)[0]
+
+
+def _trials_needed(n_inliers: float, n: int, k: int, confidence: float) -> float:
     """Standard RANSAC bound: trials for one all-inlier sample at the given confidence."""
     # Exact probability of an all-inlier sample without replacement (matters for small n).
     p = 1.0
@@ -746,145 +855,238 @@ def _trials_needed(n_inliers: int, n: int, k: int, confidence: float) -> float:
     return math.log(1.0 - confidence) / math.log1p(-p)
 
 
-# A chunk scorer takes the (T, k) sample indices and returns the chunk's best hypothesis as
-# (inlier count, cost, parameters), or None if no sample in the chunk gave a valid hypothesis.
-# Lines and circles rank by count, ties by cost = residual sum over the inliers; the ellipse
-# ranks by cost alone, MSAC's truncated quadratic (see fit_ellipse). Counts may be on a fixed
-# subsample (the ellipse's): the RANSAC bound then uses that subsample's size.
+class Segments:
+    """Scan lines side by side, so that one numpy call serves every line of a frame.
+
+    Row ``l`` holds line ``l``'s ``(N_l, 2)`` points, centred on their mean (``x``, ``y``) and
+    as given (``ox``, ``oy``), padded with NaN to a common width plus one NaN column: padded
+    entries fail every inlier test by themselves, and a sample index pointing at the last
+    column reads NaN. With ~100 points per line the fits are bound by numpy's per-call
+    overhead, not by arithmetic, so four lines cost little more than one.
+
+    Parameters
+    ----------
+    points : sequence of (N_l, 2) arrays
+        Each scan line's points in its plane, metres (validated as by ``fit_line``).
+    """
+
+    __slots__ = ("_bases", "count", "mean", "n", "ox", "oy", "points", "valid", "width", "x", "y")
+
+    def __init__(self, points: Sequence[np.ndarray], *, validated: bool = False) -> None:
+        pts = list(points) if validated else [_as_points(p) for p in points]
+        self.points = pts
+        self.n = n = [p.shape[0] for p in pts]
+        self.count = count = len(pts)
+        self.width = width = (max(n) if n else 0) + 1
+        raw = np.zeros((2, count, width))
+        for i, p in enumerate(pts):
+            raw[:, i, : n[i]] = p.T
+        self.valid = valid = np.arange(width) < np.array(n, dtype=np.intp)[:, None]
+        with np.errstate(all="ignore"):
+            mean = raw.sum(axis=2) / np.maximum(np.array(n, dtype=np.float64), 1.0)
+            centred = np.where(valid, raw - mean[:, :, None], np.nan)
+        self.x, self.y = centred
+        self.ox, self.oy = np.where(valid, raw, np.nan)
+        self.mean = mean.T.tolist()
+        self._bases: dict[str, np.ndarray] = {}
+
+    def take(self, rows: Sequence[int]) -> Segments:
+        """The lines ``rows`` only, sharing this batch's centring."""
+        out = object.__new__(Segments)
+        idx = np.asarray(rows, dtype=np.intp)
+        out.points = [self.points[r] for r in rows]
+        out.n = [self.n[r] for r in rows]
+        out.count, out.width = len(out.n), self.width
+        out.valid, out.x, out.y = self.valid[idx], self.x[idx], self.y[idx]
+        out.ox, out.oy = self.ox[idx], self.oy[idx]
+        out.mean = [self.mean[r] for r in rows]
+        out._bases = {key: value[idx] for key, value in self._bases.items()}
+        return out
+
+    def offsets(self, count: int) -> np.ndarray:
+        """Flat offsets of ``count`` rows, to gather ``(L, T, k)`` sample indices at once."""
+        return (np.arange(count) * self.width)[:, None, None]
+
+    def basis(self, name: str) -> np.ndarray:
+        """``(L, m, W)`` monomials of the centred points, built once per batch."""
+        found = self._bases.get(name)
+        if found is None:
+            x, y, one = self.x, self.y, np.ones_like(self.x)
+            found = np.stack([x, y, one] if name == "line" else [x, y, x * x + y * y, one], axis=1)
+            self._bases[name] = found
+        return found
+
+
+def _segments(points: Segments | Sequence[np.ndarray]) -> Segments:
+    return points if isinstance(points, Segments) else Segments(points)
+
+
+def _goals(min_inliers: Sequence[float] | None, seg: Segments) -> list[float] | None:
+    if min_inliers is None:
+        return None
+    goals = [float(g) for g in min_inliers]
+    if len(goals) != seg.count or not all(math.isfinite(g) for g in goals):
+        raise ValueError(f"min_inliers must hold one finite count per line, got {min_inliers!r}")
+    return goals
+
+
+# A batch scorer takes (L', T, k) sample indices for the rows (scan lines) ``rows`` (None: every
+# row) and returns each row's best hypothesis as (inlier count, cost, parameters), or None where
+# no sample gave a valid hypothesis. Lines and circles rank by count, ties by cost = residual
+# sum over the inliers; the ellipse ranks by cost alone, MSAC's truncated quadratic (see
+# fit_ellipse). Counts may be on a fixed subsample (the ellipse's): the RANSAC bound then uses
+# that subsample's size.
 _Best = tuple[int, float, tuple[float, ...]]
-_Scorer = Callable[[np.ndarray], _Best | None]
+_Scorer = Callable[[np.ndarray, np.ndarray | None], list[_Best | None]]
 
 
 def _ransac(
-    n: int,
+    n: list[int],
+    rows: list[int],
     k: int,
     rng: np.random.Generator,
     trials: tuple[int, int],
     confidence: float,
-    score_chunk: _Scorer,
-    n_scored: int | None = None,
+    score: _Scorer,
+    n_scored: list[int],
     by_cost: bool = False,
-) -> tuple[_Best | None, int]:
+    goals: Sequence[float] | None = None,
+) -> tuple[list[_Best | None], list[int]]:
+    """RANSAC on the scan lines ``rows`` at once: each line keeps its own best hypothesis and
+    its own adaptive budget; a chunk of samples goes to every line that still needs one.
+
+    ``goals`` (per line, in scored points) is the inlier count a hypothesis must reach to be
+    of any use to the caller: the budget is the standard bound for the larger of it and the
+    best count so far, so a line is not searched further for a model that, if it existed,
+    would already have been drawn at ``confidence``.
+    """
     min_trials, max_trials = trials
-    n_scored = n if n_scored is None else n_scored
-    best: _Best | None = None
-    done, needed = 0, float(max_trials)
-    size = min(min_trials, max_trials)
-    while size > 0:
-        found = score_chunk(_draw_samples(rng, n, size, k))
-        done += size
-        if found is not None and (
-            best is None
-            or (by_cost and found[1] < best[1])
-            or (not by_cost and (found[0], -found[1]) > (best[0], -best[1]))
-        ):
-            best = found
-            needed = _trials_needed(best[0], n_scored, k, confidence)
-        remaining = min(float(max_trials), needed) - done
-        size = 0 if remaining <= 0 else min(max(math.ceil(remaining), min_trials),
-                                            max_trials - done)  # fmt: skip
+    best: list[_Best | None] = [None] * len(n)
+    done = [0] * len(n)
+    goal = [0.0] * len(n) if goals is None else [float(g) for g in goals]
+    needed = [
+        float(max_trials) if g <= 0.0 else _trials_needed(g, m, k, confidence)
+        for g, m in zip(goal, n_scored, strict=True)
+    ]
+    size, spent = min(min_trials, max_trials), 0
+    while rows and size > 0:
+        idx = _draw_batch(rng, np.array([n[r] for r in rows]), size, k)
+        found = score(idx, None if len(rows) == len(n) else np.array(rows))
+        spent += size
+        active, remaining = [], 0.0
+        for r, f in zip(rows, found, strict=True):
+            done[r] = spent
+            b = best[r]
+            if f is not None and (
+                b is None
+                or (by_cost and f[1] < b[1])
+                or (not by_cost and (f[0], -f[1]) > (b[0], -b[1]))
+            ):
+                best[r] = f
+                needed[r] = _trials_needed(max(f[0], goal[r]), n_scored[r], k, confidence)
+            left = min(float(max_trials), needed[r]) - spent
+            if left > 0:
+                active.append(r)
+                remaining = max(remaining, left)
+        # Rows still active have all drawn every chunk so far: one size serves them all.
+        rows = active
+        size = min(max(math.ceil(remaining), min_trials), max_trials - spent) if rows else 0
     return best, done
-
-
-def _pick(
-    counts: np.ndarray, residual_sums: Callable[[np.ndarray], np.ndarray]
-) -> tuple[int, float] | None:
-    """Row with the most inliers and its residual sum; ties go to the lowest residual sum,
-    then the first row. None if no row has an inlier (every sample was degenerate)."""
-    top = counts.max()
-    if top == 0:
-        return None
-    tied = np.flatnonzero(counts == top)
-    sums = residual_sums(tied)
-    j = int(np.argmin(sums)) if tied.size > 1 else 0
-    return int(tied[j]), float(sums[j])
-
-
-class _Points:
-    """A validated scan line, centred on its mean: every fit runs in centred coordinates."""
-
-    __slots__ = ("_circle_basis", "_line_basis", "mean", "n", "points", "x", "y")
-
-    def __init__(self, points: np.ndarray) -> None:
-        self.points = _as_points(points)
-        self.n = n = self.points.shape[0]
-        mean = self.points.sum(axis=0) / n if n else np.zeros(2)
-        self.mean = (float(mean[0]), float(mean[1]))
-        centred = self.points - mean
-        self.x = np.ascontiguousarray(centred[:, 0])
-        self.y = np.ascontiguousarray(centred[:, 1])
-        self._line_basis: np.ndarray | None = None
-        self._circle_basis: np.ndarray | None = None
-
-    def line_basis(self) -> np.ndarray:
-        if self._line_basis is None:
-            self._line_basis = np.array([self.x, self.y, np.ones(self.n)])
-        return self._line_basis
-
-    def circle_basis(self) -> np.ndarray:
-        if self._circle_basis is None:
-            x, y = self.x, self.y
-            self._circle_basis = np.array([x, y, x * x + y * y, np.ones(self.n)])
-        return self._circle_basis
 
 
 def _none(n: int) -> np.ndarray:
     return _frozen(np.zeros(n, bool))
 
 
+def _column(values: list[float]) -> np.ndarray:
+    return np.array(values, dtype=np.float64)[:, None]
+
+
 # --------------------------------------------------------------------------- fit_line
 
 
-def _line_scorer(pts: _Points, threshold: float) -> _Scorer:
-    x, y = pts.x, pts.y
-    basis = pts.line_basis()  # (3, N): x, y, 1
+def _line_scorer(seg: Segments, threshold: float) -> _Scorer:
+    basis_all = seg.basis("line")  # (L, 3, W): x, y, 1
+    n_plus = np.array(seg.n, dtype=np.float64) + 1.0
 
-    def score(idx: np.ndarray) -> _Best | None:
-        x0, y0 = x[idx[:, 0]], y[idx[:, 0]]
-        ex, ey = x[idx[:, 1]] - x0, y[idx[:, 1]] - y0
+    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
+        if rows is None:
+            x, y, basis, norm = seg.x, seg.y, basis_all, n_plus
+        else:
+            x, y, basis, norm = seg.x[rows], seg.y[rows], basis_all[rows], n_plus[rows]
+        g = idx + seg.offsets(x.shape[0])
+        px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 2)
+        x0, y0 = px[:, :, 0], py[:, :, 0]
+        ex, ey = px[:, :, 1] - x0, py[:, :, 1] - y0
         # |e x (p - p0)| = |e| * distance, for every hypothesis and point in one product.
-        coef = np.array([-ey, ex, ey * x0 - ex * y0])  # (3, T)
+        coef = np.stack([-ey, ex, ey * x0 - ex * y0], axis=2)  # (L, T, 3)
         length = np.hypot(ex, ey)
         # Repeated points (length 0) must count nothing.
         limit = np.where(length > 0.0, threshold * length, -1.0)
-        dist = np.abs(coef.T @ basis)
-        inl = dist <= limit[:, None]
-        counts = inl.sum(axis=1)
-        picked = _pick(counts, lambda rows: (dist[rows] * inl[rows]).sum(axis=1) / length[rows])
-        if picked is None:
-            return None
-        i, total = picked
-        li = float(length[i])
-        return int(counts[i]), total, (float(coef[0, i]) / li, float(coef[1, i]) / li,
-                                       float(coef[2, i]) / li)  # fmt: skip
+        dist = np.abs(coef @ basis)  # (L, T, W); NaN on padding, never an inlier
+        inl = dist <= limit[:, :, None]
+        counts = inl.sum(axis=2)
+        # Residual sum over the inliers in units of the threshold: below the count, so a
+        # penalty sum / (n + 1) < 1 breaks ties of count without ever outweighing an inlier.
+        sums = np.where(inl, dist, 0.0).sum(axis=2) / limit
+        i = (counts - sums / norm[:, None]).argmax(axis=1)
+        r = np.arange(i.shape[0])
+        top, total = counts[r, i].tolist(), (sums[r, i] * threshold).tolist()
+        with np.errstate(all="ignore"):  # length 0: no inlier, no model
+            params = (coef[r, i] / length[r, i, None]).tolist()
+        return [
+            None if c == 0 else (c, t, tuple(p))
+            for c, t, p in zip(top, total, params, strict=True)
+        ]
 
     return score
 
 
-def _fit_line(
-    pts: _Points,
+def _fit_lines(
+    seg: Segments,
     threshold: float,
     rng: np.random.Generator,
     trials: tuple[int, int],
     confidence: float,
-) -> LineFit | FailedFit:
-    n = pts.n
-    if n < 2:
-        return FailedFit(f"a line needs at least 2 points, got {n}", _none(n))
-    best, done = _ransac(n, 2, rng, trials, confidence, _line_scorer(pts, threshold))
-    if best is None:
-        return FailedFit("line: every sample was degenerate", _none(n), done)
-    nx, ny, c = best[2]
-    x, y = pts.x, pts.y
+    goals: Sequence[float] | None = None,
+) -> list[LineFit | FailedFit]:
+    out: list[LineFit | FailedFit] = [
+        FailedFit(f"a line needs at least 2 points, got {m}", _none(m)) for m in seg.n
+    ]
+    rows = [r for r, m in enumerate(seg.n) if m >= 2]
+    best, done = _ransac(seg.n, rows, 2, rng, trials, confidence,
+                         _line_scorer(seg, threshold), seg.n, goals=goals)  # fmt: skip
+    found = [r for r in rows if best[r] is not None]
+    for r in rows:
+        if best[r] is None:
+            out[r] = FailedFit("line: every sample was degenerate", _none(seg.n[r]), done[r])
+    if not found:
+        return out
+    nan3 = (math.nan, math.nan, math.nan)
+    nx, ny, c = (_column(v) for v in zip(*(best[r][2] if best[r] else nan3
+                                            for r in range(seg.count)), strict=True))  # fmt: skip
+    x, y = seg.x, seg.y
     inl = np.abs(nx * x + ny * y + c) <= threshold
-    model = _line_lsq(x[inl], y[inl])
-    if model:
-        (px, py), (dx, dy) = model.origin, model.direction
-    else:  # only if every inlier coincides, which two distinct inliers rule out
-        px, py, dx, dy = -c * nx, -c * ny, ny, -nx
-    px, py = px + pts.mean[0], py + pts.mean[1]
-    inliers = _line_distance(pts.points[:, 0], pts.points[:, 1], px, py, dx, dy) <= threshold
-    return LineFit(origin=(px, py), direction=(dx, dy), inliers=_frozen(inliers), trials=done)
+    # Total least squares on each line's inliers, one line at a time: summing the compact
+    # inliers keeps exact data exact (a padded row would reorder numpy's pairwise sums).
+    xi, yi, ends = x[inl], y[inl], np.cumsum(inl.sum(axis=1)).tolist()
+    line = [(*nan3, math.nan)] * seg.count
+    for r in found:
+        lo = ends[r - 1] if r else 0
+        model = _line_lsq(xi[lo : ends[r]], yi[lo : ends[r]])
+        if model:
+            (px, py), (ux, uy) = model.origin, model.direction
+        else:  # only if every inlier coincides, which two distinct inliers rule out
+            a, b, cc = best[r][2]
+            px, py, ux, uy = -cc * a, -cc * b, b, -a
+        line[r] = (px + seg.mean[r][0], py + seg.mean[r][1], ux, uy)
+    px, py, ux, uy = (_column(v) for v in zip(*line, strict=True))
+    inliers = _line_distance(seg.ox, seg.oy, px, py, ux, uy) <= threshold
+    for r in found:
+        p = line[r]
+        out[r] = LineFit(origin=(p[0], p[1]), direction=(p[2], p[3]),
+                         inliers=_frozen(inliers[r, : seg.n[r]]), trials=done[r])  # fmt: skip
+    return out
 
 
 def fit_line(
@@ -930,34 +1132,61 @@ def fit_line(
     >>> round(line.inlier_fraction, 2), round(line.direction[1] / line.direction[0], 2)
     (0.9, 0.1)
     """
-    pts = _Points(points)
+    seg = Segments([points])
     threshold = _check_threshold(threshold)
     _check_trials((min_trials, max_trials), confidence)
-    return _fit_line(pts, threshold, np.random.default_rng(seed), (min_trials, max_trials),
-                     confidence)  # fmt: skip
+    return _fit_lines(seg, threshold, np.random.default_rng(seed), (min_trials, max_trials),
+                      confidence)[0]  # fmt: skip
+
+
+def fit_lines(
+    segments: Segments | Sequence[np.ndarray],
+    threshold: float,
+    *,
+    max_trials: int = LINE_TRIALS[1],
+    min_trials: int = LINE_TRIALS[0],
+    confidence: float = CONFIDENCE,
+    seed: int | np.random.Generator = 0,
+    min_inliers: Sequence[float] | None = None,
+) -> list[LineFit | FailedFit]:
+    """:func:`fit_line` on several scan lines at once, one result per line.
+
+    Every line draws its samples from the one generator ``default_rng(seed)``, so a line's
+    result depends on which lines share the call (each is as good a RANSAC as alone).
+    ``min_inliers`` (one per line, optional) is the inlier count below which the caller has no
+    use for a line's model: the adaptive budget then stops once such a model, if it existed,
+    would have been drawn at ``confidence`` (see ``_ransac``).
+    """
+    seg = _segments(segments)
+    threshold = _check_threshold(threshold)
+    _check_trials((min_trials, max_trials), confidence)
+    return _fit_lines(seg, threshold, np.random.default_rng(seed), (min_trials, max_trials),
+                      confidence, _goals(min_inliers, seg))  # fmt: skip
 
 
 # --------------------------------------------------------------------------- fit_circle
 
 
-def _circle_scorer(pts: _Points, threshold: float, limits: tuple[float, float]) -> _Scorer:
-    x, y = pts.x, pts.y
-    basis = pts.circle_basis()  # (4, N): x, y, x^2 + y^2, 1
+def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float]) -> _Scorer:
+    basis_all = seg.basis("circle")  # (L, 4, W): x, y, x^2 + y^2, 1
+    n_plus = np.array(seg.n, dtype=np.float64) + 1.0
     r_lo = limits[0]
     lo2, hi2 = limits[0] ** 2, limits[1] ** 2
     unbounded = math.isinf(hi2)
     t2 = threshold * threshold
-    ones = np.ones(0)
 
-    def score(idx: np.ndarray) -> _Best | None:
-        nonlocal ones
-        if ones.shape[0] != idx.shape[0]:
-            ones = np.ones(idx.shape[0])
-        px, py = x[idx], y[idx]  # (T, 3)
+    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
+        if rows is None:
+            x, y, basis, norm = seg.x, seg.y, basis_all, n_plus
+        else:
+            x, y, basis, norm = seg.x[rows], seg.y[rows], basis_all[rows], n_plus[rows]
+        g = idx + seg.offsets(x.shape[0])
+        px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 3)
         # Circumcentre relative to the first point; b, e the other two points' offsets.
-        dx, dy = px[:, 1:] - px[:, :1], py[:, 1:] - py[:, :1]
+        dx, dy = px[:, :, 1:] - px[:, :, :1], py[:, :, 1:] - py[:, :, :1]
         sq = dx * dx + dy * dy
-        bx, ex, by, ey, bb, ee = dx[:, 0], dx[:, 1], dy[:, 0], dy[:, 1], sq[:, 0], sq[:, 1]
+        bx, ex, by, ey = dx[:, :, 0], dx[:, :, 1], dy[:, :, 0], dy[:, :, 1]
+        bb, ee = sq[:, :, 0], sq[:, :, 1]
         cross = 2.0 * (bx * ey - by * ex)
         with np.errstate(all="ignore"):
             ux = (ey * bb - by * ee) / cross
@@ -968,55 +1197,87 @@ def _circle_scorer(pts: _Points, threshold: float, limits: tuple[float, float]) 
             ok = (r2 >= lo2) & (r2 <= hi2)
             if unbounded:
                 ok &= np.abs(cross) > 1e-12 * (bb + ee)
-            cx, cy, r = px[:, 0] + ux, py[:, 0] + uy, np.sqrt(r2)
+            cx, cy, r = px[:, :, 0] + ux, py[:, :, 0] + uy, np.sqrt(r2)
             # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt
-            # on the (T, N) array, and |p - c|^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
+            # for the test, and rho^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
             if r_lo >= threshold:  # then r - t >= 0 on every valid row
                 mid, half = r2 + t2, 2.0 * threshold * r
             else:
                 rlo, rhi = np.maximum(r - threshold, 0.0), r + threshold
                 mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
             half = np.where(ok, half, -1.0)
-            coef = np.array([-2.0 * cx, -2.0 * cy, ones, cx * cx + cy * cy - mid])
-            off = np.abs(coef.T @ basis)
-        counts = (off <= half[:, None]).sum(axis=1)
-
-        def residual_sums(rows: np.ndarray) -> np.ndarray:
-            d = np.abs(np.hypot(x - cx[rows, None], y - cy[rows, None]) - r[rows, None])
-            return np.where(d <= threshold, d, 0.0).sum(axis=1)
-
-        picked = _pick(counts, residual_sums)
-        if picked is None:
-            return None
-        i, total = picked
-        return int(counts[i]), total, (float(cx[i]), float(cy[i]), float(r[i]))
+            coef = np.stack([-2.0 * cx, -2.0 * cy, np.ones_like(cx), cx * cx + cy * cy - mid],
+                            axis=2)  # fmt: skip
+            q = coef @ basis  # (L, T, W): rho^2 - mid, NaN on padding
+            inl = np.abs(q) <= half[:, :, None]
+            counts = inl.sum(axis=2)
+            # Tie-break: residual sums over the inliers, in thresholds (see _line_scorer).
+            d = np.abs(np.sqrt(np.maximum(q + mid[:, :, None], 0.0)) - r[:, :, None])
+            sums = np.where(inl, d, 0.0).sum(axis=2) / threshold
+        i = (counts - sums / norm[:, None]).argmax(axis=1)
+        k = np.arange(i.shape[0])
+        top, total = counts[k, i].tolist(), (sums[k, i] * threshold).tolist()
+        params = np.stack([cx[k, i], cy[k, i], r[k, i]], axis=1).tolist()
+        return [
+            None if c == 0 else (c, t, tuple(p))
+            for c, t, p in zip(top, total, params, strict=True)
+        ]
 
     return score
 
 
-def _fit_circle(
-    pts: _Points,
+def _fit_circles(
+    seg: Segments,
     threshold: float,
     limits: tuple[float, float],
     rng: np.random.Generator,
     trials: tuple[int, int],
     confidence: float,
-) -> CircleFit | FailedFit:
-    n = pts.n
-    if n < 3:
-        return FailedFit(f"a circle needs at least 3 points, got {n}", _none(n))
-    best, done = _ransac(n, 3, rng, trials, confidence, _circle_scorer(pts, threshold, limits))
-    if best is None:
-        return FailedFit("circle: no sample gave a circle within radius_limits", _none(n), done)
-    cx, cy, r = best[2]
-    inl = _circle_distance(pts.x, pts.y, cx, cy, r) <= threshold
-    refit = _circle_lsq(pts.x[inl], pts.y[inl])
-    # The refit may leave the radius limits (e.g. on a flat face); then keep the sample's.
-    if refit and limits[0] <= refit.radius <= limits[1]:
-        (cx, cy), r = refit.center, refit.radius
-    cx, cy = cx + pts.mean[0], cy + pts.mean[1]
-    inliers = _circle_distance(pts.points[:, 0], pts.points[:, 1], cx, cy, r) <= threshold
-    return CircleFit(center=(cx, cy), radius=r, inliers=_frozen(inliers), trials=done)
+    goals: Sequence[float] | None = None,
+    geometric: bool = True,
+) -> list[CircleFit | FailedFit]:
+    out: list[CircleFit | FailedFit] = [
+        FailedFit(f"a circle needs at least 3 points, got {m}", _none(m)) for m in seg.n
+    ]
+    rows = [r for r, m in enumerate(seg.n) if m >= 3]
+    best, done = _ransac(seg.n, rows, 3, rng, trials, confidence,
+                         _circle_scorer(seg, threshold, limits), seg.n, goals=goals)  # fmt: skip
+    for r in rows:
+        if best[r] is None:
+            out[r] = FailedFit("circle: no sample gave a circle within radius_limits",
+                               _none(seg.n[r]), done[r])  # fmt: skip
+    found = [r for r in rows if best[r] is not None]
+    if not found:
+        return out
+    nan3 = (math.nan, math.nan, math.nan)
+    cx, cy, rad = (_column(v) for v in zip(*(best[r][2] if best[r] else nan3
+                                             for r in range(seg.count)), strict=True))  # fmt: skip
+    x, y = seg.x, seg.y
+    inl = _circle_distance(x, y, cx, cy, rad) <= threshold
+    if geometric:
+        xi, yi, ends = x[inl], y[inl], np.cumsum(inl.sum(axis=1)).tolist()
+        refits: list[tuple[float, float, float] | None] = []
+        for r in range(seg.count):
+            lo = ends[r - 1] if r else 0
+            refit = _circle_lsq(xi[lo : ends[r]], yi[lo : ends[r]]) if r in found else None
+            refits.append((*refit.center, refit.radius) if refit else None)
+    else:
+        refits = _circle_kasa_batch(x, y, inl)
+    circle = [nan3] * seg.count
+    for r in found:
+        cxr, cyr, rr = best[r][2]
+        refit = refits[r]
+        # The refit may leave the radius limits (e.g. on a flat face); then keep the sample's.
+        if refit is not None and limits[0] <= refit[2] <= limits[1]:
+            cxr, cyr, rr = refit
+        circle[r] = (cxr + seg.mean[r][0], cyr + seg.mean[r][1], rr)
+    cx, cy, rad = (_column(v) for v in zip(*circle, strict=True))
+    inliers = _circle_distance(seg.ox, seg.oy, cx, cy, rad) <= threshold
+    for r in found:
+        c = circle[r]
+        out[r] = CircleFit(center=(c[0], c[1]), radius=c[2],
+                           inliers=_frozen(inliers[r, : seg.n[r]]), trials=done[r])  # fmt: skip
+    return out
 
 
 def fit_circle(
@@ -1028,6 +1289,7 @@ def fit_circle(
     min_trials: int = CIRCLE_TRIALS[0],
     confidence: float = CONFIDENCE,
     seed: int | np.random.Generator = 0,
+    geometric: bool = True,
 ) -> CircleFit | FailedFit:
     """RANSAC circle on one scan line: inliers are points within ``threshold`` of the circle.
 
@@ -1035,6 +1297,8 @@ def fit_circle(
     repeated samples and radii outside ``radius_limits`` are rejected. The best by inlier
     count (ties: lower residual sum) is refitted by geometric least squares on its inliers
     (kept only if the radius stays within the limits) and the inliers recomputed once.
+    With ``geometric=False`` the refit is Kasa's algebraic circle alone (the radius the mean
+    distance to its centre), which is biased on a partial arc by a few tenths of a mm.
 
     Parameters
     ----------
@@ -1046,6 +1310,8 @@ def fit_circle(
         Accepted radii ``(low, high)``, metres; PCL's 5-50 mm by default.
     max_trials, min_trials, confidence, seed
         As for :func:`fit_line`.
+    geometric : bool
+        Polish the refit by Gauss-Newton on the orthogonal distances.
 
     Returns
     -------
@@ -1061,12 +1327,35 @@ def fit_circle(
     >>> abs(circle.radius - 0.02) < 5e-4, circle.inlier_fraction > 0.9
     (True, True)
     """
-    pts = _Points(points)
+    seg = Segments([points])
     threshold = _check_threshold(threshold)
     limits = _check_limits(radius_limits, "radius_limits")
     _check_trials((min_trials, max_trials), confidence)
-    return _fit_circle(pts, threshold, limits, np.random.default_rng(seed),
-                       (min_trials, max_trials), confidence)  # fmt: skip
+    return _fit_circles(seg, threshold, limits, np.random.default_rng(seed),
+                        (min_trials, max_trials), confidence, geometric=geometric)[0]  # fmt: skip
+
+
+def fit_circles(
+    segments: Segments | Sequence[np.ndarray],
+    threshold: float,
+    *,
+    radius_limits: tuple[float, float] = RADIUS_LIMITS_M,
+    max_trials: int = CIRCLE_TRIALS[1],
+    min_trials: int = CIRCLE_TRIALS[0],
+    confidence: float = CONFIDENCE,
+    seed: int | np.random.Generator = 0,
+    geometric: bool = True,
+    min_inliers: Sequence[float] | None = None,
+) -> list[CircleFit | FailedFit]:
+    """:func:`fit_circle` on several scan lines at once, one result per line (see
+    :func:`fit_lines`, also for ``min_inliers``)."""
+    seg = _segments(segments)
+    threshold = _check_threshold(threshold)
+    limits = _check_limits(radius_limits, "radius_limits")
+    _check_trials((min_trials, max_trials), confidence)
+    return _fit_circles(seg, threshold, limits, np.random.default_rng(seed),
+                        (min_trials, max_trials), confidence, _goals(min_inliers, seg),
+                        geometric)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- fit_ellipse
@@ -1094,28 +1383,24 @@ def _five_point_conics(px: np.ndarray, py: np.ndarray) -> np.ndarray:
     return pair[:, :, 0] * at5[:, 1] - pair[:, :, 1] * at5[:, 0]
 
 
-def _sampson_terms(conic: np.ndarray, mono: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``F^2`` and ``|grad F|^2`` ``(T, M)`` of conics ``(6, T)`` at points whose monomials
-    ``[x^2, xy, y^2, x, y, 1]`` are ``mono`` ``(6, M)``.
+def _sampson_ratio(conic: np.ndarray, mono: np.ndarray) -> np.ndarray:
+    """``F^2 / |grad F|^2`` ``(L, T, M)`` of conics ``(L, T, 6)`` at points whose monomials
+    ``[x^2, xy, y^2, x, y, 1]`` are ``mono`` ``(L, 6, M)``.
 
     The Sampson distance ``|F| / |grad F|`` is the orthogonal distance to first order and is
-    free of the conic's scale; the test ``F^2 <= t^2 |grad F|^2`` needs no sqrt or division.
+    free of the conic's scale. NaN where the gradient vanishes or the point is padding.
     """
-    A, B, C, D, E = conic[:5]
-    f = conic.T @ mono
-    lin = mono[3:]
-    gx = np.array([2.0 * A, B, D]).T @ lin
-    gy = np.array([B, 2.0 * C, E]).T @ lin
-    return f * f, gx * gx + gy * gy
-
-
-def _sampson_residual_sums(f2: np.ndarray, g2: np.ndarray, inl: np.ndarray) -> np.ndarray:
+    A, B, C, D, E = (conic[:, :, i] for i in range(5))
+    f = conic @ mono
+    lin = mono[:, 3:]
+    gx = np.stack([2.0 * A, B, D], axis=2) @ lin
+    gy = np.stack([B, 2.0 * C, E], axis=2) @ lin
     with np.errstate(all="ignore"):
-        return np.where(inl, np.sqrt(f2 / g2), 0.0).sum(axis=1)
+        return f * f / (gx * gx + gy * gy)
 
 
-def _ellipse_ok(conic: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Which conics ``(6, T)`` are real ellipses with semi-axes within ``[lo, hi]``."""
+def _ellipse_ok(conic: np.ndarray, lo: float | np.ndarray, hi: float | np.ndarray) -> np.ndarray:
+    """Which conics ``(6, ...)`` are real ellipses with semi-axes within ``[lo, hi]``."""
     A, B, C, D, E, F = conic
     with np.errstate(all="ignore"):
         det = 4.0 * A * C - B * B
@@ -1131,94 +1416,163 @@ def _ellipse_ok(conic: np.ndarray, lo: float, hi: float) -> np.ndarray:
             g <= hi * hi * det * (am - h))
 
 
-def _ellipse_scorer(
-    x: np.ndarray, y: np.ndarray, threshold: float, limits: tuple[float, float]
-) -> tuple[_Scorer, int]:
-    """Scorer over normalised coordinates ``x, y``; also the number of points it counts on."""
-    n = x.shape[0]
-    stride = max(1, -(-n // ELLIPSE_SCORE_POINTS))
-    xs, ys = x[::stride], y[::stride]
-    mono = np.array([xs * xs, xs * ys, ys * ys, xs, ys, np.ones(xs.shape[0])])
-    full: list[np.ndarray] = []  # every point's monomials, built on first need
-    lo, hi = limits
-    t2 = threshold * threshold
+class _EllipseFrame:
+    """The rows' points in each line's normalised frame (centred, RMS radius 1), so conic
+    coefficients and Sampson terms stay O(1), with the strided subsample hypotheses are
+    first scored on."""
 
-    def score(idx: np.ndarray) -> _Best | None:
+    def __init__(self, seg: Segments, rows: list[int], spread: list[float], threshold: float,
+                 limits: tuple[float, float]) -> None:  # fmt: skip
+        self.seg = sub = seg.take(rows) if len(rows) != seg.count else seg
+        self.scale = scale = [math.sqrt(s / m) for s, m in zip(spread, sub.n, strict=True)]
+        inv = _column([1.0 / v for v in scale])
+        self.x, self.y = sub.x * inv, sub.y * inv
+        self.t2 = (threshold * inv) ** 2  # (L, 1)
+        self.lo, self.hi = limits[0] * inv, limits[1] * inv
+        self.stride = stride = [max(1, -(-m // ELLIPSE_SCORE_POINTS)) for m in sub.n]
+        self.n_scored = [-(-m // s) for m, s in zip(sub.n, stride, strict=True)]
+        j = np.arange(ELLIPSE_SCORE_POINTS)
+        picks = np.where(j < np.array(self.n_scored)[:, None], j * np.array(stride)[:, None],
+                         sub.width - 1)  # fmt: skip
+        picks += (np.arange(sub.count) * sub.width)[:, None]
+        xs, ys = self.x.ravel()[picks], self.y.ravel()[picks]
+        self.mono_sub = self._mono(xs, ys)
+        self.pad_sub = _column([ELLIPSE_SCORE_POINTS - m for m in self.n_scored])
+        self.pad = _column([sub.width - m for m in sub.n])
+        self.stride_col = _column([float(s) for s in stride])
+        self._mono_full: np.ndarray | None = None
+
+    @staticmethod
+    def _mono(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+
+    def mono_full(self) -> np.ndarray:
+        if self._mono_full is None:
+            self._mono_full = self._mono(self.x, self.y)
+        return self._mono_full
+
+
+def _ellipse_scorer(frame: _EllipseFrame) -> _Scorer:
+    """Hypotheses scored by MSAC's cost on the subsample; each line's best ``ELLIPSE_TOP``
+    are rescored on every point."""
+
+    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
+        f = frame
+        x, y, sub, full = f.x, f.y, f.mono_sub, f.mono_full()
+        lo, hi, t2, pad_sub, pad, stride = f.lo, f.hi, f.t2, f.pad_sub, f.pad, f.stride_col
+        if rows is not None:
+            x, y, sub, full, lo, hi = x[rows], y[rows], sub[rows], full[rows], lo[rows], hi[rows]
+            t2, pad_sub, pad, stride = t2[rows], pad_sub[rows], pad[rows], stride[rows]
+        count, trials = idx.shape[0], idx.shape[1]
+        g = (idx + f.seg.offsets(count)).reshape(-1, 5)
         with np.errstate(all="ignore"):
-            conic = _five_point_conics(x[idx], y[idx])
-        ok = _ellipse_ok(conic, lo, hi)
-        if not ok.any():
-            return None
-        conic = conic[:, ok]
-        f2, g2 = _sampson_terms(conic, mono)
-        with np.errstate(all="ignore"):
-            ratio = f2 / g2
-        inl = ratio <= t2
-        cost = np.where(inl, ratio, t2).sum(axis=1)
-        if stride > 1:
-            top = np.argsort(cost, kind="stable")[:ELLIPSE_TOP]
-            if not full:
-                full.append(np.array([x * x, x * y, y * y, x, y, np.ones(n)]))
-            conic = conic[:, top]
-            f2, g2 = _sampson_terms(conic, full[0])
-            with np.errstate(all="ignore"):
-                ratio = f2 / g2
-            inl = ratio <= t2
-            cost = np.where(inl, ratio, t2).sum(axis=1) / stride
-        i = int(np.argmin(cost))
-        count = inl[i].sum() / stride
-        if count == 0:
-            return None
-        # MSAC: rank by the truncated quadratic cost; report it as a negative "count" key.
-        return int(count + 0.5), float(cost[i]), tuple(conic[:, i].tolist())
+            conic = _five_point_conics(x.ravel()[g], y.ravel()[g]).reshape(6, count, trials)
+        ok = _ellipse_ok(conic, lo, hi)  # (L, T)
+        conic = conic.transpose(1, 2, 0)  # (L, T, 6)
+        ratio = _sampson_ratio(conic, sub)
+        # Padding is NaN, so never an inlier: it adds t2 to every hypothesis; take it off.
+        cost = np.where(ratio <= t2[:, :, None], ratio, t2[:, :, None]).sum(axis=2) - pad_sub * t2
+        cost = np.where(ok, cost, np.inf)
+        top = np.argsort(cost, axis=1, kind="stable")[:, :ELLIPSE_TOP]
+        conic = np.take_along_axis(conic, top[:, :, None], axis=1)  # (L, TOP, 6)
+        ok = np.take_along_axis(ok, top, axis=1)
+        ratio = _sampson_ratio(conic, full)
+        inl = ratio <= t2[:, :, None]
+        cost = (np.where(inl, ratio, t2[:, :, None]).sum(axis=2) - pad * t2) / stride
+        cost = np.where(ok, cost, np.inf)
+        i = cost.argmin(axis=1)
+        k = np.arange(count)
+        counts = (inl[k, i].sum(axis=1) / stride[:, 0]).tolist()
+        costs, params = cost[k, i].tolist(), conic[k, i].tolist()
+        # MSAC: rank by the truncated quadratic cost; the count (in subsample points) only
+        # feeds the RANSAC bound.
+        return [
+            None if c == math.inf or m == 0 else (int(m + 0.5), c, tuple(p))
+            for m, c, p in zip(counts, costs, params, strict=True)
+        ]
 
-    return score, xs.shape[0]
+    return score
 
 
-def _fit_ellipse(
-    pts: _Points,
+def _fit_ellipses(
+    seg: Segments,
     threshold: float,
     limits: tuple[float, float],
     rng: np.random.Generator,
     trials: tuple[int, int],
     confidence: float,
     geometric: bool,
-) -> EllipseFit | FailedFit:
-    n = pts.n
-    if n < 5:
-        return FailedFit(f"an ellipse needs at least 5 points, got {n}", _none(n))
-    # Hypotheses live in the scan line's normalised frame (centred, RMS radius 1), so the
-    # conic coefficients and Sampson terms stay O(1).
-    scale = math.sqrt(float(pts.x @ pts.x + pts.y @ pts.y) / n)
-    if not scale > 0.0:
-        return FailedFit("ellipse: all points coincide", _none(n))
-    inv = 1.0 / scale
-    x, y = pts.x * inv, pts.y * inv
-    t_n = threshold * inv
-    lim_n = (limits[0] * inv, limits[1] * inv)
-    score, n_scored = _ellipse_scorer(x, y, t_n, lim_n)
-    best, done = _ransac(n, 5, rng, trials, confidence, score, n_scored, by_cost=True)
-    if best is None:
-        return FailedFit("ellipse: no sample gave an ellipse within axis_limits", _none(n), done)
-    mono = np.array([x * x, x * y, y * y, x, y, np.ones(n)])
-    f2, g2 = _sampson_terms(np.array(best[2])[:, None], mono)
-    inl = f2[0] <= g2[0] * (t_n * t_n)
-    found: EllipseModel | FailedFit = _ellipse_lsq(pts.x[inl], pts.y[inl])
-    if found and geometric:
-        found = _ellipse_geometric(pts.x[inl], pts.y[inl], found) or found
-    if not (found and limits[0] <= found.axis_lengths[1] and found.axis_lengths[0] <= limits[1]):
-        # The refit left the limits (or failed): keep the sample's ellipse.
-        params = _conic_params(*best[2])
-        if params is None:  # validated as an ellipse when drawn; round-off only
-            return FailedFit("ellipse: degenerate conic", _none(n), done)
-        cx, cy, a, b, theta = params
-        found = EllipseModel(center=(cx * scale, cy * scale),
-                             axis_lengths=(a * scale, b * scale), theta=theta)  # fmt: skip
-    (cx, cy), axes, theta = found.center, found.axis_lengths, found.theta
-    cx, cy = cx + pts.mean[0], cy + pts.mean[1]
-    residuals = _ellipse_residuals(pts.points[:, 0], pts.points[:, 1], cx, cy, *axes, theta)
-    return EllipseFit(center=(cx, cy), axis_lengths=axes, theta=theta,
-                      inliers=_frozen(residuals <= threshold), trials=done)  # fmt: skip
+    goals: Sequence[float] | None = None,
+) -> list[EllipseFit | FailedFit]:
+    out: list[EllipseFit | FailedFit] = [
+        FailedFit(f"an ellipse needs at least 5 points, got {m}", _none(m)) for m in seg.n
+    ]
+    with np.errstate(all="ignore"):
+        spread = np.where(seg.valid, seg.x * seg.x + seg.y * seg.y, 0.0).sum(axis=1).tolist()
+    rows = []
+    for r, m in enumerate(seg.n):
+        if m < 5:
+            continue
+        if spread[r] > 0.0 and math.isfinite(spread[r]):
+            rows.append(r)
+        else:
+            out[r] = FailedFit("ellipse: all points coincide", _none(m))
+    if not rows:
+        return out
+    frame = _EllipseFrame(seg, rows, [spread[r] for r in rows], threshold, limits)
+    sub = frame.seg
+    # Goals count scored points, a subsample of each line.
+    scored = None if goals is None else [
+        goals[r] * m / seg.n[r] for r, m in zip(rows, frame.n_scored, strict=True)]  # fmt: skip
+    best, done = _ransac(sub.n, list(range(sub.count)), 5, rng, trials, confidence,
+                         _ellipse_scorer(frame), frame.n_scored, by_cost=True,
+                         goals=scored)  # fmt: skip
+    nan6 = (math.nan,) * 6
+    conics = np.array([b[2] if b else nan6 for b in best])[:, None, :]  # (L, 1, 6)
+    inl = (_sampson_ratio(conics, frame.mono_full())[:, 0] <= frame.t2)
+    if geometric:
+        xi, yi, ends = sub.x[inl], sub.y[inl], np.cumsum(inl.sum(axis=1)).tolist()
+        refits: list[EllipseModel | FailedFit] = []
+        for k in range(sub.count):
+            lo = ends[k - 1] if k else 0
+            x, y = xi[lo : ends[k]], yi[lo : ends[k]]
+            model: EllipseModel | FailedFit = _ellipse_lsq(x, y)
+            refits.append((_ellipse_geometric(x, y, model) or model) if model else model)
+    else:
+        refits = _ellipse_direct_batch(sub.x, sub.y, inl)
+    found = []
+    for k, r in enumerate(rows):
+        if best[k] is None:
+            out[r] = FailedFit("ellipse: no sample gave an ellipse within axis_limits",
+                               _none(seg.n[r]), done[k])  # fmt: skip
+            continue
+        model = refits[k]
+        if not (model and limits[0] <= model.axis_lengths[1]
+                and model.axis_lengths[0] <= limits[1]):  # fmt: skip
+            # The refit left the limits (or failed): keep the sample's ellipse.
+            params = _conic_params(*best[k][2])
+            if params is None:  # validated as an ellipse when drawn; round-off only
+                out[r] = FailedFit("ellipse: degenerate conic", _none(seg.n[r]), done[k])
+                continue
+            cx, cy, a, b, theta = params
+            scale = frame.scale[k]
+            model = EllipseModel(center=(cx * scale, cy * scale),
+                                 axis_lengths=(a * scale, b * scale), theta=theta)  # fmt: skip
+        (cx, cy), (a, b), theta = model.center, model.axis_lengths, model.theta
+        mx, my = sub.mean[k]
+        found.append((k, r, (cx + mx, cy + my, a, b, theta, math.cos(theta), math.sin(theta))))
+    if not found:
+        return out
+    keep = [k for k, _, _ in found]
+    cx, cy, a, b, _, c, s = (_column(v) for v in zip(*(p for _, _, p in found), strict=True))
+    ox, oy = sub.ox[keep], sub.oy[keep]
+    dx, dy = ox - cx, oy - cy
+    residuals = _ellipse_distance(dx * c + dy * s, dy * c - dx * s, a, b)
+    inliers = residuals <= threshold
+    for j, (k, r, p) in enumerate(found):
+        out[r] = EllipseFit(center=(p[0], p[1]), axis_lengths=(p[2], p[3]), theta=p[4],
+                            inliers=_frozen(inliers[j, : seg.n[r]]), trials=done[k])  # fmt: skip
+    return out
 
 
 def fit_ellipse(
@@ -1278,12 +1632,35 @@ def fit_ellipse(
     >>> [round(1000 * v) for v in ellipse.axis_lengths], ellipse.inlier_fraction > 0.95
     ([35, 20], True)
     """
-    pts = _Points(points)
+    seg = Segments([points])
     threshold = _check_threshold(threshold)
     limits = _check_limits(axis_limits, "axis_limits")
     _check_trials((min_trials, max_trials), confidence)
-    return _fit_ellipse(pts, threshold, limits, np.random.default_rng(seed),
-                        (min_trials, max_trials), confidence, geometric)  # fmt: skip
+    return _fit_ellipses(seg, threshold, limits, np.random.default_rng(seed),
+                         (min_trials, max_trials), confidence, geometric)[0]  # fmt: skip
+
+
+def fit_ellipses(
+    segments: Segments | Sequence[np.ndarray],
+    threshold: float,
+    *,
+    axis_limits: tuple[float, float] = AXIS_LIMITS_M,
+    max_trials: int = ELLIPSE_TRIALS[1],
+    min_trials: int = ELLIPSE_TRIALS[0],
+    confidence: float = CONFIDENCE,
+    seed: int | np.random.Generator = 0,
+    geometric: bool = True,
+    min_inliers: Sequence[float] | None = None,
+) -> list[EllipseFit | FailedFit]:
+    """:func:`fit_ellipse` on several scan lines at once, one result per line (see
+    :func:`fit_lines`, also for ``min_inliers``)."""
+    seg = _segments(segments)
+    threshold = _check_threshold(threshold)
+    limits = _check_limits(axis_limits, "axis_limits")
+    _check_trials((min_trials, max_trials), confidence)
+    return _fit_ellipses(seg, threshold, limits, np.random.default_rng(seed),
+                         (min_trials, max_trials), confidence, geometric,
+                         _goals(min_inliers, seg))  # fmt: skip
 
 
 # --------------------------------------------------------------------------- fit_all
@@ -1317,7 +1694,7 @@ def fit_all(
     ``fit_line(points, threshold, seed=g)``, then ``fit_circle(..., seed=g)``, then
     ``fit_ellipse(..., seed=g)`` with the same settings.
     """
-    pts = _Points(points)
+    seg = Segments([points])
     threshold = _check_threshold(threshold)
     r_limits = _check_limits(radius_limits, "radius_limits")
     a_limits = _check_limits(axis_limits, "axis_limits")
@@ -1326,7 +1703,8 @@ def fit_all(
     _check_trials(ellipse_trials, confidence, "ellipse_trials")
     rng = np.random.default_rng(seed)
     return ScanLineFits(
-        line=_fit_line(pts, threshold, rng, line_trials, confidence),
-        circle=_fit_circle(pts, threshold, r_limits, rng, circle_trials, confidence),
-        ellipse=_fit_ellipse(pts, threshold, a_limits, rng, ellipse_trials, confidence, geometric),
+        line=_fit_lines(seg, threshold, rng, line_trials, confidence)[0],
+        circle=_fit_circles(seg, threshold, r_limits, rng, circle_trials, confidence)[0],
+        ellipse=_fit_ellipses(seg, threshold, a_limits, rng, ellipse_trials, confidence,
+                              geometric)[0],
     )

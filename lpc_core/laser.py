@@ -40,6 +40,7 @@ the paper is weak:
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
@@ -89,6 +90,10 @@ class LaserParams:
     circle_trials: tuple[int, int] = fit.CIRCLE_TRIALS
     ellipse_trials: tuple[int, int] = fit.ELLIPSE_TRIALS
     lazy_fits: bool = True
+    # Polish each line's circle and ellipse refit by Gauss-Newton on orthogonal distances
+    # (``lpc_core.fit``'s default). The shape and grasp come from the 3-D solids, so by default
+    # it is skipped: on ``lpc bench accuracy`` it changed no figure and cost ~1 ms a frame.
+    geometric_2d: bool = False
     min_points_per_line: int = 10
     # A richer 2-D model (circle over line, ellipse over circle) must beat a simpler one by this
     # much inlier fraction on its line.
@@ -300,23 +305,21 @@ class LineModels:
         return self.points[[self.run[0], self.run[-1]]]
 
 
-def _line_seed(seed: int, index: int) -> int:
-    # Distinct per frame and line; default_rng mixes the bits.
-    return (seed & 0x0FFFFFFFFFFFFFFF) * 8 + index
-
-
-def _segment(points: np.ndarray, s: np.ndarray, params: LaserParams) -> np.ndarray | None:
-    """Index range of the segment the optical axis pierces, or None."""
-    gaps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    breaks = np.flatnonzero(gaps > params.segment_gap_m) + 1
-    starts = np.concatenate([[0], breaks])
-    ends = np.concatenate([breaks, [len(points)]])
-    lo, hi = s[starts], s[ends - 1]
-    distance = np.maximum(np.maximum(lo, -hi), 0.0)  # 0 when the segment spans s = 0
-    best = int(np.argmin(distance))
-    if distance[best] > params.pierce_tolerance_m:
+def _segment(points: np.ndarray, s: np.ndarray, params: LaserParams) -> tuple[int, int] | None:
+    """Index range ``[start, stop)`` of the segment the optical axis pierces, or None."""
+    d = points[1:] - points[:-1]
+    breaks = np.flatnonzero((d * d).sum(axis=1) > params.segment_gap_m**2).tolist()
+    bounds = [0, *(b + 1 for b in breaks), len(points)]
+    s_ends = s[[b - 1 for b in bounds[1:]]].tolist()
+    s_starts = s[bounds[:-1]].tolist()
+    best, distance = 0, math.inf
+    for k, (lo, hi) in enumerate(zip(s_starts, s_ends, strict=True)):
+        d_k = max(lo, -hi, 0.0)  # 0 when the segment spans s = 0
+        if d_k < distance:
+            best, distance = k, d_k
+    if distance > params.pierce_tolerance_m:
         return None
-    return np.arange(starts[best], ends[best])
+    return bounds[best], bounds[best + 1]
 
 
 def _runs(
@@ -336,8 +339,11 @@ def _runs(
         behind = np.concatenate([[0], np.cumsum(~front)])
         bump = (behind[idx[1:]] - behind[idx[:-1] + 1] == 0) & (dist2 <= params.run_gap_m**2)
         split &= ~bump
-    breaks = np.flatnonzero(split) + 1
-    return np.split(idx, breaks) if len(breaks) else [idx]
+    breaks = (np.flatnonzero(split) + 1).tolist()
+    if not breaks:
+        return [idx]
+    bounds = [0, *breaks, len(idx)]
+    return [idx[a:b] for a, b in itertools.pairwise(bounds)]
 
 
 def _front(model: str, fitted: Any, sz: np.ndarray) -> np.ndarray | None:
@@ -366,7 +372,7 @@ _EMPTY_RUN = np.empty(0, dtype=np.intp)
 def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_margin: float) -> str:
     """The model whose pierced run covers most of the segment; a richer model (circle over
     line, ellipse over circle) must cover more by its margin."""
-    fraction = {m: len(runs[m]) / n for m in MODELS}
+    fraction = {m: len(runs.get(m, _EMPTY_RUN)) / n for m in MODELS}
     best = "line"
     if fraction["circle"] > fraction["line"] + margin:
         best = "circle"
@@ -375,37 +381,49 @@ def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_ma
     return best if fraction[best] > 0 else "none"
 
 
-def _fit_model(model: str, sz: np.ndarray, params: LaserParams, seed: int) -> Any:
+def _fit_batch(
+    model: str,
+    segments: fit.Segments,
+    params: LaserParams,
+    rng: np.random.Generator,
+    goals: list[float] | None = None,
+) -> list[Any]:
+    """One model fitted to several lines' segments at once."""
     thr = params.threshold_m
     if model == "line":
         lo, hi = params.line_trials
-        return fit.fit_line(sz, thr, min_trials=lo, max_trials=hi, seed=seed)
+        return fit.fit_lines(segments, thr, min_trials=lo, max_trials=hi, seed=rng,
+                             min_inliers=goals)  # fmt: skip
     if model == "circle":
         lo, hi = params.circle_trials
-        return fit.fit_circle(
-            sz, thr, radius_limits=params.radius_limits_m, min_trials=lo, max_trials=hi, seed=seed
-        )
+        return fit.fit_circles(
+            segments, thr, radius_limits=params.radius_limits_m, min_trials=lo, max_trials=hi,
+            seed=rng, min_inliers=goals, geometric=params.geometric_2d,
+        )  # fmt: skip
     lo, hi = params.ellipse_trials
-    return fit.fit_ellipse(sz, thr, min_trials=lo, max_trials=hi, seed=seed)
+    return fit.fit_ellipses(segments, thr, min_trials=lo, max_trials=hi, seed=rng,
+                            min_inliers=goals, geometric=params.geometric_2d)  # fmt: skip
 
 
-def _second_line(line: LineModels, params: LaserParams, seed: int) -> Any:
-    """A line fitted to the points the first line left out, inliers over the whole segment."""
-    rest = ~line.fits["line"].inliers
-    if np.count_nonzero(rest) < params.min_points_per_line:
-        return None
-    found = fit.fit_line(
-        line.sz[rest], params.threshold_m, seed=_line_seed(seed, line.index),
-        min_trials=params.line_trials[0], max_trials=params.line_trials[1],
-    )  # fmt: skip
-    if not found:
-        return None
-    return replace(found, inliers=found.residuals(line.sz) <= params.threshold_m)
+def _second_lines(
+    lines: list[LineModels], params: LaserParams, rng: np.random.Generator
+) -> list[Any]:
+    """For each line, a line fitted to the points its first line left out, with inliers over
+    the whole segment (None where too few points are left)."""
+    rest = [~ln.fits["line"].inliers for ln in lines]
+    rows = [k for k, r in enumerate(rest) if np.count_nonzero(r) >= params.min_points_per_line]
+    out: list[Any] = [None] * len(lines)
+    if not rows:
+        return out
+    segments = fit.Segments([lines[k].sz[rest[k]] for k in rows], validated=True)
+    for k, found in zip(rows, _fit_batch("line", segments, params, rng), strict=True):
+        if found:
+            out[k] = replace(found, inliers=found.residuals(lines[k].sz) <= params.threshold_m)
+    return out
 
 
-def _analyse_line(
-    index: int, angle: float, points: np.ndarray, params: LaserParams, seed: int
-) -> LineModels:
+def _prepare_line(index: int, angle: float, points: np.ndarray, params: LaserParams) -> LineModels:
+    """The line's pierced segment in its plane, or the reason it has none."""
     line = LineModels(index=index, angle=float(angle), total=len(points))
     need = params.min_points_per_line
     if len(points) < need:
@@ -419,42 +437,91 @@ def _analyse_line(
     if segment is None:
         line.reason = f"the optical axis misses the object on {line.label}"
         return line
-    if len(segment) < need:
-        line.reason = f"too few points on {line.label}: {len(segment)} < {need} on the object"
+    start, stop = segment
+    if stop - start < need:
+        line.reason = f"too few points on {line.label}: {stop - start} < {need} on the object"
         return line
-    line.points = points[segment]
-    line.sz = np.column_stack([s[segment], line.points[:, 2]])
-    # A model counts by the run of its inliers that reaches the optical axis: a table or a
-    # side face next to the object may hold more inliers, but it is not what the axis pierces.
-    # Models are fitted simplest first; with ``lazy_fits`` a richer one is not fitted once a
-    # simpler one's run covers so much of the segment that the richer could not win.
+    line.points = points[start:stop]
+    line.sz = np.column_stack([s[start:stop], line.points[:, 2]])
+    return line
+
+
+def _fit_lines_models(
+    lines: list[LineModels], params: LaserParams, rng: np.random.Generator
+) -> None:
+    """Fit the 2-D models to every line's segment, one model at a time for all lines at once,
+    then choose each line's model and its pierced run.
+
+    A model counts by the run of its inliers that reaches the optical axis: a table or a side
+    face next to the object may hold more inliers, but it is not what the axis pierces. Models
+    are fitted simplest first; with ``lazy_fits`` a richer one is not fitted on a line once a
+    simpler one's run covers so much of the segment that the richer could not win.
+    """
+    need = params.min_points_per_line
     paper = params.variant == "paper"
-    enough = len(line.points) * (1.0 - params.model_margin)
-    all_runs: dict[str, list[np.ndarray]] = {}
-    pierced: dict[str, np.ndarray] = {}
+    lazy = params.lazy_fits and not paper
+    segments = fit.Segments([ln.sz for ln in lines], validated=True)
+    all_runs: list[dict[str, list[np.ndarray]]] = [{} for _ in lines]
+    pierced: list[dict[str, np.ndarray]] = [{} for _ in lines]
+    ellipse_margin = params.paper_ellipse_margin if paper else params.model_margin
     for model in MODELS:
-        if params.lazy_fits and not paper and any(len(r) >= enough for r in pierced.values()):
-            line.fits[model] = fit.FailedFit("not fitted: a simpler model covers the line")
-            all_runs[model], pierced[model] = [], _EMPTY_RUN
+        rows, goals = [], []
+        for k, ln in enumerate(lines):
+            n = len(ln.points)
+            # The inliers a richer model needs to win the line: more than the best simpler
+            # model's pierced run, by the margin (its own run is at most its inliers).
+            goal = 0.0
+            if model != "line":
+                simpler = _choose_model(pierced[k], n, params.model_margin, ellipse_margin)
+                if simpler != "none":
+                    margin = ellipse_margin if simpler == "circle" else params.model_margin
+                    goal = len(pierced[k][simpler]) + margin * n
+            if lazy and any(len(r) >= n * (1.0 - params.model_margin) for r in pierced[k].values()):
+                ln.fits[model] = fit.FailedFit("not fitted: a simpler model covers the line")
+                all_runs[k][model], pierced[k][model] = [], _EMPTY_RUN
+            else:
+                rows.append(k)
+                goals.append(goal)
+        if not rows:
             continue
-        found = _fit_model(model, line.sz, params, _line_seed(seed, index))
-        line.fits[model] = found
-        all_runs[model] = (
-            _runs(found.inliers, line.points, params, _front(model, found, line.sz))
-            if found
-            else []
-        )
-        pierced[model] = _pierced_run(all_runs[model], line.sz[:, 0], params)
-        if model == "line" and len(pierced["line"]) < need and found:
+        batch = segments if len(rows) == len(lines) else segments.take(rows)
+        found_all = _fit_batch(model, batch, params, rng, goals if lazy else None)
+        for k, found in zip(rows, found_all, strict=True):
+            ln = lines[k]
+            ln.fits[model] = found
+            runs = (
+                _runs(found.inliers, ln.points, params, _front(model, found, ln.sz))
+                if found
+                else []
+            )
+            all_runs[k][model] = runs
+            pierced[k][model] = _pierced_run(runs, ln.sz[:, 0], params)
+        if model == "line":
             # Across a crease (a box's front and top faces, or a face and the table) RANSAC's
             # line may lie on the other side: look once more among the points it left out.
-            second = _second_line(line, params, seed)
-            if second is not None:
-                runs = _runs(second.inliers, line.points, params, _front("line", second, line.sz))
-                run = _pierced_run(runs, line.sz[:, 0], params)
-                if len(run) > len(pierced["line"]):
-                    line.fits["line"], all_runs["line"], pierced["line"] = second, runs, run
-    ellipse_margin = params.paper_ellipse_margin if paper else params.model_margin
+            short = [k for k in rows if len(pierced[k]["line"]) < need and lines[k].fits["line"]]
+            if short:
+                seconds = _second_lines([lines[k] for k in short], params, rng)
+                for k, second in zip(short, seconds, strict=True):
+                    if second is None:
+                        continue
+                    ln = lines[k]
+                    runs = _runs(second.inliers, ln.points, params, _front("line", second, ln.sz))
+                    run = _pierced_run(runs, ln.sz[:, 0], params)
+                    if len(run) > len(pierced[k]["line"]):
+                        ln.fits["line"], all_runs[k]["line"], pierced[k]["line"] = second, runs, run
+    for k, ln in enumerate(lines):
+        _choose(ln, all_runs[k], pierced[k], params, ellipse_margin)
+
+
+def _choose(
+    line: LineModels,
+    all_runs: dict[str, list[np.ndarray]],
+    pierced: dict[str, np.ndarray],
+    params: LaserParams,
+    ellipse_margin: float,
+) -> None:
+    need = params.min_points_per_line
     line.model = _choose_model(pierced, len(line.points), params.model_margin, ellipse_margin)
     if line.model != "none" and len(pierced[line.model]) >= need:
         line.run = pierced[line.model]
@@ -463,15 +530,25 @@ def _analyse_line(
         longest = {m: max(r, key=len) for m, r in all_runs.items() if r}
         if not longest:
             line.reason = f"no 2-D model fits {line.label}"
-            return line
+            return
         line.model = max(longest, key=lambda m: len(longest[m]))
         line.run = longest[line.model]
     if len(line.run) < need:
         line.reason = f"too few inliers on {line.label}: {len(line.run)} < {need}"
-        return line
-    q = line.sz[line.run, 0] / line.sz[line.run, 1]
-    line.step = float(np.median(np.abs(np.diff(q)))) if len(q) > 1 else 0.0
-    return line
+        return
+    line.step = _median_step(line.sz[line.run])
+
+
+def _median_step(sz: np.ndarray) -> float:
+    """Median change of s/z between neighbouring samples (``np.median`` without its
+    overhead: sort, then the middle one or two)."""
+    if len(sz) < 2:
+        return 0.0
+    q = sz[:, 0] / sz[:, 1]
+    d = np.abs(q[1:] - q[:-1])
+    d.sort()
+    m = len(d)
+    return float(d[m // 2]) if m % 2 else float((d[m // 2 - 1] + d[m // 2]) / 2)
 
 
 # --------------------------------------------------------------------------- seeds
@@ -966,10 +1043,17 @@ def analyse_lines(
     raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
-    return [
-        _analyse_line(i, a, p, params, seed)
-        for i, (a, p) in enumerate(zip(angles, raw, strict=True))
+    if raw and not np.isfinite(np.concatenate(raw)).all():
+        raise ValueError("scan_lines.points must be finite")
+    lines = [
+        _prepare_line(i, a, p, params) for i, (a, p) in enumerate(zip(angles, raw, strict=True))
     ]
+    usable = [ln for ln in lines if not ln.reason]
+    if usable:
+        # One generator per frame serves every line's fits (default_rng mixes the bits).
+        rng = np.random.default_rng(seed & 0x7FFFFFFFFFFFFFFF)
+        _fit_lines_models(usable, params, rng)
+    return lines
 
 
 def decide(lines: list[LineModels], params: LaserParams = LaserParams()) -> Reconstruction:
