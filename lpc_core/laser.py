@@ -40,6 +40,7 @@ the paper is weak:
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from collections.abc import Iterator
@@ -305,44 +306,34 @@ class LineModels:
         return self.points[[self.run[0], self.run[-1]]]
 
 
-def _segment(points: np.ndarray, s: np.ndarray, params: LaserParams) -> tuple[int, int] | None:
-    """Index range ``[start, stop)`` of the segment the optical axis pierces, or None."""
-    d = points[1:] - points[:-1]
-    breaks = np.flatnonzero((d * d).sum(axis=1) > params.segment_gap_m**2).tolist()
-    bounds = [0, *(b + 1 for b in breaks), len(points)]
-    s_ends = s[[b - 1 for b in bounds[1:]]].tolist()
-    s_starts = s[bounds[:-1]].tolist()
-    best, distance = 0, math.inf
-    for k, (lo, hi) in enumerate(zip(s_starts, s_ends, strict=True)):
-        d_k = max(lo, -hi, 0.0)  # 0 when the segment spans s = 0
-        if d_k < distance:
-            best, distance = k, d_k
-    if distance > params.pierce_tolerance_m:
-        return None
-    return bounds[best], bounds[best + 1]
-
-
 def _runs(
     inliers: np.ndarray, points: np.ndarray, params: LaserParams, front: np.ndarray | None = None
 ) -> list[np.ndarray]:
     """Runs of inlier indices. A run ends at more than ``max_outlier_run`` outliers in a row or
     a jump of ``segment_gap_m``, except over a bump: outliers all in ``front`` of the model
     (toward the camera; a remote's buttons) spanning at most ``run_gap_m``."""
-    idx = np.flatnonzero(inliers)
-    if len(idx) == 0:
-        return []
-    d = points[idx[1:]] - points[idx[:-1]]
-    dist2 = np.einsum("ij,ij->i", d, d)
-    between = idx[1:] - idx[:-1] - 1
-    split = (between > params.max_outlier_run) | (dist2 > params.segment_gap_m**2)
-    if front is not None and split.any():
-        behind = np.concatenate([[0], np.cumsum(~front)])
-        bump = (behind[idx[1:]] - behind[idx[:-1] + 1] == 0) & (dist2 <= params.run_gap_m**2)
-        split &= ~bump
-    breaks = (np.flatnonzero(split) + 1).tolist()
+    idx = inliers.nonzero()[0]
+    if len(idx) < 2:
+        return [idx] if len(idx) else []
+    p = points[idx]
+    d = p[1:] - p[:-1]
+    dist2 = (d * d).sum(axis=1)
+    split = ((idx[1:] - idx[:-1]) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
+    breaks = split.nonzero()[0].tolist()
     if not breaks:
         return [idx]
-    bounds = [0, *breaks, len(idx)]
+    if front is not None:
+        # behind[j]: points up to j that are not in front; none between two inliers is a bump.
+        behind = np.cumsum(~front).tolist()
+        at = idx.tolist()
+        gaps = dist2[breaks].tolist()
+        limit = params.run_gap_m**2
+        breaks = [
+            b
+            for b, g in zip(breaks, gaps, strict=True)
+            if not (behind[at[b + 1] - 1] == behind[at[b]] and g <= limit)
+        ]
+    bounds = [0, *(b + 1 for b in breaks), len(idx)]
     return [idx[a:b] for a, b in itertools.pairwise(bounds)]
 
 
@@ -422,28 +413,55 @@ def _second_lines(
     return out
 
 
-def _prepare_line(index: int, angle: float, points: np.ndarray, params: LaserParams) -> LineModels:
-    """The line's pierced segment in its plane, or the reason it has none."""
-    line = LineModels(index=index, angle=float(angle), total=len(points))
+def _prepare_lines(
+    angles: list[float], raw: list[np.ndarray], params: LaserParams
+) -> list[LineModels]:
+    """Each line's points sorted along it, in its plane as (s, z), and the segment the optical
+    axis pierces (split at jumps of more than ``segment_gap_m``), or the reason it has none.
+    All lines in one pass over their concatenated points."""
     need = params.min_points_per_line
-    if len(points) < need:
-        line.reason = f"too few points on {line.label}: {len(points)} < {need}"
-        return line
-    c, s_ = math.cos(angle), math.sin(angle)
+    lines = [
+        LineModels(index=i, angle=a, total=len(p))
+        for i, (a, p) in enumerate(zip(angles, raw, strict=True))
+    ]
+    ok = []
+    for line in lines:
+        if line.total < need:
+            line.reason = f"too few points on {line.label}: {line.total} < {need}"
+        else:
+            ok.append(line)
+    if not ok:
+        return lines
+    counts = [line.total for line in ok]
+    points = np.concatenate([raw[line.index] for line in ok])
+    c = np.repeat([math.cos(line.angle) for line in ok], counts)
+    s_ = np.repeat([math.sin(line.angle) for line in ok], counts)
     s = points[:, 0] * c + points[:, 1] * s_
-    order = np.argsort(s, kind="stable")
+    order = np.lexsort((s, np.repeat(np.arange(len(ok)), counts)))
     points, s = points[order], s[order]
-    segment = _segment(points, s, params)
-    if segment is None:
-        line.reason = f"the optical axis misses the object on {line.label}"
-        return line
-    start, stop = segment
-    if stop - start < need:
-        line.reason = f"too few points on {line.label}: {stop - start} < {need} on the object"
-        return line
-    line.points = points[start:stop]
-    line.sz = np.column_stack([s[start:stop], line.points[:, 2]])
-    return line
+    sz = np.stack([s, points[:, 2]], axis=1)
+    d = points[1:] - points[:-1]
+    breaks = ((d * d).sum(axis=1) > params.segment_gap_m**2).nonzero()[0].tolist()
+    s_at = s.tolist()
+    stop = 0
+    for line, n in zip(ok, counts, strict=True):
+        start, stop = stop, stop + n
+        inside = breaks[bisect.bisect_left(breaks, start) : bisect.bisect_left(breaks, stop - 1)]
+        bounds = [start, *(b + 1 for b in inside), stop]
+        best, distance = 0, math.inf
+        for k in range(len(bounds) - 1):
+            d_k = max(s_at[bounds[k]], -s_at[bounds[k + 1] - 1], 0.0)  # 0 if it spans s = 0
+            if d_k < distance:
+                best, distance = k, d_k
+        if distance > params.pierce_tolerance_m:
+            line.reason = f"the optical axis misses the object on {line.label}"
+            continue
+        a, b = bounds[best], bounds[best + 1]
+        if b - a < need:
+            line.reason = f"too few points on {line.label}: {b - a} < {need} on the object"
+            continue
+        line.points, line.sz = points[a:b], sz[a:b]
+    return lines
 
 
 def _fit_lines_models(
@@ -1045,9 +1063,7 @@ def analyse_lines(
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
     if raw and not np.isfinite(np.concatenate(raw)).all():
         raise ValueError("scan_lines.points must be finite")
-    lines = [
-        _prepare_line(i, a, p, params) for i, (a, p) in enumerate(zip(angles, raw, strict=True))
-    ]
+    lines = _prepare_lines(angles.tolist(), raw, params)
     usable = [ln for ln in lines if not ln.reason]
     if usable:
         # One generator per frame serves every line's fits (default_rng mixes the bits).
