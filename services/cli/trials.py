@@ -372,7 +372,7 @@ def report(conditions: list[Condition]) -> str:
         if blocks >= 5:
             ref[4] = _cell(*paper[1])
         note = "block 5 < block 1 (p<=0.05)" if c.method == "laser" else "n.s."
-        if (c.method == "laser") == c.feedback:
+        if _paper_like(c):
             label = "  paper: " + PAPER_NAME[c.method]
             lines.append(f"{label:<28}{''.join(ref)}{note}")
         if test is not None:
@@ -441,6 +441,11 @@ def report(conditions: list[Condition]) -> str:
     return "\n".join(lines)
 
 
+def _paper_like(c: Condition) -> bool:
+    """The paper ran the prototype with tactor feedback and the benchmark without."""
+    return (c.method == "laser") == c.feedback
+
+
 def plot(conditions: list[Condition], path: Path) -> Path | None:
     """Box plots of the users' per-block median TAT per condition (median, IQR, min-max, as
     the paper's figure), the paper's block 1 and 5 medians with their IQR, and asterisks for
@@ -475,7 +480,7 @@ def plot(conditions: list[Condition], path: Path) -> Path | None:
         ax.plot([], [], color=color, lw=6, alpha=0.55, label=c.name)
         top = max([top, *(float(d.max()) for d in data if len(d))])
         paper = PAPER_TAT_S[c.method]
-        if (c.method == "laser") == c.feedback:
+        if _paper_like(c):
             px = [1 + offset] + ([5 + offset] if blocks >= 5 else [])
             py = [paper[0][0]] + ([paper[1][0]] if blocks >= 5 else [])
             pe = [paper[0][1] / 2] + ([paper[1][1] / 2] if blocks >= 5 else [])
@@ -538,8 +543,9 @@ def run(args: argparse.Namespace) -> int:
     if not conditions:
         print(f"lpc trials: no results found in {', '.join(map(str, dirs))}", file=sys.stderr)
         return 1
-    # The prototype first, so that the figure's asterisks compare it with the benchmark.
-    conditions.sort(key=lambda c: (c.method != "laser", not c.feedback, c.name))
+    # The paper's pair first (prototype with tactors, benchmark without): the figure's
+    # asterisks compare the first two.
+    conditions.sort(key=lambda c: (not _paper_like(c), c.method != "laser", not c.feedback))
     print(report(conditions))
     figure = plot(conditions, out / "tat_per_block.png")
     if figure is not None:
