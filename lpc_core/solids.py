@@ -42,12 +42,21 @@ def _as_points(points: np.ndarray, minimum: int) -> np.ndarray:
 
 def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing the unit vector ``axis`` to a right-handed basis."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = helper - (helper @ axis) * axis
-    e1 /= np.sqrt(e1 @ e1)
-    e2 = np.array([axis[1] * e1[2] - axis[2] * e1[1], axis[2] * e1[0] - axis[0] * e1[2],
-                   axis[0] * e1[1] - axis[1] * e1[0]])  # fmt: skip
-    return e1, e2
+    e1, e2 = _basis(*(float(v) for v in axis))
+    return np.array(e1), np.array(e2)
+
+
+_Vec3 = tuple[float, float, float]
+
+
+def _basis(ax: float, ay: float, az: float) -> tuple[_Vec3, _Vec3]:
+    """:func:`orthonormal_basis` in Python floats."""
+    hx, hy = (1.0, 0.0) if abs(ax) < 0.9 else (0.0, 1.0)
+    dot = hx * ax + hy * ay
+    e = (hx - dot * ax, hy - dot * ay, -dot * az)
+    k = 1.0 / math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    e1 = (e[0] * k, e[1] * k, e[2] * k)
+    return e1, (ay * e1[2] - az * e1[1], az * e1[0] - ax * e1[2], ax * e1[1] - ay * e1[0])
 
 
 def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -56,22 +65,51 @@ def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
     Minimises sum((u - a)^2 + (v - b)^2 - r^2)^2, linear in (a, b, r^2 - a^2 - b^2); the
     points are centred and scaled first so the normal equations stay well conditioned.
     """
-    mean = uv.mean(axis=0)
-    d = uv - mean
-    scale = float(np.sqrt(np.einsum("ij,ij->", d, d) / len(d)))
-    if not np.isfinite(scale) or scale <= 0:
+    n = len(uv)
+    mean = uv.sum(axis=0) / n
+    d = np.empty((n, 3))
+    np.subtract(uv, mean, out=d[:, :2])
+    np.einsum("ij,ij->i", d[:, :2], d[:, :2], out=d[:, 2])
+    scale2 = float(d[:, 2].sum()) / n
+    if not (math.isfinite(scale2) and scale2 > 0):
         return None
-    d = d / scale
-    a = np.column_stack([2 * d, np.ones(len(d))])
-    ata = a.T @ a
+    # The normal equations of [2u, 2v, 1] . sol = u^2 + v^2 on the points scaled to unit RMS,
+    # from the moments of (u, v, u^2 + v^2) in one product (scaled afterwards, in floats).
+    (guu, guv, guz), (_, gvv, gvz), (_, _, _) = (d.T @ d).tolist()
+    su, sv, sz = d.sum(axis=0).tolist()
+    k1, k2 = 1.0 / math.sqrt(scale2), 1.0 / scale2
+    guu, guv, gvv, su, sv = guu * k2, guv * k2, gvv * k2, su * k1, sv * k1
+    guz, gvz, sz = guz * k1 * k2, gvz * k1 * k2, sz * k2
+    ata = ((4 * guu, 4 * guv, 2 * su), (4 * guv, 4 * gvv, 2 * sv), (2 * su, 2 * sv, float(n)))
     # Points centred and scaled to unit RMS: a tiny determinant means they are collinear.
-    if abs(np.linalg.det(ata)) < 1e-9 * len(d) ** 3:
+    sol = _solve3(ata, (2 * guz, 2 * gvz, sz), 1e-9 * n**3)
+    if sol is None:
         return None
-    sol = np.linalg.solve(ata, a.T @ np.einsum("ij,ij->i", d, d))
     r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
-    if r2 <= 0:
+    if not r2 > 0:
         return None
-    return mean + scale * sol[:2], float(scale * np.sqrt(r2))
+    scale = math.sqrt(scale2)
+    return mean + scale * np.array(sol[:2]), scale * math.sqrt(r2)
+
+
+_Row3 = tuple[float, float, float]
+
+
+def _solve3(
+    m: tuple[_Row3, _Row3, _Row3], b: _Row3, min_det: float
+) -> tuple[float, float, float] | None:
+    """``m x = b`` for a 3x3 system by Cramer's rule, in Python floats (a tenth of what
+    ``numpy.linalg.solve`` costs at this size); None when ``|det m| < min_det``."""
+    (a11, a12, a13), (a21, a22, a23), (a31, a32, a33) = m
+    c11, c12, c13 = a22 * a33 - a23 * a32, a23 * a31 - a21 * a33, a21 * a32 - a22 * a31
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    if not abs(det) >= min_det:
+        return None
+    b1, b2, b3 = b
+    x1 = b1 * c11 + a12 * (a23 * b3 - b2 * a33) + a13 * (b2 * a32 - a22 * b3)
+    x2 = a11 * (b2 * a33 - a23 * b3) + b1 * c12 + a13 * (a21 * b3 - b2 * a31)
+    x3 = a11 * (a22 * b3 - b2 * a32) + a12 * (b2 * a31 - a21 * b3) + b1 * c13
+    return x1 / det, x2 / det, x3 / det
 
 
 # --------------------------------------------------------------------------- plane
@@ -90,7 +128,7 @@ class PlaneSolid:
     @classmethod
     def estimate(cls, points: np.ndarray) -> Self | FailedSolid:
         points = _as_points(points, 3)
-        point = points.mean(axis=0)
+        point = points.sum(axis=0) / len(points)
         d = points - point
         values, vectors = np.linalg.eigh(d.T @ d)
         if values[1] <= 1e-12 * max(values[2], 1e-30):
@@ -151,21 +189,21 @@ class SphereSolid:
             center, radius = mean + scale * sol[:3], float(scale * np.sqrt(r2))
         else:
             center, radius = np.asarray(init[0], dtype=np.float64), float(init[1])
+        jac = np.empty((len(points), 4))
+        jac[:, 3] = -1.0
         for _ in range(iterations):
             w = points - center
             rho = np.sqrt(np.einsum("ij,ij->i", w, w))
-            if np.any(rho <= 0):
+            if not rho.min() > 0:
                 return FailedSolid("a point sits on the centre")
-            jac = np.empty((len(w), 4))
-            jac[:, :3] = -w / rho[:, None]
-            jac[:, 3] = -1.0
+            np.divide(w, -rho[:, None], out=jac[:, :3])
             try:
                 step = np.linalg.solve(jac.T @ jac, jac.T @ (radius - rho))
             except np.linalg.LinAlgError:
                 return FailedSolid("points do not fix a sphere")
             center = center + step[:3]
             radius += float(step[3])
-            if abs(step).max() < 1e-7:
+            if np.abs(step).max() < 1e-7:
                 break
         if not np.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
@@ -199,41 +237,57 @@ class CylinderSolid:
         cls, points: np.ndarray, axis: np.ndarray, *, iterations: int = 6
     ) -> Self | FailedSolid:
         points = _as_points(points, 5)
-        d = np.asarray(axis, dtype=np.float64)
-        norm = float(np.linalg.norm(d))
-        if not np.isfinite(norm) or norm == 0:
+        d = [float(v) for v in np.asarray(axis, dtype=np.float64).reshape(-1)]
+        norm = math.sqrt(sum(v * v for v in d)) if len(d) == 3 else math.nan
+        if not math.isfinite(norm) or norm == 0:
             raise ValueError("axis must be a non-zero finite vector")
-        d = d / norm
-        basis = np.column_stack(orthonormal_basis(d))
-        start = fit_circle_2d(points @ basis)
+        d = [v / norm for v in d]
+        e1, e2 = _basis(*d)
+        start = fit_circle_2d(points @ np.array([e1, e2]).T)
         if start is None:
             return FailedSolid("points are collinear across the axis")
-        state = (basis @ start[0], d, basis, start[1])
+        u, v = start[0].tolist()
+        # The state (centre, axis, basis across it, radius) is kept in Python floats: each
+        # Levenberg-Marquardt step is a handful of 3-vectors besides the normal equations.
+        state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
         cost, jtj, jtr = _cylinder_normal_equations(points, *state)
         damping = 1e-4
         for _ in range(iterations):
+            h = jtj.copy()
+            h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
             try:
-                step = np.linalg.solve(jtj + damping * np.diag(np.diag(jtj)), -jtr)
+                s0, s1, s2, s3, s4 = np.linalg.solve(h, -jtr).tolist()
             except np.linalg.LinAlgError:
                 break
-            c, d, basis, radius = state
-            d_new = d + basis @ step[2:4]
-            d_new /= np.sqrt(d_new @ d_new)
-            new_state = (c + basis @ step[:2], d_new, _rotate_basis(basis, d_new), radius + step[4])
+            c, d, e1, e2, radius = state
+            dn = [d[i] + e1[i] * s2 + e2[i] * s3 for i in range(3)]
+            k = 1.0 / math.sqrt(dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2])
+            dn = [v * k for v in dn]
+            # Re-orthonormalise the previous basis against the new axis (continuous, no branch).
+            dot = e1[0] * dn[0] + e1[1] * dn[1] + e1[2] * dn[2]
+            f1 = [e1[i] - dot * dn[i] for i in range(3)]
+            k = 1.0 / math.sqrt(f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
+            f1 = [v * k for v in f1]
+            f2 = [dn[1] * f1[2] - dn[2] * f1[1], dn[2] * f1[0] - dn[0] * f1[2],
+                  dn[0] * f1[1] - dn[1] * f1[0]]  # fmt: skip
+            cn = [c[i] + e1[i] * s0 + e2[i] * s1 for i in range(3)]
+            new_state = (cn, dn, f1, f2, radius + s4)
             new_cost, new_jtj, new_jtr = _cylinder_normal_equations(points, *new_state)
             if new_cost < cost:
                 state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
                 damping = max(damping / 4, 1e-9)
-                if abs(step).max() < 1e-6:
+                if max(abs(s0), abs(s1), abs(s2), abs(s3), abs(s4)) < 1e-6:
                     break
             else:
                 damping *= 16
-        c, d, _, radius = state
-        if not np.isfinite(radius) or radius <= 0:
+        c, d, _, _, radius = state
+        if not math.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
         # Keep the axis point nearest the points' centroid along the axis: a readable centre.
-        c = c + ((points.mean(axis=0) - c) @ d) * d
-        return cls(point=c, axis=d, radius=float(radius), cost=cost)
+        mean = (points.sum(axis=0) / len(points)).tolist()
+        along = sum((mean[i] - c[i]) * d[i] for i in range(3))
+        point = np.array([c[i] + along * d[i] for i in range(3)])
+        return cls(point=point, axis=np.array(d), radius=float(radius), cost=cost)
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         w = np.asarray(points, dtype=np.float64) - self.point
@@ -241,36 +295,23 @@ class CylinderSolid:
         return np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - self.radius)
 
 
-def _rotate_basis(basis: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Re-orthonormalise the previous basis against the new axis (no branch, continuous)."""
-    e1 = basis[:, 0] - (basis[:, 0] @ d) * d
-    e1 /= math.sqrt(e1 @ e1)
-    out = np.empty((3, 2))
-    out[:, 0] = e1
-    out[0, 1] = d[1] * e1[2] - d[2] * e1[1]
-    out[1, 1] = d[2] * e1[0] - d[0] * e1[2]
-    out[2, 1] = d[0] * e1[1] - d[1] * e1[0]
-    return out
-
-
 def _cylinder_normal_equations(
-    points: np.ndarray, c: np.ndarray, d: np.ndarray, basis: np.ndarray, radius: float
+    points: np.ndarray, c: list[float], d: list[float], e1: _Vec3, e2: _Vec3, radius: float
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Cost, J^T J and J^T r of the orthogonal residuals |q| - r.
 
-    For c += basis @ (u, v) and d += basis @ (a, b) (the basis spans the plane across d), the
-    Jacobian rows are (-n.e1, -n.e2, -t n.e1, -t n.e2, -1), with n the unit radial direction
-    and t the position along the axis.
+    For c += e1 u + e2 v and d += e1 a + e2 b (e1, e2 span the plane across d), the Jacobian
+    rows are (-n.e1, -n.e2, -t n.e1, -t n.e2, -1), with n the unit radial direction and t the
+    position along the axis.
     """
-    w = points - c
-    t = w @ d
-    # The radial part of w in the basis across the axis: (w . e1, w . e2).
-    qb = w @ basis
+    # (t, w . e1, w . e2) for every point in one product.
+    proj = (points - np.array(c)) @ np.array([d, e1, e2]).T
+    qb = proj[:, 1:]
     rho = np.sqrt(np.einsum("ij,ij->i", qb, qb))
     res = rho - radius
     jac = np.empty((len(points), 5))
     np.divide(qb, -np.maximum(rho, 1e-12)[:, None], out=jac[:, :2])
-    np.multiply(jac[:, :2], t[:, None], out=jac[:, 2:4])
+    np.multiply(jac[:, :2], proj[:, :1], out=jac[:, 2:4])
     jac[:, 4] = -1.0
     return float(res @ res), jac.T @ jac, jac.T @ res
 
