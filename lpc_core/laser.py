@@ -41,6 +41,7 @@ the paper is weak:
 from __future__ import annotations
 
 import bisect
+import copy
 import itertools
 import math
 from collections.abc import Iterator
@@ -250,16 +251,25 @@ def sphere_from_circles(
     planes, (cx, cy) is their least-squares solution and z their mean; the radius is the mean
     distance from the centre to the extreme points (the paper takes one of them).
     """
-    angles_rad = np.asarray(angles_rad, dtype=np.float64)
-    centres_sz = np.asarray(centres_sz, dtype=np.float64)
-    if len(angles_rad) < 2:
+    angles = np.asarray(angles_rad, dtype=np.float64).reshape(-1).tolist()
+    centres = np.asarray(centres_sz, dtype=np.float64).reshape(-1, 2).tolist()
+    if len(angles) < 2:
         return None
-    a = np.column_stack([np.cos(angles_rad), np.sin(angles_rad)])
-    if np.linalg.matrix_rank(a) < 2:
+    # Least squares over the planes, by the 2x2 normal equations (a few planes: Python floats).
+    cs = [(math.cos(a), math.sin(a)) for a in angles]
+    scc = sum(c * c for c, _ in cs)
+    scs = sum(c * s for c, s in cs)
+    sss = sum(s * s for _, s in cs)
+    det = scc * sss - scs * scs
+    # All planes (nearly) the same: the centre is not fixed across them.
+    if not det > 1e-10 * (scc + sss) ** 2:
         return None
-    xy, *_ = np.linalg.lstsq(a, centres_sz[:, 0], rcond=None)
-    centre = np.array([xy[0], xy[1], centres_sz[:, 1].mean()])
-    radius = float(np.linalg.norm(np.asarray(extreme_points) - centre, axis=1).mean())
+    bc = sum(c * sz[0] for (c, _), sz in zip(cs, centres, strict=True))
+    bs = sum(s * sz[0] for (_, s), sz in zip(cs, centres, strict=True))
+    z = sum(sz[1] for sz in centres) / len(centres)
+    centre = np.array([(sss * bc - scs * bs) / det, (scc * bs - scs * bc) / det, z])
+    d = np.asarray(extreme_points, dtype=np.float64) - centre
+    radius = float(np.sqrt(np.einsum("ij,ij->i", d, d)).mean())
     return centre, radius
 
 
@@ -629,7 +639,10 @@ def _face_frame(plane: PlaneSolid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _perp(u: np.ndarray) -> np.ndarray:
-    return np.stack([-u[..., 1], u[..., 0]], axis=-1)
+    return u[..., ::-1] * _TURN
+
+
+_TURN = np.array([-1.0, 1.0])  # (x, y) -> (-y, x): a quarter turn
 
 
 def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarray | None:
@@ -646,7 +659,7 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     valid = uv[~cropped]
     if len(valid) < 2:
         return None
-    i, j = np.triu_indices(len(valid), 1)
+    i, j = _pairs(len(valid))
     pairs = valid[j] - valid[i]
     lengths = np.sqrt(np.einsum("ij,ij->i", pairs, pairs))
     pairs = pairs[lengths > 2 * tol] / lengths[lengths > 2 * tol, None]
@@ -685,23 +698,23 @@ def _rectangle_scores(
     uv: np.ndarray, valid: np.ndarray, dirs: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per direction: uncut seeds on a side of all seeds' box, those on shared sides, area."""
-    a, b = uv @ dirs.T, uv @ _perp(dirs).T  # (k, K)
-    on = np.zeros(a.shape, dtype=bool)
-    shared = np.zeros(len(dirs))
-    for c in (a, b):
-        for side in (c - c.min(axis=0) <= tol, c.max(axis=0) - c <= tol):
-            side &= valid[:, None]
-            on |= side
-            n = side.sum(axis=0)
-            shared += np.where(n >= 2, n, 0)
-    area = np.ptp(a, axis=0) * np.ptp(b, axis=0)
-    return on.sum(axis=0), shared, area
+    k = len(dirs)
+    # Coordinates along each direction and across it, side by side: (seeds, 2K).
+    c = uv @ np.concatenate([dirs, _perp(dirs)]).T
+    lo, hi = c.min(axis=0), c.max(axis=0)
+    valid = valid[:, None]
+    low, high = (c - lo <= tol) & valid, (hi - c <= tol) & valid
+    n_low, n_high = low.sum(axis=0), high.sum(axis=0)
+    shared = np.where(n_low >= 2, n_low, 0) + np.where(n_high >= 2, n_high, 0)
+    on = low | high
+    span = hi - lo
+    return (on[:, :k] | on[:, k:]).sum(axis=0), shared[:k] + shared[k:], span[:k] * span[k:]
 
 
 def _refine_direction(uv: np.ndarray, direction: np.ndarray, tol: float) -> np.ndarray:
     """Total least squares of the edge direction: the seeds on each side of the rectangle
     (two or more) vote for it, those on the sides across it turned by 90 degrees."""
-    u = direction / np.linalg.norm(direction)
+    u = direction / math.sqrt(direction @ direction)
     v = _perp(u)
     a, b = uv @ u, uv @ v
     groups = []
@@ -756,8 +769,8 @@ def _face_geometry(
     inside the face) and the points ``beyond`` the face's edges that belong to the object.
     """
     origin, e1, e2 = _face_frame(plane)
-    d = seeds.points - origin
-    uv = np.column_stack([d @ e1, d @ e2])
+    to_plane = np.array([e1, e2]).T
+    uv = (seeds.points - origin) @ to_plane
     order = sort_around(uv, np.zeros(2))
     uv, cropped = uv[order], seeds.cropped[order]
     disc = None
@@ -765,32 +778,32 @@ def _face_geometry(
         direction = principal_direction(uv, params.alpha_max_rad, pick="first")
         if direction is None:
             return "no principal direction: no three seed points are collinear"
-        u = direction / np.linalg.norm(direction)
+        u = direction / math.sqrt(direction @ direction)
         a, b = uv @ u, uv @ _perp(u)
-        principal, width = u, float(np.ptp(b))
+        principal, width = u, float(b.max() - b.min())
     else:
         tol = params.edge_tolerance_m
         direction = _edge_direction(uv, cropped, tol)
         if direction is None:
             direction = _min_area_direction(uv)
-        u = direction / np.linalg.norm(direction)
-        a, b = uv @ u, uv @ _perp(u)
+        u = direction / math.sqrt(direction @ direction)
         if beyond is not None and len(beyond):
-            extra = beyond - origin
-            extra_uv = np.column_stack([extra @ e1, extra @ e2])
-            a = np.concatenate([a, extra_uv @ u])
-            b = np.concatenate([b, extra_uv @ _perp(u)])
-        if np.ptp(a) >= np.ptp(b):
-            principal, width = u, float(np.ptp(b))
+            uv_all = np.concatenate([uv, (beyond - origin) @ to_plane])
         else:
-            principal, width = _perp(u), float(np.ptp(a))
+            uv_all = uv
+        a, b = uv_all @ u, uv_all @ _perp(u)
+        span_a, span_b = float(a.max() - a.min()), float(b.max() - b.min())
+        if span_a >= span_b:
+            principal, width = u, span_b
+        else:
+            principal, width = _perp(u), span_a
         valid = uv[~cropped]
         if len(valid) >= params.disc_min_seeds:
             circle = fit_circle_2d(valid)
             if circle is not None:
-                rms = float(
-                    np.sqrt(np.mean((np.linalg.norm(valid - circle[0], axis=1) - circle[1]) ** 2))
-                )
+                off = valid - circle[0]
+                rho = np.sqrt(np.einsum("ij,ij->i", off, off))
+                rms = float(np.sqrt(np.mean((rho - circle[1]) ** 2)))
                 disc = (origin + circle[0][0] * e1 + circle[0][1] * e2, circle[1], rms)
     residual = _rectangle_residual(uv[~cropped], u) if (~cropped).any() else 0.0
     lo_hi = a.min(), a.max(), b.min(), b.max()
@@ -798,7 +811,7 @@ def _face_geometry(
     centre_uv = a_mid * u + b_mid * _perp(u)
     centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
     axis = principal[0] * e1 + principal[1] * e2
-    return _Face(width, axis / np.linalg.norm(axis), centre, residual, disc)
+    return _Face(width, axis / math.sqrt(axis @ axis), centre, residual, disc)
 
 
 def _rectangle_residual(uv: np.ndarray, u: np.ndarray) -> float:
@@ -813,23 +826,35 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
     a prism's next face) and before it turns parallel to the face again (a table)."""
     out = []
     n = plane.normal
+    slope, free = math.tan(params.bevel_min_rad), params.bevel_free_depth_m
     for line in lines:
-        heights = (line.points - plane.point) @ n  # > 0: in front of the face
-        for end, step in ((line.run[0], -1), (line.run[-1], 1)):
-            stop = 0 if step < 0 else len(line.points) - 1
-            if end == stop:
-                continue
-            idx = np.arange(end, stop + step, step)
-            p, h = line.points[idx], heights[idx]
-            moves = np.diff(p, axis=0)
-            rise = np.diff(h)
-            run = np.sqrt(np.maximum(np.einsum("ij,ij->i", moves, moves) - rise**2, 0.0))
-            falling = -rise >= math.tan(params.bevel_min_rad) * run
-            near = (h[0] - h[1:]) <= params.bevel_free_depth_m
-            ok = (h[1:] <= params.solid_threshold_m) & (falling | near)
-            k = int(np.argmin(ok)) if not ok.all() else len(ok)
+        pts = line.points
+        first, last, m = int(line.run[0]), int(line.run[-1]), len(pts)
+        if first == 0 and last == m - 1:
+            continue
+        h = (pts - plane.point) @ n  # > 0: in front of the face
+        moves = pts[1:] - pts[:-1]
+        rise = h[1:] - h[:-1]  # rise[i]: from point i to i + 1
+        run = np.sqrt(np.maximum(np.einsum("ij,ij->i", moves, moves) - rise * rise, 0.0))
+        below = h <= params.solid_threshold_m
+        if last < m - 1:
+            # Walking right from the run's last point: step i reaches point i + 1.
+            ok = below[last + 1 :] & (
+                (-rise[last:] >= slope * run[last:]) | (h[last] - h[last + 1 :] <= free)
+            )
+            bad = (~ok).nonzero()[0]
+            k = int(bad[0]) if len(bad) else len(ok)
             if k > 0:
-                out.append(p[k])
+                out.append(pts[last + k])
+        if first > 0:
+            # Walking left from the run's first point: step i reaches point first - 1 - i.
+            ok = below[:first] & (
+                (rise[:first] >= slope * run[:first]) | (h[first] - h[:first] <= free)
+            )
+            bad = (~ok).nonzero()[0]
+            k = first - 1 - int(bad[-1]) if len(bad) else first
+            if k > 0:
+                out.append(pts[first - k])
     return plane.project(np.array(out)) if out else np.empty((0, 3))
 
 
@@ -852,6 +877,16 @@ def _fraction(residuals: np.ndarray, threshold: float) -> float:
     )
 
 
+_PAIRS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _pairs(count: int) -> tuple[np.ndarray, np.ndarray]:
+    # np.triu_indices(count, 1), cached: the same few lines every frame.
+    if count not in _PAIRS:
+        _PAIRS[count] = np.triu_indices(count, 1)
+    return _PAIRS[count]
+
+
 @dataclass
 class _Candidate:
     shape: str
@@ -871,19 +906,20 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     first = PlaneSolid.estimate(clean)
     if not first:
         return _Candidate("cuboid", reason=first.reason)
-    if _fraction(first.residuals(clean), thr) >= 1.0 - params.cuboid_margin:
-        return _Candidate("cuboid", _fraction(first.residuals(clean), thr), first)
+    fraction = _fraction(first.residuals(clean), thr)
+    if fraction >= 1.0 - params.cuboid_margin:
+        return _Candidate("cuboid", fraction, first)
     ends = np.array([ln.points[[ln.run[0], ln.run[-1]]] for ln in lines])  # (L, 2, 3)
-    i, j = np.triu_indices(len(lines), 1)
+    i, j = _pairs(len(lines))
     along = ends[:, 1] - ends[:, 0]
-    cross = np.cross(along[i], along[j])
-    norm = np.sqrt(np.einsum("ij,ij->i", cross, cross))
+    a, b = along[i], along[j]
+    cross = a[:, [1, 2, 0]] * b[:, [2, 0, 1]] - a[:, [2, 0, 1]] * b[:, [1, 2, 0]]
+    norm = np.sqrt((cross * cross).sum(axis=1))
     ok = norm > 1e-6
-    normals = [first.normal, *(cross[ok] / norm[ok, None])]
     middles = (ends[i].sum(axis=1) + ends[j].sum(axis=1)) / 4
-    points = [first.point, *middles[ok]]
-    normals_ = np.array(normals)
-    offsets = np.einsum("ij,ij->i", normals_, np.array(points))
+    normals_ = np.concatenate([first.normal[None, :], cross[ok] / norm[ok, None]])
+    points = np.concatenate([first.point[None, :], middles[ok]])
+    offsets = (normals_ * points).sum(axis=1)
     counts = (np.abs(clean @ normals_.T - offsets) <= thr).sum(axis=0)
     best = int(np.argmax(counts))
     solid = first
@@ -931,7 +967,7 @@ def _axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.n
     seen: list[np.ndarray] = []
     cos_same = math.cos(math.radians(5.0))
     for guess in _raw_axis_guesses(lines, params):
-        guess = guess / np.linalg.norm(guess)
+        guess = guess / math.sqrt(guess @ guess)
         if all(abs(guess @ u) < cos_same for u in seen):
             seen.append(guess)
             yield guess
@@ -943,9 +979,9 @@ def _raw_axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[
     # A plane through the axis cuts a cylinder along a generator: a line model is the axis.
     for line in lines:
         if line.model == "line":
-            ends = line.points[[line.run[0], line.run[-1]]]
-            if np.linalg.norm(ends[1] - ends[0]) > 0.01:
-                yield ends[1] - ends[0]
+            along = line.points[line.run[-1]] - line.points[line.run[0]]
+            if along @ along > 0.01**2:
+                yield along
     # Algorithm 1 on the seeds, in the longitudinal plane through them.
     seeds = _collect_seeds(lines, params, extend=False)
     keep = ~seeds.cropped
@@ -1199,7 +1235,9 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
         run = max(runs, key=len)
         if len(run) < params.min_points_per_line:
             return None
-    return replace(line, run=run)
+    moved = copy.copy(line)  # dataclasses.replace, without re-running __init__
+    moved.run = run
+    return moved
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:
