@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import ClassVar, NamedTuple, Protocol, Self, runtime_checkable
+from typing import Any, ClassVar, NamedTuple, Protocol, Self, runtime_checkable
 
 import numpy as np
 
@@ -998,6 +998,14 @@ def _none(n: int) -> np.ndarray:
     return _frozen(np.zeros(n, bool))
 
 
+def _too_few(n: list[int], k: int, what: str) -> list[Any]:
+    """A failure for each line with fewer than ``k`` points, None (to be filled) elsewhere."""
+    return [
+        FailedFit(f"{what} needs at least {k} points, got {m}", _none(m)) if m < k else None
+        for m in n
+    ]
+
+
 def _column(values: list[float]) -> np.ndarray:
     return np.array(values, dtype=np.float64)[:, None]
 
@@ -1050,9 +1058,7 @@ def _fit_lines(
     confidence: float,
     goals: Sequence[float] | None = None,
 ) -> list[LineFit | FailedFit]:
-    out: list[LineFit | FailedFit] = [
-        FailedFit(f"a line needs at least 2 points, got {m}", _none(m)) for m in seg.n
-    ]
+    out: list[Any] = _too_few(seg.n, 2, "a line")
     rows = [r for r, m in enumerate(seg.n) if m >= 2]
     best, done = _ransac(seg.n, rows, 2, rng, trials, confidence,
                          _line_scorer(seg, threshold), seg.n, goals=goals)  # fmt: skip
@@ -1236,9 +1242,7 @@ def _fit_circles(
     goals: Sequence[float] | None = None,
     geometric: bool = True,
 ) -> list[CircleFit | FailedFit]:
-    out: list[CircleFit | FailedFit] = [
-        FailedFit(f"a circle needs at least 3 points, got {m}", _none(m)) for m in seg.n
-    ]
+    out: list[Any] = _too_few(seg.n, 3, "a circle")
     rows = [r for r, m in enumerate(seg.n) if m >= 3]
     best, done = _ransac(seg.n, rows, 3, rng, trials, confidence,
                          _circle_scorer(seg, threshold, limits), seg.n, goals=goals)  # fmt: skip
@@ -1504,9 +1508,7 @@ def _fit_ellipses(
     geometric: bool,
     goals: Sequence[float] | None = None,
 ) -> list[EllipseFit | FailedFit]:
-    out: list[EllipseFit | FailedFit] = [
-        FailedFit(f"an ellipse needs at least 5 points, got {m}", _none(m)) for m in seg.n
-    ]
+    out: list[Any] = _too_few(seg.n, 5, "an ellipse")
     with np.errstate(all="ignore"):
         spread = np.where(seg.valid, seg.x * seg.x + seg.y * seg.y, 0.0).sum(axis=1).tolist()
     rows = []
