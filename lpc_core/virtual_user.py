@@ -75,6 +75,11 @@ Calibration
     the novice ends of the tactor figures to the prototype's 16.7 s and 12.5 s, with 3 users
     per condition. ``lpc trials`` prints how close a run comes. Everything else is a
     literature value or a stated assumption, and was not tuned.
+    The paper measured the prototype only with feedback, so how its extra time splits between
+    aiming and following the cue cannot be told from its figures. This calibration puts part
+    of it on the cue (slow tactor-led moves), so a run without feedback comes out faster; do
+    not read that as evidence against the feedback. With a table in the capture volume, an aim
+    that misses a small object can still end in a (table) fit and a wide, workable pre-shape.
 
 Purity: ``user_step(state, percept, now_ns) -> (state, UserAction)`` reads no clock and keeps no
 generator; every random draw comes from ``numpy.random.default_rng((*seed, draw))`` with a
