@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import ctypes
 import json
+import os
 import signal
 import sys
 import time
@@ -37,6 +38,10 @@ class ServiceSpec:
     module: str
     argv: Callable[[argparse.Namespace], list[str]] = lambda args: []
     enabled: Callable[[argparse.Namespace], bool] = lambda args: True
+    # Added to the process's niceness. On a 2-core SBC the control loop and the camera must
+    # get the CPU first; work that may lag (reconstruction drops frames by design, the
+    # recorder and the viewer have queues) yields to them.
+    nice: int = 0
 
 
 def _camera_argv(args: argparse.Namespace) -> list[str]:
@@ -82,14 +87,19 @@ def _profile_path(args: argparse.Namespace) -> Path:
 # Start order: the recorder first (it must see everything), sources last. Stop order: reverse.
 SERVICES: dict[str, ServiceSpec] = {
     "recorder": ServiceSpec(
-        "services.recorder", _recorder_argv, lambda args: args.record is not None
+        "services.recorder", _recorder_argv, lambda args: args.record is not None, nice=2
     ),
     "foxglove": ServiceSpec(
-        "services.foxglove_bridge", _foxglove_argv, lambda args: getattr(args, "foxglove", False)
+        "services.foxglove_bridge",
+        _foxglove_argv,
+        lambda args: getattr(args, "foxglove", False),
+        nice=5,
     ),
     "scans": ServiceSpec("services.scans"),
     "reconstructor": ServiceSpec(
-        "services.reconstructor", lambda args: ["--method", getattr(args, "method", "laser")]
+        "services.reconstructor",
+        lambda args: ["--method", getattr(args, "method", "laser")],
+        nice=5,
     ),
     # No --tactor-port: the bridge drives a simulated controller on a pseudo-terminal.
     "tactor_bridge": ServiceSpec(
@@ -367,15 +377,19 @@ async def _spawn(child: Child, endpoint: str) -> None:
         "--quiet",
         *child.argv,
         stdin=asyncio.subprocess.DEVNULL,
-        preexec_fn=_die_with_parent,
+        preexec_fn=lambda: _prepare_child(child.spec.nice),
     )
 
 
-def _die_with_parent() -> None:
-    """In the child before exec: get SIGTERM if the supervisor dies, so no service is orphaned."""
+def _prepare_child(nice: int) -> None:
+    """In the child before exec: get SIGTERM if the supervisor dies, so no service is orphaned,
+    and take the service's niceness."""
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    if nice:
+        with contextlib.suppress(OSError):
+            os.nice(nice)
 
 
 async def _run_children(
