@@ -514,8 +514,11 @@ def _ellipse_distance(
     exponent -2 of affine functions of ``s``) and exactly linear where one term dominates.
     Started at ``max(z1 - 1, r0 z0 - r0)``, where ``G >= 0``, Newton climbs monotonically to
     the root: it converges for every point, to round-off within 12 steps for axis ratios up
-    to 20 (typically 5-7), and stops once every step is below 1e-12 relative. Points with
-    ``v = 0`` use Eberly's closed form.
+    to 20, and stops once every step is below 1e-12 relative. Since a Newton step on a
+    concave function lands left of the root from either side, the step from ``s = 0`` is a
+    valid start too; the larger of the two starts near points (the inliers) within the
+    quadratic range, which saves about 3 steps. Points with ``v = 0`` use Eberly's closed
+    form.
     """
     y0, y1 = np.abs(u), np.abs(v)
     r0 = (a / b) ** 2
@@ -528,7 +531,11 @@ def _ellipse_distance(
         z1 = np.where(on_axis, 1.0, z1)
     k0 = r0 * z0
     c0, c1 = k0 * k0, z1 * z1
-    s = np.maximum(z1 - 1.0, k0 - r0)
+    with np.errstate(all="ignore"):
+        total = z0 * z0 + c1  # G(0) + 1
+        from_zero = total * (np.sqrt(total) - 1.0) / (z0 * z0 / r0 + c1)
+    # fmax: from_zero is NaN at the centre, where the safe start alone is used.
+    s = np.fmax(np.maximum(z1 - 1.0, k0 - r0), from_zero)
     # fmax ignores NaN: padded entries of a batch of scan lines neither set nor block the stop.
     tol = 1e-12 * (1.0 + float(np.fmax.reduce(np.abs(s), axis=None)))
     for _ in range(40):
@@ -827,13 +834,16 @@ def _draw_batch(rng: np.random.Generator, n: np.ndarray, size: int, k: int) -> n
     likely (the order within a sample is not uniform, which no model here cares about); no
     sorting. With one row it draws exactly what ``_draw_samples`` draws.
     """
-    v = (rng.random((n.shape[0], size, k)) * (n[:, None, None] - k + np.arange(1.0, k + 1.0)))
+    v = rng.random((n.shape[0], size, k)) * (n[:, None, None] - k + np.arange(1.0, k + 1.0))
     v = v.astype(np.intp)
+    cols = [v[:, :, c] for c in range(k)]  # views: replacing in place updates v
     for col in range(1, k):
-        current = v[:, :, col]
-        taken = (v[:, :, 0] == current) if col == 1 else (
-            (v[:, :, :col] == current[:, :, None]).any(axis=2))  # fmt: skip
-        v[:, :, col] = np.where(taken, n[:, None] - k + col, current)
+        current = cols[col]
+        # Compare with each earlier column: cheaper than an any() reduction at this size.
+        taken = current == cols[0]
+        for c in range(1, col):
+            taken |= current == cols[c]
+        np.copyto(current, n[:, None] - k + col, where=taken)
     return v
 
 
@@ -1389,18 +1399,33 @@ def _five_point_conics(px: np.ndarray, py: np.ndarray) -> np.ndarray:
 
 def _sampson_ratio(conic: np.ndarray, mono: np.ndarray) -> np.ndarray:
     """``F^2 / |grad F|^2`` ``(L, T, M)`` of conics ``(L, T, 6)`` at points whose monomials
-    ``[x^2, xy, y^2, x, y, 1]`` are ``mono`` ``(L, 6, M)``.
+    are ``mono`` ``(L, 6, 3M)``: ``[x^2, xy, y^2, x, y, 1]``, then those of ``dF/dx``
+    (``[2x, y, 0, 1, 0, 0]``) and of ``dF/dy`` (``[0, x, 2y, 0, 1, 0]``), see ``_monomials``.
 
     The Sampson distance ``|F| / |grad F|`` is the orthogonal distance to first order and is
     free of the conic's scale. NaN where the gradient vanishes or the point is padding.
     """
-    A, B, C, D, E = (conic[:, :, i] for i in range(5))
-    f = conic @ mono
-    lin = mono[:, 3:]
-    gx = np.stack([2.0 * A, B, D], axis=2) @ lin
-    gy = np.stack([B, 2.0 * C, E], axis=2) @ lin
+    m = mono.shape[2] // 3
+    fg = conic @ mono  # F, dF/dx, dF/dy side by side, in one product
+    f, gx, gy = fg[:, :, :m], fg[:, :, m : 2 * m], fg[:, :, 2 * m :]
     with np.errstate(all="ignore"):
         return f * f / (gx * gx + gy * gy)
+
+
+def _monomials(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``(L, 6, 3M)`` monomials of points ``x, y`` ``(L, M)`` for ``_sampson_ratio``."""
+    count, m = x.shape
+    out = np.zeros((count, 6, 3 * m))
+    f, gx, gy = out[:, :, :m], out[:, :, m : 2 * m], out[:, :, 2 * m :]
+    np.multiply(x, x, out=f[:, 0])
+    np.multiply(x, y, out=f[:, 1])
+    np.multiply(y, y, out=f[:, 2])
+    f[:, 3], f[:, 4], f[:, 5] = x, y, 1.0
+    np.multiply(x, 2.0, out=gx[:, 0])
+    gx[:, 1], gx[:, 3] = y, 1.0
+    np.multiply(y, 2.0, out=gy[:, 2])
+    gy[:, 1], gy[:, 4] = x, 1.0
+    return out
 
 
 def _ellipse_ok(conic: np.ndarray, lo: float | np.ndarray, hi: float | np.ndarray) -> np.ndarray:
@@ -1439,20 +1464,15 @@ class _EllipseFrame:
         picks = np.where(j < np.array(self.n_scored)[:, None], j * np.array(stride)[:, None],
                          sub.width - 1)  # fmt: skip
         picks += (np.arange(sub.count) * sub.width)[:, None]
-        xs, ys = self.x.ravel()[picks], self.y.ravel()[picks]
-        self.mono_sub = self._mono(xs, ys)
+        self.mono_sub = _monomials(self.x.ravel()[picks], self.y.ravel()[picks])
         self.pad_sub = _column([ELLIPSE_SCORE_POINTS - m for m in self.n_scored])
         self.pad = _column([sub.width - m for m in sub.n])
         self.stride_col = _column([float(s) for s in stride])
         self._mono_full: np.ndarray | None = None
 
-    @staticmethod
-    def _mono(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
-
     def mono_full(self) -> np.ndarray:
         if self._mono_full is None:
-            self._mono_full = self._mono(self.x, self.y)
+            self._mono_full = _monomials(self.x, self.y)
         return self._mono_full
 
 
@@ -1474,15 +1494,16 @@ def _ellipse_scorer(frame: _EllipseFrame) -> _Scorer:
         ok = _ellipse_ok(conic, lo, hi)  # (L, T)
         conic = conic.transpose(1, 2, 0)  # (L, T, 6)
         ratio = _sampson_ratio(conic, sub)
-        # Padding is NaN, so never an inlier: it adds t2 to every hypothesis; take it off.
-        cost = np.where(ratio <= t2[:, :, None], ratio, t2[:, :, None]).sum(axis=2) - pad_sub * t2
+        # MSAC's truncated cost: fmin takes t2 for NaN, so padding (NaN) and points where the
+        # gradient vanishes count as outliers; padding adds t2 to every hypothesis: take it off.
+        cost = np.fmin(ratio, t2[:, :, None]).sum(axis=2) - pad_sub * t2
         cost = np.where(ok, cost, np.inf)
         top = np.argsort(cost, axis=1, kind="stable")[:, :ELLIPSE_TOP]
-        conic = np.take_along_axis(conic, top[:, :, None], axis=1)  # (L, TOP, 6)
-        ok = np.take_along_axis(ok, top, axis=1)
+        rows_ = np.arange(count)[:, None]
+        conic, ok = conic[rows_, top], ok[rows_, top]  # (L, TOP, 6), (L, TOP)
         ratio = _sampson_ratio(conic, full)
         inl = ratio <= t2[:, :, None]
-        cost = (np.where(inl, ratio, t2[:, :, None]).sum(axis=2) - pad * t2) / stride
+        cost = (np.fmin(ratio, t2[:, :, None]).sum(axis=2) - pad * t2) / stride
         cost = np.where(ok, cost, np.inf)
         i = cost.argmin(axis=1)
         k = np.arange(count)
