@@ -139,7 +139,7 @@ class LaserParams:
     axis_along_view: float = 0.1
     axis_grid_points: int = 120
     axis_good_fraction: float = 0.9
-    cylinder_iterations: int = 5
+    cylinder_iterations: int = 3
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
@@ -946,14 +946,14 @@ def _sphere_candidate(
             np.array([ln.fits["circle"].params[:2] for ln in circles]),
             np.concatenate([ln.seeds() for ln in circles]),
         )
-    solid = SphereSolid.estimate(clean, init=init, iterations=3)
+    solid = SphereSolid.estimate(clean, init=init, iterations=2)
     if not solid:
         return _Candidate("sphere", reason=solid.reason)
     thr = params.solid_threshold_m
     residuals = solid.residuals(clean)
     inliers = clean[residuals <= thr]
     if 4 <= len(inliers) < len(clean):
-        refined = SphereSolid.estimate(inliers, init=(solid.center, solid.radius), iterations=2)
+        refined = SphereSolid.estimate(inliers, init=(solid.center, solid.radius), iterations=1)
         if refined:
             solid, residuals = refined, refined.residuals(clean)
     lo, hi = params.radius_limits_m
@@ -1035,7 +1035,7 @@ def _cylinder_candidate(
     inliers = clean[keep]
     if len(inliers) >= 5 and (step > 1 or not keep.all()):
         # Refit on every inlier: the first fit saw a sample, or outliers.
-        refined = CylinderSolid.estimate(inliers, solid.axis, iterations=2)
+        refined = CylinderSolid.estimate(inliers, solid.axis, iterations=1)
         if refined:
             solid, residuals = refined, refined.residuals(clean)
     lo, hi = params.radius_limits_m
