@@ -26,6 +26,7 @@ per-hypothesis work is a handful of array expressions over all hypotheses at onc
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -852,6 +853,7 @@ def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.nda
     return _draw_batch(rng, np.array([n]), size, k)[0]
 
 
+@functools.lru_cache(maxsize=4096)
 def _trials_needed(n_inliers: float, n: int, k: int, confidence: float) -> float:
     """Standard RANSAC bound: trials for one all-inlier sample at the given confidence."""
     # Exact probability of an all-inlier sample without replacement (matters for small n).
@@ -910,12 +912,16 @@ class Segments:
         out.valid, out.x, out.y = self.valid[idx], self.x[idx], self.y[idx]
         out.ox, out.oy = self.ox[idx], self.oy[idx]
         out.mean = [self.mean[r] for r in rows]
-        out._bases = {key: value[idx] for key, value in self._bases.items()}
+        out._bases = {k: v[idx] for k, v in self._bases.items() if not k.startswith("offsets")}
         return out
 
     def offsets(self, count: int) -> np.ndarray:
         """Flat offsets of ``count`` rows, to gather ``(L, T, k)`` sample indices at once."""
-        return (np.arange(count) * self.width)[:, None, None]
+        key = f"offsets{count}"
+        found = self._bases.get(key)
+        if found is None:
+            found = self._bases[key] = (np.arange(count) * self.width)[:, None, None]
+        return found
 
     def basis(self, name: str) -> np.ndarray:
         """``(L, m, W)`` monomials of the centred points, built once per batch."""
@@ -1025,39 +1031,63 @@ def _column(values: list[float]) -> np.ndarray:
 
 def _line_scorer(seg: Segments, threshold: float) -> _Scorer:
     basis_all = seg.basis("line")  # (L, 3, W): x, y, 1
-    n_plus = np.array(seg.n, dtype=np.float64) + 1.0
 
     def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
         if rows is None:
-            x, y, basis, norm = seg.x, seg.y, basis_all, n_plus
+            x, y, basis = seg.x, seg.y, basis_all
         else:
-            x, y, basis, norm = seg.x[rows], seg.y[rows], basis_all[rows], n_plus[rows]
+            x, y, basis = seg.x[rows], seg.y[rows], basis_all[rows]
         g = idx + seg.offsets(x.shape[0])
         px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 2)
-        x0, y0 = px[:, :, 0], py[:, :, 0]
-        ex, ey = px[:, :, 1] - x0, py[:, :, 1] - y0
+        x0, y0, x1, y1 = px[:, :, 0], py[:, :, 0], px[:, :, 1], py[:, :, 1]
+        # The line through p0 and p1, (y0 - y1, x1 - x0, x0 y1 - x1 y0) = (-e_y, e_x, e x p0):
         # |e x (p - p0)| = |e| * distance, for every hypothesis and point in one product.
-        coef = np.stack([-ey, ex, ey * x0 - ex * y0], axis=2)  # (L, T, 3)
-        length = np.hypot(ex, ey)
+        coef = np.empty((*x0.shape, 3))
+        np.subtract(y0, y1, out=coef[:, :, 0])
+        np.subtract(x1, x0, out=coef[:, :, 1])
+        np.subtract(x0 * y1, x1 * y0, out=coef[:, :, 2])
+        length = np.hypot(coef[:, :, 0], coef[:, :, 1])
         # Repeated points (length 0) must count nothing.
         limit = np.where(length > 0.0, threshold * length, -1.0)
         dist = np.abs(coef @ basis)  # (L, T, W); NaN on padding, never an inlier
         inl = dist <= limit[:, :, None]
-        counts = inl.sum(axis=2)
-        # Residual sum over the inliers in units of the threshold: below the count, so a
-        # penalty sum / (n + 1) < 1 breaks ties of count without ever outweighing an inlier.
-        sums = np.where(inl, dist, 0.0).sum(axis=2) / limit
-        i = (counts - sums / norm[:, None]).argmax(axis=1)
-        r = np.arange(i.shape[0])
-        top, total = counts[r, i].tolist(), (sums[r, i] * threshold).tolist()
+
+        def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
+            with np.errstate(all="ignore"):  # length 0: no inlier, the sum is NaN
+                return np.where(inl[rl, rt], dist[rl, rt], 0.0).sum(axis=1) / length[rl, rt]
+
+        picks = _pick_rows(inl, residual_sums)
+        r, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
         with np.errstate(all="ignore"):  # length 0: no inlier, no model
             params = (coef[r, i] / length[r, i, None]).tolist()
         return [
-            None if c == 0 else (c, t, tuple(p))
-            for c, t, p in zip(top, total, params, strict=True)
+            None if c == 0 else (c, total, tuple(p))
+            for (_, c, total), p in zip(picks, params, strict=True)
         ]
 
     return score
+
+
+def _pick_rows(
+    inl: np.ndarray, residual_sums: Callable[[np.ndarray, np.ndarray], np.ndarray]
+) -> list[tuple[int, int, float]]:
+    """Each line's hypothesis with the most inliers ``inl`` (L, T, W); ties go to the lowest
+    residual sum, then the first. ``(t, count, residual sum)`` per line; the sums are computed
+    for the tied hypotheses only (``residual_sums(lines, hypotheses)``)."""
+    counts = inl.sum(axis=2)
+    top = counts.max(axis=1)
+    tl, tt = np.nonzero(counts == top[:, None])
+    tops = top.tolist()
+    sums = residual_sums(tl, tt).tolist()
+    out: list[tuple[int, int, float]] = [(0, 0, math.inf)] * len(tops)
+    for line, t, total in zip(tl.tolist(), tt.tolist(), sums, strict=True):
+        if total < out[line][2]:
+            out[line] = (t, tops[line], total)
+    # A line whose tied sums are all NaN keeps its first tied hypothesis.
+    return [
+        o if o[2] < math.inf else (int(tt[tl == line][0]), tops[line], math.inf)
+        for line, o in enumerate(out)
+    ]
 
 
 def _fit_lines(
@@ -1185,7 +1215,6 @@ def fit_lines(
 
 def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float]) -> _Scorer:
     basis_all = seg.basis("circle")  # (L, 4, W): x, y, x^2 + y^2, 1
-    n_plus = np.array(seg.n, dtype=np.float64) + 1.0
     r_lo = limits[0]
     lo2, hi2 = limits[0] ** 2, limits[1] ** 2
     unbounded = math.isinf(hi2)
@@ -1193,9 +1222,9 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
 
     def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
         if rows is None:
-            x, y, basis, norm = seg.x, seg.y, basis_all, n_plus
+            x, y, basis = seg.x, seg.y, basis_all
         else:
-            x, y, basis, norm = seg.x[rows], seg.y[rows], basis_all[rows], n_plus[rows]
+            x, y, basis = seg.x[rows], seg.y[rows], basis_all[rows]
         g = idx + seg.offsets(x.shape[0])
         px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 3)
         # Circumcentre relative to the first point; b, e the other two points' offsets.
@@ -1226,17 +1255,20 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
                             axis=2)  # fmt: skip
             q = coef @ basis  # (L, T, W): rho^2 - mid, NaN on padding
             inl = np.abs(q) <= half[:, :, None]
-            counts = inl.sum(axis=2)
-            # Tie-break: residual sums over the inliers, in thresholds (see _line_scorer).
-            d = np.abs(np.sqrt(np.maximum(q + mid[:, :, None], 0.0)) - r[:, :, None])
-            sums = np.where(inl, d, 0.0).sum(axis=2) / threshold
-        i = (counts - sums / norm[:, None]).argmax(axis=1)
-        k = np.arange(i.shape[0])
-        top, total = counts[k, i].tolist(), (sums[k, i] * threshold).tolist()
+
+        def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
+            # |rho - r| over the inliers, rho = sqrt(q + mid).
+            with np.errstate(all="ignore"):
+                rho = np.sqrt(np.maximum(q[rl, rt] + mid[rl, rt, None], 0.0))
+                d = np.abs(rho - r[rl, rt, None])
+            return np.where(inl[rl, rt], d, 0.0).sum(axis=1)
+
+        picks = _pick_rows(inl, residual_sums)
+        k, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
         params = np.stack([cx[k, i], cy[k, i], r[k, i]], axis=1).tolist()
         return [
-            None if c == 0 else (c, t, tuple(p))
-            for c, t, p in zip(top, total, params, strict=True)
+            None if c == 0 else (c, total, tuple(p))
+            for (_, c, total), p in zip(picks, params, strict=True)
         ]
 
     return score
