@@ -1012,14 +1012,16 @@ def _cylinder_candidate(
     sample = clean[::step]
     best: CylinderSolid | None = None
     best_fraction = -1.0
+    best_residuals = _EMPTY_RUN
 
     def attempt(axis: np.ndarray) -> None:
-        nonlocal best, best_fraction
+        nonlocal best, best_fraction, best_residuals
         solid = CylinderSolid.estimate(sample, axis, iterations=params.cylinder_iterations)
         if solid:
-            fraction = _fraction(solid.residuals(sample), thr)
+            residuals = solid.residuals(sample)
+            fraction = _fraction(residuals, thr)
             if fraction > best_fraction:
-                best, best_fraction = solid, fraction
+                best, best_fraction, best_residuals = solid, fraction, residuals
 
     for axis in _axis_guesses(lines, params):
         attempt(axis)
@@ -1032,7 +1034,7 @@ def _cylinder_candidate(
     if best is None:
         return _Candidate("cylinder", reason="no cylinder converged")
     solid = best
-    residuals = solid.residuals(clean)
+    residuals = best_residuals if step == 1 else solid.residuals(clean)
     keep = residuals <= thr
     inliers = clean[keep]
     if len(inliers) >= 5 and (step > 1 or not keep.all()):

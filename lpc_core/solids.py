@@ -189,16 +189,19 @@ class SphereSolid:
             center, radius = mean + scale * sol[:3], float(scale * np.sqrt(r2))
         else:
             center, radius = np.asarray(init[0], dtype=np.float64), float(init[1])
-        jac = np.empty((len(points), 4))
-        jac[:, 3] = -1.0
+        # [J | -r]: J'J and -J'r from one product.
+        aug = np.empty((len(points), 5))
+        aug[:, 3] = -1.0
         for _ in range(iterations):
             w = points - center
             rho = np.sqrt(np.einsum("ij,ij->i", w, w))
             if not rho.min() > 0:
                 return FailedSolid("a point sits on the centre")
-            np.divide(w, -rho[:, None], out=jac[:, :3])
+            np.divide(w, -rho[:, None], out=aug[:, :3])
+            np.subtract(radius, rho, out=aug[:, 4])
+            normal = aug.T @ aug
             try:
-                step = np.linalg.solve(jac.T @ jac, jac.T @ (radius - rho))
+                step = np.linalg.solve(normal[:4, :4], normal[:4, 4])
             except np.linalg.LinAlgError:
                 return FailedSolid("points do not fix a sphere")
             center = center + step[:3]
@@ -308,12 +311,14 @@ def _cylinder_normal_equations(
     proj = (points - np.array(c)) @ np.array([d, e1, e2]).T
     qb = proj[:, 1:]
     rho = np.sqrt(np.einsum("ij,ij->i", qb, qb))
-    res = rho - radius
-    jac = np.empty((len(points), 5))
-    np.divide(qb, -np.maximum(rho, 1e-12)[:, None], out=jac[:, :2])
-    np.multiply(jac[:, :2], proj[:, :1], out=jac[:, 2:4])
-    jac[:, 4] = -1.0
-    return float(res @ res), jac.T @ jac, jac.T @ res
+    # [J | r]: J'J, J'r and r'r from one product.
+    aug = np.empty((len(points), 6))
+    np.divide(qb, -np.maximum(rho, 1e-12)[:, None], out=aug[:, :2])
+    np.multiply(aug[:, :2], proj[:, :1], out=aug[:, 2:4])
+    aug[:, 4] = -1.0
+    np.subtract(rho, radius, out=aug[:, 5])
+    normal = aug.T @ aug
+    return float(normal[5, 5]), normal[:5, :5], normal[:5, 5]
 
 
 def best_cylinder_axis(
