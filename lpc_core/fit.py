@@ -1047,19 +1047,19 @@ def _line_scorer(seg: Segments, threshold: float) -> _Scorer:
         np.subtract(x1, x0, out=coef[:, :, 1])
         np.subtract(x0 * y1, x1 * y0, out=coef[:, :, 2])
         length = np.hypot(coef[:, :, 0], coef[:, :, 1])
-        # Repeated points (length 0) must count nothing.
-        limit = np.where(length > 0.0, threshold * length, -1.0)
+        # Unit normals, so the product below is the distance itself and the test is against a
+        # scalar; repeated points (length 0) give NaN, which is never an inlier.
+        with np.errstate(all="ignore"):
+            coef /= length[:, :, None]
         dist = np.abs(coef @ basis)  # (L, T, W); NaN on padding, never an inlier
-        inl = dist <= limit[:, :, None]
+        inl = dist <= threshold
 
         def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
-            with np.errstate(all="ignore"):  # length 0: no inlier, the sum is NaN
-                return np.where(inl[rl, rt], dist[rl, rt], 0.0).sum(axis=1) / length[rl, rt]
+            return np.where(inl[rl, rt], dist[rl, rt], 0.0).sum(axis=1)
 
         picks = _pick_rows(inl, residual_sums)
         r, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
-        with np.errstate(all="ignore"):  # length 0: no inlier, no model
-            params = (coef[r, i] / length[r, i, None]).tolist()
+        params = coef[r, i].tolist()
         return [
             None if c == 0 else (c, total, tuple(p))
             for (_, c, total), p in zip(picks, params, strict=True)
@@ -1074,7 +1074,8 @@ def _pick_rows(
     """Each line's hypothesis with the most inliers ``inl`` (L, T, W); ties go to the lowest
     residual sum, then the first. ``(t, count, residual sum)`` per line; the sums are computed
     for the tied hypotheses only (``residual_sums(lines, hypotheses)``)."""
-    counts = inl.sum(axis=2)
+    # Counting through uint8 -> uint16 skips numpy's bool -> int64 cast (half the cost here).
+    counts = np.add.reduce(inl.view(np.uint8), axis=2, dtype=np.uint16)
     top = counts.max(axis=1)
     tl, tt = np.nonzero(counts == top[:, None])
     tops = top.tolist()
@@ -1250,17 +1251,22 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
             else:
                 rlo, rhi = np.maximum(r - threshold, 0.0), r + threshold
                 mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
-            half = np.where(ok, half, -1.0)
-            coef = np.stack([-2.0 * cx, -2.0 * cy, np.ones_like(cx), cx * cx + cy * cy - mid],
-                            axis=2)  # fmt: skip
-            q = coef @ basis  # (L, T, W): rho^2 - mid, NaN on padding
-            inl = np.abs(q) <= half[:, :, None]
+            # [-2cx, -2cy, 1, |c|^2 - mid] / half: the test is then |product| <= 1 against a
+            # scalar; rejected hypotheses get NaN, which is never an inlier.
+            scale = np.where(ok, 1.0 / half, np.nan)
+            coef = np.empty((*cx.shape, 4))
+            np.multiply(cx, -2.0 * scale, out=coef[:, :, 0])
+            np.multiply(cy, -2.0 * scale, out=coef[:, :, 1])
+            coef[:, :, 2] = scale
+            np.multiply(cx * cx + cy * cy - mid, scale, out=coef[:, :, 3])
+            q = coef @ basis  # (L, T, W): (rho^2 - mid) / half, NaN on padding
+            inl = np.abs(q) <= 1.0
 
         def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
-            # |rho - r| over the inliers, rho = sqrt(q + mid).
+            # |rho - r| over the inliers, rho = sqrt(q half + mid).
             with np.errstate(all="ignore"):
-                rho = np.sqrt(np.maximum(q[rl, rt] + mid[rl, rt, None], 0.0))
-                d = np.abs(rho - r[rl, rt, None])
+                rho2 = q[rl, rt] * half[rl, rt, None] + mid[rl, rt, None]
+                d = np.abs(np.sqrt(np.maximum(rho2, 0.0)) - r[rl, rt, None])
             return np.where(inl[rl, rt], d, 0.0).sum(axis=1)
 
         picks = _pick_rows(inl, residual_sums)
