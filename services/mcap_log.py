@@ -118,6 +118,14 @@ class _FileSink:
             self._fd = -1
 
 
+def free_path(path: Path) -> Path:
+    """``path``, or the first ``out-NNN.mcap`` beside it that no earlier log occupies."""
+    index = 0
+    while rotated_path(path, index).exists():
+        index += 1
+    return rotated_path(path, index)
+
+
 def rotated_path(path: Path, index: int) -> Path:
     """The ``index``-th file of a rotated log: ``out.mcap``, ``out-001.mcap``, ``out-002.mcap``."""
     if index == 0:

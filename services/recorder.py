@@ -21,8 +21,9 @@ import asyncio
 import contextlib
 import sys
 import time
+from pathlib import Path
 
-from services.mcap_log import COMPRESSIONS, DEFAULT_COMPRESSION, LogWriter
+from services.mcap_log import COMPRESSIONS, DEFAULT_COMPRESSION, LogWriter, free_path
 from services.runtime import Bus, run_service, service_parser
 
 QUEUE_CAPACITY = 1 << 16  # ~6 s of everything at 90 Hz depth: a slow disk stalls, never drops
@@ -34,9 +35,12 @@ DRAIN_MAX_S = 1.5
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     max_bytes = None if args.max_mb is None else int(args.max_mb * 1024 * 1024)
-    writer = LogWriter(args.out, compression=args.compression, max_bytes=max_bytes)
+    # Never overwrite a recording: a recorder restarted after a crash (or a second session
+    # with the same --out) writes beside the file its predecessor left, not over it.
+    out = free_path(Path(args.out))
+    writer = LogWriter(out, compression=args.compression, max_bytes=max_bytes)
     sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY, decode=False)
-    bus.log("info", f"recording lpc/** to {args.out} ({args.compression})")
+    bus.log("info", f"recording lpc/** to {out} ({args.compression})")
     try:
         while True:
             key, payload, received_ns = await sub.receive()
