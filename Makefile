@@ -17,7 +17,9 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $@
 
+# The recorder never overwrites a file, so the demo clears its own previous output first.
 demo: $(VENV)/.installed
+	rm -f out.mcap out-[0-9][0-9][0-9].mcap
 	$(VENV)/bin/lpc up --source sim --duration 10 --record out.mcap
 	$(VENV)/bin/lpc info out.mcap
 
