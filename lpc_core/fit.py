@@ -1436,33 +1436,38 @@ def _five_point_conics(px: np.ndarray, py: np.ndarray) -> np.ndarray:
 
 
 def _sampson_ratio(conic: np.ndarray, mono: np.ndarray) -> np.ndarray:
-    """``F^2 / |grad F|^2`` ``(L, T, M)`` of conics ``(L, T, 6)`` at points whose monomials
-    are ``mono`` ``(L, 6, 3M)``: ``[x^2, xy, y^2, x, y, 1]``, then those of ``dF/dx``
-    (``[2x, y, 0, 1, 0, 0]``) and of ``dF/dy`` (``[0, x, 2y, 0, 1, 0]``), see ``_monomials``.
+    """``F^2 / (t^2 |grad F|^2)`` ``(L, T, M)`` of conics ``(L, T, 6)`` at points whose
+    monomials are ``mono`` ``(3, L, 6, M)`` (see ``_monomials``; ``t`` is each line's
+    threshold): a point is a Sampson inlier when this is ``<= 1``.
 
     The Sampson distance ``|F| / |grad F|`` is the orthogonal distance to first order and is
     free of the conic's scale. NaN where the gradient vanishes or the point is padding.
     """
-    m = mono.shape[2] // 3
-    fg = conic @ mono  # F, dF/dx, dF/dy side by side, in one product
-    f, gx, gy = fg[:, :, :m], fg[:, :, m : 2 * m], fg[:, :, 2 * m :]
+    f, gx, gy = np.matmul(conic, mono)  # F, t dF/dx, t dF/dy: three contiguous blocks
     with np.errstate(all="ignore"):
-        return f * f / (gx * gx + gy * gy)
+        np.multiply(f, f, out=f)
+        np.multiply(gx, gx, out=gx)
+        np.multiply(gy, gy, out=gy)
+        np.add(gx, gy, out=gx)
+        return np.divide(f, gx, out=f)
 
 
-def _monomials(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``(L, 6, 3M)`` monomials of points ``x, y`` ``(L, M)`` for ``_sampson_ratio``."""
+def _monomials(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``(3, L, 6, M)`` monomials of points ``x, y`` ``(L, M)``: those of ``F``
+    (``[x^2, xy, y^2, x, y, 1]``), of ``t dF/dx`` (``t [2x, y, 0, 1, 0, 0]``) and of
+    ``t dF/dy`` (``t [0, x, 2y, 0, 1, 0]``), ``t`` ``(L, 1)`` each line's threshold."""
     count, m = x.shape
-    out = np.zeros((count, 6, 3 * m))
-    f, gx, gy = out[:, :, :m], out[:, :, m : 2 * m], out[:, :, 2 * m :]
+    out = np.zeros((3, count, 6, m))
+    f, gx, gy = out
     np.multiply(x, x, out=f[:, 0])
     np.multiply(x, y, out=f[:, 1])
     np.multiply(y, y, out=f[:, 2])
     f[:, 3], f[:, 4], f[:, 5] = x, y, 1.0
-    np.multiply(x, 2.0, out=gx[:, 0])
-    gx[:, 1], gx[:, 3] = y, 1.0
-    np.multiply(y, 2.0, out=gy[:, 2])
-    gy[:, 1], gy[:, 4] = x, 1.0
+    tx, ty = t * x, t * y
+    np.multiply(tx, 2.0, out=gx[:, 0])
+    gx[:, 1], gx[:, 3] = ty, t
+    np.multiply(ty, 2.0, out=gy[:, 2])
+    gy[:, 1], gy[:, 4] = tx, t
     return out
 
 
@@ -1494,7 +1499,7 @@ class _EllipseFrame:
         self.scale = scale = [math.sqrt(s / m) for s, m in zip(spread, sub.n, strict=True)]
         inv = _column([1.0 / v for v in scale])
         self.x, self.y = sub.x * inv, sub.y * inv
-        self.t2 = (threshold * inv) ** 2  # (L, 1)
+        self.t = threshold * inv  # (L, 1)
         self.lo, self.hi = limits[0] * inv, limits[1] * inv
         self.stride = stride = [max(1, -(-m // ELLIPSE_SCORE_POINTS)) for m in sub.n]
         self.n_scored = [-(-m // s) for m, s in zip(sub.n, stride, strict=True)]
@@ -1502,16 +1507,26 @@ class _EllipseFrame:
         picks = np.where(j < np.array(self.n_scored)[:, None], j * np.array(stride)[:, None],
                          sub.width - 1)  # fmt: skip
         picks += (np.arange(sub.count) * sub.width)[:, None]
-        self.mono_sub = _monomials(self.x.ravel()[picks], self.y.ravel()[picks])
+        self.mono_sub = _monomials(self.x.ravel()[picks], self.y.ravel()[picks], self.t)
         self.pad_sub = _column([ELLIPSE_SCORE_POINTS - m for m in self.n_scored])
         self.pad = _column([sub.width - m for m in sub.n])
         self.stride_col = _column([float(s) for s in stride])
         self._mono_full: np.ndarray | None = None
+        self._ones: dict[tuple[int, ...], np.ndarray] = {}
 
     def mono_full(self) -> np.ndarray:
         if self._mono_full is None:
-            self._mono_full = _monomials(self.x, self.y)
+            self._mono_full = _monomials(self.x, self.y, self.t)
         return self._mono_full
+
+    def truncated_sums(self, ratio: np.ndarray) -> np.ndarray:
+        """MSAC's ``sum(min(ratio, 1))`` over the last axis; NaN (padding, a vanishing
+        gradient) counts 1, an outlier. ``fmin`` against an array and a product with ones
+        are three times cheaper here than against a scalar and ``sum``."""
+        shape = ratio.shape
+        if shape not in self._ones:
+            self._ones[shape] = np.ones(shape)
+        return np.fmin(ratio, self._ones[shape], out=ratio) @ self._ones[shape][0, 0]
 
 
 def _ellipse_scorer(frame: _EllipseFrame) -> _Scorer:
@@ -1521,27 +1536,27 @@ def _ellipse_scorer(frame: _EllipseFrame) -> _Scorer:
     def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
         f = frame
         x, y, sub, full = f.x, f.y, f.mono_sub, f.mono_full()
-        lo, hi, t2, pad_sub, pad, stride = f.lo, f.hi, f.t2, f.pad_sub, f.pad, f.stride_col
+        lo, hi, pad_sub, pad, stride = f.lo, f.hi, f.pad_sub, f.pad, f.stride_col
         if rows is not None:
-            x, y, sub, full, lo, hi = x[rows], y[rows], sub[rows], full[rows], lo[rows], hi[rows]
-            t2, pad_sub, pad, stride = t2[rows], pad_sub[rows], pad[rows], stride[rows]
+            x, y, lo, hi = x[rows], y[rows], lo[rows], hi[rows]
+            sub, full = sub[:, rows], full[:, rows]
+            pad_sub, pad, stride = pad_sub[rows], pad[rows], stride[rows]
         count, trials = idx.shape[0], idx.shape[1]
         g = (idx + f.seg.offsets(count)).reshape(-1, 5)
         with np.errstate(all="ignore"):
             conic = _five_point_conics(x.ravel()[g], y.ravel()[g]).reshape(6, count, trials)
         ok = _ellipse_ok(conic, lo, hi)  # (L, T)
-        conic = conic.transpose(1, 2, 0)  # (L, T, 6)
-        ratio = _sampson_ratio(conic, sub)
-        # MSAC's truncated cost: fmin takes t2 for NaN, so padding (NaN) and points where the
-        # gradient vanishes count as outliers; padding adds t2 to every hypothesis: take it off.
-        cost = np.fmin(ratio, t2[:, :, None]).sum(axis=2) - pad_sub * t2
+        conic = np.ascontiguousarray(conic.transpose(1, 2, 0))  # (L, T, 6)
+        # MSAC's truncated cost, in units of each line's threshold squared; padding adds 1 to
+        # every hypothesis: take it off.
+        cost = f.truncated_sums(_sampson_ratio(conic, sub)) - pad_sub
         cost = np.where(ok, cost, np.inf)
         top = np.argsort(cost, axis=1, kind="stable")[:, :ELLIPSE_TOP]
         rows_ = np.arange(count)[:, None]
         conic, ok = conic[rows_, top], ok[rows_, top]  # (L, TOP, 6), (L, TOP)
         ratio = _sampson_ratio(conic, full)
-        inl = ratio <= t2[:, :, None]
-        cost = (np.fmin(ratio, t2[:, :, None]).sum(axis=2) - pad * t2) / stride
+        inl = ratio <= 1.0
+        cost = (f.truncated_sums(ratio) - pad) / stride
         cost = np.where(ok, cost, np.inf)
         i = cost.argmin(axis=1)
         k = np.arange(count)
@@ -1590,7 +1605,7 @@ def _fit_ellipses(
                          goals=scored)  # fmt: skip
     nan6 = (math.nan,) * 6
     conics = np.array([b[2] if b else nan6 for b in best])[:, None, :]  # (L, 1, 6)
-    inl = (_sampson_ratio(conics, frame.mono_full())[:, 0] <= frame.t2)
+    inl = _sampson_ratio(conics, frame.mono_full())[:, 0] <= 1.0
     if geometric:
         xi, yi, ends = sub.x[inl], sub.y[inl], np.cumsum(inl.sum(axis=1)).tolist()
         refits: list[EllipseModel | FailedFit] = []
