@@ -1100,7 +1100,11 @@ def reconstruct_laser(
 def analyse_lines(
     scan_lines: ScanLinesLike, params: LaserParams = LaserParams(), seed: int = 0
 ) -> list[LineModels]:
-    """First stage of ``reconstruct_laser``: the 2-D models and pierced run of each line."""
+    """First stage of ``reconstruct_laser``: the 2-D models and pierced run of each line.
+
+    When a line already has a ``reason`` (too few points, or the optical axis misses the
+    object on it) no line is fitted: the frame has no shape whatever the others hold.
+    """
     angles = np.asarray(scan_lines.angles_rad, dtype=np.float64).reshape(-1)
     raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
@@ -1108,11 +1112,13 @@ def analyse_lines(
     if raw and not np.isfinite(np.concatenate(raw)).all():
         raise ValueError("scan_lines.points must be finite")
     lines = _prepare_lines(angles.tolist(), raw, params)
-    usable = [ln for ln in lines if not ln.reason]
-    if usable:
-        # One generator per frame serves every line's fits (default_rng mixes the bits).
-        rng = np.random.default_rng(seed & 0x7FFFFFFFFFFFFFFF)
-        _fit_lines_models(usable, params, rng)
+    if any(ln.reason for ln in lines):
+        # A line the optical axis does not pierce (or too short) already decides the frame:
+        # no shape. While the hand is still aiming this is most frames; fit nothing.
+        return lines
+    # One generator per frame serves every line's fits (default_rng mixes the bits).
+    rng = np.random.default_rng(seed & 0x7FFFFFFFFFFFFFFF)
+    _fit_lines_models(lines, params, rng)
     return lines
 
 
