@@ -601,36 +601,44 @@ def _collect_seeds(lines: list[LineModels], params: LaserParams, *, extend: bool
     hw, margin = params.capture_half_width_m, params.crop_margin_m
     zlo, zhi = params.capture_z_m
     for line in lines:
-        seeds = line.seeds()
+        run = line.run
+        # The two ends and their neighbours along the run, as Python floats (a handful of
+        # scalars: numpy indexing would cost more than the arithmetic).
+        ends = line.points[[run[0], run[-1]]].tolist()
+        ends_sz = line.sz[[run[0], run[1], run[-1], run[-2]]].tolist() if len(run) > 1 else None
+        c, s_ = math.cos(line.angle), math.sin(line.angle)
         for k, sign in ((0, -1.0), (1, 1.0)):
-            p = seeds[k]
+            p = ends[k]
             at_crop = bool(
                 max(abs(p[0]), abs(p[1])) >= hw - margin
                 or p[2] <= zlo + margin
                 or p[2] >= zhi - margin
             )
             if extend and not at_crop and params.edge_extension > 0 and line.step > 0:
-                q = (p[0] * math.cos(line.angle) + p[1] * math.sin(line.angle)) / p[2]
-                p = _extend_seed(line, k, q + sign * params.edge_extension * line.step)
+                q = (p[0] * c + p[1] * s_) / p[2]
+                if ends_sz is not None:
+                    p = _extend_seed(p, ends_sz[2 * k], ends_sz[2 * k + 1], c, s_,
+                                     q + sign * params.edge_extension * line.step)  # fmt: skip
             pts.append(p)
             cropped.append(at_crop)
     return _Seeds(points=np.array(pts), cropped=np.array(cropped, dtype=bool))
 
 
-def _extend_seed(line: LineModels, k: int, q: float) -> np.ndarray:
-    """The point on the ray s/z = q, on the straight line through the run's two end points."""
-    run = line.run
-    a, b = (run[0], run[1]) if k == 0 else (run[-1], run[-2])
-    (s0, z0), (s1, z1) = line.sz[a], line.sz[b]
+def _extend_seed(
+    end: list[float], sz0: list[float], sz1: list[float], c: float, s_: float, q: float
+) -> list[float]:
+    """The point on the ray s/z = q, on the straight line through the run's end ``sz0`` and
+    its neighbour ``sz1`` (plane coordinates); ``end`` (3-D) when the ray misses it."""
+    (s0, z0), (s1, z1) = sz0, sz1
     ds, dz = s1 - s0, z1 - z0
     denom = ds - q * dz
     if abs(denom) < 1e-12:
-        return line.points[a]
+        return end
     t = (q * z0 - s0) / denom
-    if not np.isfinite(t) or abs(t) > 2.0:
-        return line.points[a]
+    if not math.isfinite(t) or abs(t) > 2.0:
+        return end
     s, z = s0 + t * ds, z0 + t * dz
-    return np.array([s * math.cos(line.angle), s * math.sin(line.angle), z])
+    return [s * c, s * s_, z]
 
 
 def _face_frame(plane: PlaneSolid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -675,8 +683,8 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     best = np.lexsort((area, -shared, -on))[0]
     if best < len(pairs):
         refined = _refine_direction(valid, pairs[best], tol)
-        r_on, r_shared, _ = _rectangle_scores(uv, ~cropped, refined[None, :], tol)
-        return refined if (r_on[0], r_shared[0]) >= (on[best], shared[best]) else pairs[best]
+        r_on, r_shared = _rectangle_score(uv.tolist(), (~cropped).tolist(), refined.tolist(), tol)
+        return refined if (r_on, r_shared) >= (on[best], shared[best]) else pairs[best]
     top = (on[len(pairs) :] == on[best]) & (shared[len(pairs) :] == shared[best])
     return grid[_widest_run_middle(top)]
 
@@ -717,24 +725,52 @@ def _rectangle_scores(
     return (on[:, :k] | on[:, k:]).sum(axis=0), shared[:k] + shared[k:], span[:k] * span[k:]
 
 
+def _rectangle_score(
+    uv: list[list[float]], valid: list[bool], u: list[float], tol: float
+) -> tuple[int, int]:
+    """``_rectangle_scores`` for one direction ``u``, in Python floats (a few seeds)."""
+    ux, uy = u
+    on = [False] * len(uv)
+    shared = 0
+    for c in ([x * ux + y * uy for x, y in uv], [y * ux - x * uy for x, y in uv]):
+        lo, hi = min(c), max(c)
+        for side in ([v - lo <= tol for v in c], [hi - v <= tol for v in c]):
+            side = [f and ok for f, ok in zip(side, valid, strict=True)]
+            on = [a or b for a, b in zip(on, side, strict=True)]
+            n = sum(side)
+            shared += n if n >= 2 else 0
+    return sum(on), shared
+
+
 def _refine_direction(uv: np.ndarray, direction: np.ndarray, tol: float) -> np.ndarray:
     """Total least squares of the edge direction: the seeds on each side of the rectangle
-    (two or more) vote for it, those on the sides across it turned by 90 degrees."""
-    u = direction / math.sqrt(direction @ direction)
-    v = _perp(u)
-    a, b = uv @ u, uv @ v
-    groups = []
+    (two or more) vote for it, those on the sides across it turned by 90 degrees. In Python
+    floats: a few seeds, and the principal axis of a 2x2 scatter matrix in closed form."""
+    dx, dy = direction.tolist()
+    norm = math.hypot(dx, dy)
+    ux, uy = dx / norm, dy / norm
+    pts = uv.tolist()
+    a = [x * ux + y * uy for x, y in pts]
+    b = [y * ux - x * uy for x, y in pts]  # along _perp(u) = (-uy, ux)
+    sxx = sxy = syy = 0.0
+    groups = 0
     for c, turn in ((b, False), (a, True)):
-        for side in (c - c.min() <= tol, c.max() - c <= tol):
-            if side.sum() >= 2:
-                centred = uv[side] - uv[side].mean(axis=0)
-                groups.append(_perp(centred) if turn else centred)
+        lo, hi = min(c), max(c)
+        for side in ([v - lo <= tol for v in c], [hi - v <= tol for v in c]):
+            members = [p for p, f in zip(pts, side, strict=True) if f]
+            if len(members) < 2:
+                continue
+            groups += 1
+            mx = sum(p[0] for p in members) / len(members)
+            my = sum(p[1] for p in members) / len(members)
+            for x, y in members:
+                cx, cy = (-(y - my), x - mx) if turn else (x - mx, y - my)
+                sxx, sxy, syy = sxx + cx * cx, sxy + cx * cy, syy + cy * cy
     if not groups:
-        return u
-    stacked = np.concatenate(groups)
-    _, vectors = np.linalg.eigh(stacked.T @ stacked)
-    refined = vectors[:, 1]
-    return refined if refined @ u >= 0 else -refined
+        return np.array([ux, uy])
+    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # the larger eigenvalue's eigenvector
+    rx, ry = math.cos(phi), math.sin(phi)
+    return np.array([rx, ry] if rx * ux + ry * uy >= 0 else [-rx, -ry])
 
 
 def _min_area_direction(uv: np.ndarray) -> np.ndarray:
@@ -821,9 +857,12 @@ def _face_geometry(
 
 
 def _rectangle_residual(uv: np.ndarray, u: np.ndarray) -> float:
-    a, b = uv @ u, uv @ _perp(u)
-    dist = np.minimum.reduce([a - a.min(), a.max() - a, b - b.min(), b.max() - b])
-    return float(dist.max())
+    ux, uy = u.tolist()
+    pts = uv.tolist()
+    a = [x * ux + y * uy for x, y in pts]
+    b = [y * ux - x * uy for x, y in pts]
+    alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
+    return max(min(p - alo, ahi - p, q - blo, bhi - q) for p, q in zip(a, b, strict=True))
 
 
 def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
