@@ -282,6 +282,16 @@ def sphere_from_circles(
 # --------------------------------------------------------------------------- one scan line
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+_NO_POINTS = _read_only(np.empty((0, 3)))
+_NO_SZ = _read_only(np.empty((0, 2)))
+_EMPTY_RUN = _read_only(np.empty(0, dtype=np.intp))
+
+
 @dataclass
 class LineModels:
     """One scan line as the method sees it: the pierced ``points`` (segment, (N, 3)) and their
@@ -292,11 +302,12 @@ class LineModels:
     angle: float
     total: int
     reason: str = ""
-    points: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))  # pierced segment
-    sz: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+    # Empty until the line is prepared: shared read-only arrays, replaced, never written.
+    points: np.ndarray = field(default_factory=lambda: _NO_POINTS)  # pierced segment
+    sz: np.ndarray = field(default_factory=lambda: _NO_SZ)
     fits: dict[str, Any] = field(default_factory=dict)
     model: str = "none"
-    run: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.intp))
+    run: np.ndarray = field(default_factory=lambda: _EMPTY_RUN)
     step: float = 0.0  # median change of s/z between neighbouring samples
 
     @property
@@ -371,9 +382,6 @@ def _pierced_run(runs: list[np.ndarray], s: np.ndarray, params: LaserParams) -> 
         if s[run[0]] - tol <= 0.0 <= s[run[-1]] + tol:
             return run
     return _EMPTY_RUN
-
-
-_EMPTY_RUN = np.empty(0, dtype=np.intp)
 
 
 def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_margin: float) -> str:
@@ -453,20 +461,32 @@ def _prepare_lines(
     c = np.repeat([math.cos(line.angle) for line in ok], counts)
     s_ = np.repeat([math.sin(line.angle) for line in ok], counts)
     s = points[:, 0] * c + points[:, 1] * s_
-    order = np.lexsort((s, np.repeat(np.arange(len(ok)), counts)))
-    points, s = points[order], s[order]
-    sz = np.stack([s, points[:, 2]], axis=1)
+    # Scan lines usually arrive sorted along themselves (lpc_core.scans does): then the sort
+    # is a check. Descending steps at the joins between lines do not count.
+    descending = s[1:] < s[:-1]
+    descending[np.cumsum(counts[:-1], dtype=np.intp) - 1] = False
+    if descending.any():
+        order = np.lexsort((s, np.repeat(np.arange(len(ok)), counts)))
+        points, s = points[order], s[order]
+    sz = np.empty((len(s), 2))
+    sz[:, 0], sz[:, 1] = s, points[:, 2]
     d = points[1:] - points[:-1]
     breaks = ((d * d).sum(axis=1) > params.segment_gap_m**2).nonzero()[0].tolist()
-    s_at = s.tolist()
     stop = 0
-    for line, n in zip(ok, counts, strict=True):
+    line_bounds = []
+    for n in counts:
         start, stop = stop, stop + n
         inside = breaks[bisect.bisect_left(breaks, start) : bisect.bisect_left(breaks, stop - 1)]
-        bounds = [start, *(b + 1 for b in inside), stop]
+        line_bounds.append([start, *(b + 1 for b in inside), stop])
+    # s at every segment's first and last point, in one gather.
+    at = [i for bounds in line_bounds for k in range(len(bounds) - 1)
+          for i in (bounds[k], bounds[k + 1] - 1)]  # fmt: skip
+    s_at = iter(s[at].tolist())
+    for line, bounds in zip(ok, line_bounds, strict=True):
         best, distance = 0, math.inf
         for k in range(len(bounds) - 1):
-            d_k = max(s_at[bounds[k]], -s_at[bounds[k + 1] - 1], 0.0)  # 0 if it spans s = 0
+            lo, hi = next(s_at), next(s_at)
+            d_k = max(lo, -hi, 0.0)  # 0 if it spans s = 0
             if d_k < distance:
                 best, distance = k, d_k
         if distance > params.pierce_tolerance_m:
