@@ -1014,6 +1014,19 @@ def _none(n: int) -> np.ndarray:
     return _frozen(np.zeros(n, bool))
 
 
+# A model whose best sample has fewer than GOAL_SLACK x the inliers the caller asked for
+# (min_inliers) is not refitted: the refit on a sample's inliers gains a few points, not
+# the many that would be missing. The ellipse's count is on its scoring subsample and its
+# sample is picked by cost, not count: its refit was seen to gain a fifth, so it has more room.
+GOAL_SLACK = 0.85
+ELLIPSE_GOAL_SLACK = 0.6
+
+
+def _short(count: float, goal: float, n: int, trials: int) -> FailedFit:
+    return FailedFit(f"not refitted: the best sample has {count:.0f} inliers, the caller needs "
+                     f"{goal:.0f}", _none(n), trials)  # fmt: skip
+
+
 def _too_few(n: list[int], k: int, what: str) -> list[Any]:
     """A failure for each line with fewer than ``k`` points, None (to be filled) elsewhere."""
     return [
@@ -1298,7 +1311,9 @@ def _fit_circles(
         if best[r] is None:
             out[r] = FailedFit("circle: no sample gave a circle within radius_limits",
                                _none(seg.n[r]), done[r])  # fmt: skip
-    found = [r for r in rows if best[r] is not None]
+        elif goals is not None and best[r][0] < goals[r] * GOAL_SLACK:
+            out[r] = _short(best[r][0], goals[r], seg.n[r], done[r])
+    found = [r for r in rows if out[r] is None]
     if not found:
         return out
     nan3 = (math.nan, math.nan, math.nan)
@@ -1603,8 +1618,22 @@ def _fit_ellipses(
     best, done = _ransac(sub.n, list(range(sub.count)), 5, rng, trials, confidence,
                          _ellipse_scorer(frame), frame.n_scored, by_cost=True,
                          goals=scored)  # fmt: skip
+    # A line whose best sample falls short of its goal gets no refit: the caller has no use
+    # for it (and when every line falls short, there is nothing to refit).
+    short = [
+        b is not None and goals is not None and b[0] < scored[k] * ELLIPSE_GOAL_SLACK
+        for k, b in enumerate(best)
+    ]
+    if all(b is None or sh for b, sh in zip(best, short, strict=True)):
+        for k, r in enumerate(rows):
+            out[r] = (FailedFit("ellipse: no sample gave an ellipse within axis_limits",
+                                _none(seg.n[r]), done[k]) if best[k] is None
+                      else _short(best[k][0] * seg.n[r] / frame.n_scored[k], goals[r],
+                                  seg.n[r], done[k]))  # fmt: skip
+        return out
     nan6 = (math.nan,) * 6
-    conics = np.array([b[2] if b else nan6 for b in best])[:, None, :]  # (L, 1, 6)
+    conics = np.array([b[2] if b and not sh else nan6
+                       for b, sh in zip(best, short, strict=True)])[:, None, :]  # fmt: skip
     inl = _sampson_ratio(conics, frame.mono_full())[:, 0] <= 1.0
     if geometric:
         xi, yi, ends = sub.x[inl], sub.y[inl], np.cumsum(inl.sum(axis=1)).tolist()
@@ -1621,6 +1650,10 @@ def _fit_ellipses(
         if best[k] is None:
             out[r] = FailedFit("ellipse: no sample gave an ellipse within axis_limits",
                                _none(seg.n[r]), done[k])  # fmt: skip
+            continue
+        if short[k]:
+            out[r] = _short(best[k][0] * seg.n[r] / frame.n_scored[k], goals[r], seg.n[r],
+                            done[k])  # fmt: skip
             continue
         model = refits[k]
         if not (model and limits[0] <= model.axis_lengths[1]
