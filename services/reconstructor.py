@@ -132,6 +132,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         if reader is not None:
             reader.cancel()
         pool.shutdown(wait=False, cancel_futures=True)
+        # A worker still importing or reconstructing would hold the exit past the 2 s that
+        # every service has to stop in; its frame is lost anyway.
+        for child in multiprocessing.active_children():
+            child.terminate()
 
 
 def main(argv: list[str] | None = None) -> int:
