@@ -23,12 +23,16 @@ from lpc_core.fit import (
     FitModel,
     LineFit,
     LineModel,
+    Segments,
     _draw_samples,
     _ellipse_distance,
     fit_all,
     fit_circle,
+    fit_circles,
     fit_ellipse,
+    fit_ellipses,
     fit_line,
+    fit_lines,
 )
 
 FX = 213.0
@@ -477,3 +481,57 @@ def test_draw_samples_distinct_and_uniform():
         sigma = math.sqrt(k / 12 * (1 - k / 12) / 20_000)
         assert np.abs(freq - k / 12).max() < 5 * sigma
     assert (_draw_samples(rng, 3, 50, 3).sum(axis=1) == 3).all()  # n == k: all of them
+
+
+# --------------------------------------------------------------------------- several lines at once
+
+
+def test_fit_batches_recover_each_lines_model():
+    """Four scan lines of different lengths in one call: each gets its own model, as alone."""
+    rng = np.random.default_rng(31)
+    radii = (0.012, 0.02, 0.03, 0.045)
+    arcs = [scan_circle(rng, r, zc=0.2 + 0.01 * k) for k, r in enumerate(radii)]
+    assert len({len(a) for a in arcs}) > 1  # ragged: the batch pads
+    circles = fit_circles(arcs, THRESHOLD, seed=4)
+    for r, arc, c in zip(radii, arcs, circles, strict=True):
+        assert isinstance(c, CircleFit) and c.inliers.shape == (len(arc),)
+        assert abs(c.radius - r) < 1e-3 and c.inlier_fraction > 0.85  # as test_fit_circle_*
+        np.testing.assert_array_equal(c.inliers, c.residuals(arc) <= THRESHOLD)
+    ellipses = fit_ellipses(arcs, THRESHOLD, seed=4)
+    assert all(e and e.inlier_fraction > 0.85 for e in ellipses)
+    s = np.linspace(-0.03, 0.03, 50)
+    lines = fit_lines([np.column_stack([s, 0.2 + k * 0.1 * s]) for k in range(3)], THRESHOLD)
+    for k, line in enumerate(lines):
+        assert line.inlier_fraction == 1.0
+        assert line.direction[1] / line.direction[0] == pytest.approx(0.1 * k, abs=1e-9)
+
+
+def test_fit_batches_fail_line_by_line():
+    good = scan_circle(np.random.default_rng(2), 0.02)
+    found = fit_circles([good, good[:2], np.tile([0.01, 0.2], (8, 1))], THRESHOLD, seed=1)
+    assert isinstance(found[0], CircleFit)
+    assert not found[1] and "at least 3" in found[1].reason and found[1].inliers.shape == (2,)
+    assert not found[2] and found[2].inliers.shape == (8,)
+
+
+def test_fit_circles_min_inliers_out_of_reach_is_not_refitted():
+    """A caller that needs more inliers than any circle has gets a failure that says so."""
+    rng = np.random.default_rng(5)
+    s = np.linspace(-0.03, 0.03, 60)
+    flat = np.column_stack([s, 0.2 + rng.normal(0.0, 2e-4, s.size)])
+    arc = scan_circle(rng, 0.02)
+    found = fit_circles([flat, arc], THRESHOLD, seed=2, min_inliers=[59.0, 0.5 * len(arc)])
+    assert not found[0] and "not refitted" in found[0].reason
+    assert found[1] and found[1].inlier_fraction > 0.85
+    with pytest.raises(ValueError, match="min_inliers"):
+        fit_circles([flat, arc], THRESHOLD, min_inliers=[1.0])
+
+
+def test_segments_take_keeps_each_lines_centring():
+    rng = np.random.default_rng(9)
+    arcs = [scan_circle(rng, r) for r in (0.015, 0.025, 0.035)]
+    seg = Segments(arcs)
+    sub = seg.take([2, 0])
+    assert sub.n == [len(arcs[2]), len(arcs[0])] and sub.mean == [seg.mean[2], seg.mean[0]]
+    a, b = fit_circles(sub, THRESHOLD, seed=3)
+    assert abs(a.radius - 0.035) < 1e-3 and abs(b.radius - 0.015) < 1e-3

@@ -16,6 +16,7 @@ import pytest
 
 from lpc_core.laser import (
     LaserParams,
+    analyse_lines,
     principal_direction,
     reconstruct_laser,
     sort_around,
@@ -218,6 +219,22 @@ def test_reconstruct_laser_reports_axis_missing_the_object() -> None:
     result = reconstruct_laser(scan(sphere((0.035, 0.035, 0.2), 0.012)))
     assert result.shape == "none"
     assert result.reason
+
+
+def test_analyse_lines_fits_nothing_once_a_line_decides_the_frame() -> None:
+    lines = scan(sphere((0.0, 0.0, 0.2), 0.02))
+    short = Lines(lines.angles_rad, (*lines.points[:2], lines.points[2][:5], lines.points[3]))
+    models = analyse_lines(short)
+    assert "too few points on line 2" in models[2].reason
+    assert all(not m.fits for m in models)
+    assert len(analyse_lines(lines)[0].fits) == 3  # and all three models when none does
+
+
+def test_reconstruct_laser_shuffled_points_give_the_sorted_result() -> None:
+    lines = scan(cylinder((0.0, 0.0, 0.2), (1.0, 0.2, 0.1), 0.025), 3)
+    rng = np.random.default_rng(4)
+    shuffled = Lines(lines.angles_rad, tuple(p[rng.permutation(len(p))] for p in lines.points))
+    assert reconstruct_laser(shuffled, seed=5) == reconstruct_laser(lines, seed=5)
 
 
 def test_reconstruct_laser_is_deterministic_per_seed() -> None:
