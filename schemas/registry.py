@@ -42,6 +42,10 @@ class BadMessage(ValueError):
         self.key = key
         self.reason = reason
 
+    def __reduce__(self) -> tuple[type[BadMessage], tuple[str, str]]:
+        # Rebuilt from both fields: it crosses process boundaries (the reconstructor's pool).
+        return type(self), (self.key, self.reason)
+
 
 @dataclass(frozen=True)
 class Topic:

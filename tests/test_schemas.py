@@ -154,3 +154,16 @@ def test_array_dtype_pattern_is_validated() -> None:
     frame = msgspec.msgpack.encode({"data": b"", "dtype": "object", "shape": [0]})
     with pytest.raises(msgspec.ValidationError):
         msgspec.msgpack.decode(frame, type=type(to_wire(np.zeros(1))))
+
+
+def test_bad_message_survives_pickling_with_its_fields() -> None:
+    # It crosses process boundaries: the reconstructor's workers raise it.
+    import pickle
+
+    again = pickle.loads(pickle.dumps(BadMessage("lpc/scans", "truncated")))
+    assert isinstance(again, BadMessage)
+    assert (again.key, again.reason, str(again)) == (
+        "lpc/scans",
+        "truncated",
+        "lpc/scans: truncated",
+    )
