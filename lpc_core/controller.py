@@ -23,7 +23,6 @@ status does not thin the command stream, and a stale hand is commanded zero velo
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from collections.abc import Mapping
@@ -31,6 +30,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from lpc_core.emg import EmgProfile, Gesture, IntentState, intent_step
+from lpc_core.state import evolve
 from schemas import (
     AimCue,
     ControllerState,
@@ -294,7 +294,7 @@ def controller_step(
     if topic is not None:
         seen = dict(core.seen_ns)
         seen[topic] = now_ns
-        core = dataclasses.replace(core, seen_ns=MappingProxyType(seen))
+        core = evolve(core, seen_ns=MappingProxyType(seen))
     core = _check_staleness(core, now_ns, out)
 
     match message:
@@ -315,7 +315,7 @@ def controller_step(
             hand_gone = HAND in core.stale or HAND not in core.seen_ns
             if not commanded and (hand_gone or not core.commanded_since_tick):
                 core = _command(core, now_ns, out)
-            core = dataclasses.replace(core, commanded_since_tick=False)
+            core = evolve(core, commanded_since_tick=False)
         case _:
             raise ValueError(f"message: the controller does not take {type(message).__name__}")
 
@@ -333,16 +333,16 @@ def apply_event(
     """Take one event through the table, run the entry actions, publish if it matters."""
     new = transition(core.mode, event)
     old = core.mode
-    core = dataclasses.replace(core, previous=old, mode=new, event=event.value, reason=reason)
+    core = evolve(core, previous=old, mode=new, event=event.value, reason=reason)
     if new is not old:
         vision = (S.AIMING, S.READY, S.PRESHAPING)
         if new in vision and old not in vision:
-            core = dataclasses.replace(core, vision_since_ns=now_ns)
+            core = evolve(core, vision_since_ns=now_ns)
         elif new not in vision and new is not S.STOPPED:
-            core = dataclasses.replace(core, vision_since_ns=None)
+            core = evolve(core, vision_since_ns=None)
         core = _enter(core, new, now_ns, out)
     if event is E.SWITCH_DOF and new is S.DIRECT:
-        core = dataclasses.replace(core, dof="wrist" if core.dof == "grasp" else "grasp")
+        core = evolve(core, dof="wrist" if core.dof == "grasp" else "grasp")
     if new is not old or event in _NOTABLE:
         core = _publish(core, now_ns, out)
     return core
@@ -352,16 +352,14 @@ def _enter(core: ControllerCore, state: State, now_ns: int, out: list[Output]) -
     """Entry actions of a state."""
     if state is S.PRESHAPING:
         setpoint = _setpoint(core)
-        return dataclasses.replace(core, setpoint=setpoint, at_target=False, holding=(False, False))
+        return evolve(core, setpoint=setpoint, at_target=False, holding=(False, False))
     if state is S.DIRECT:
-        return dataclasses.replace(
-            core, dof="grasp", grasped=False, contact_mm=None, active_ns=now_ns
-        )
+        return evolve(core, dof="grasp", grasped=False, contact_mm=None, active_ns=now_ns)
     if state is S.STOPPED:
-        core = dataclasses.replace(core, setpoint=None)
+        core = evolve(core, setpoint=None)
         return _command(core, now_ns, out)  # zero velocity at once, not at the next sample
     if state in (S.IDLE, S.AIMING):
-        return dataclasses.replace(core, setpoint=None, grasped=False)
+        return evolve(core, setpoint=None, grasped=False)
     return core
 
 
@@ -390,11 +388,11 @@ def _check_staleness(core: ControllerCore, now_ns: int, out: list[Output]) -> Co
             details.append(f"{topic} silent for {(now_ns - seen) / 1e6:.0f} ms > {limit:.0f} ms")
     if stale:
         if core.mode is not S.STOPPED or tuple(stale) != core.stale:
-            core = dataclasses.replace(core, stale=tuple(stale))
+            core = evolve(core, stale=tuple(stale))
             return apply_event(core, E.STALE, now_ns, "stale input: " + "; ".join(details), out)
         return core
     if core.mode is S.STOPPED:
-        core = dataclasses.replace(core, stale=())
+        core = evolve(core, stale=())
         return apply_event(core, E.RECOVERED, now_ns, "all inputs fresh", out)
     return core
 
@@ -404,7 +402,7 @@ def _on_emg(
 ) -> ControllerCore:
     assert core.intent is not None
     intent_state, intent = intent_step(core.intent, sample.channels, sample.t_ns)
-    core = dataclasses.replace(
+    core = evolve(
         core,
         intent=intent_state,
         velocity=intent.velocity,
@@ -436,17 +434,17 @@ def _on_target(
     usable = target.reconstructed and target.grasp_width_mm is not None
     if not usable:
         since = core.target_missing_since if core.target_missing_since is not None else now_ns
-        core = dataclasses.replace(core, target_missing_since=since)
+        core = evolve(core, target_missing_since=since)
         lost_for_ms = (now_ns - since) / 1e6
         if core.target_present and lost_for_ms >= p.target_lost_ms:
-            core = dataclasses.replace(core, target_present=False)
+            core = evolve(core, target_present=False)
             if core.mode in (S.READY, S.PRESHAPING):
                 core = apply_event(
                     core, E.TARGET_LOST, now_ns, f"no reconstruction for {lost_for_ms:.0f} ms", out
                 )
         return core
     previous, was_present = core.target, core.target_present
-    core = dataclasses.replace(core, target=target, target_present=True, target_missing_since=None)
+    core = evolve(core, target=target, target_present=True, target_missing_since=None)
     width = float(target.grasp_width_mm)  # type: ignore[arg-type]
     desc = f"{target.shape} {width:.0f} mm" + (
         f" at {target.wrist_angle_deg:.0f}°" if target.wrist_angle_deg is not None else ""
@@ -475,12 +473,12 @@ def _width_changed(a: GraspTarget, b: GraspTarget, p: ControllerParams) -> bool:
 
 def _on_cue(core: ControllerCore, cue: AimCue, now_ns: int, out: list[Output]) -> ControllerCore:
     if cue.state in _CUE_ON:
-        core = dataclasses.replace(core, cue_on=True, cue_off_since=None)
+        core = evolve(core, cue_on=True, cue_off_since=None)
         if core.mode is S.IDLE:
             return apply_event(core, E.OBJECT_SEEN, now_ns, f"aim cue {cue.state}", out)
         return core
     since = core.cue_off_since if core.cue_off_since is not None else now_ns
-    core = dataclasses.replace(core, cue_on=False, cue_off_since=since)
+    core = evolve(core, cue_on=False, cue_off_since=since)
     off_ms = (now_ns - since) / 1e6
     if core.mode is S.AIMING and off_ms >= core.params.object_lost_ms:
         return apply_event(core, E.OBJECT_LOST, now_ns, f"no object for {off_ms:.0f} ms", out)
@@ -491,7 +489,7 @@ def _on_hand(
     core: ControllerCore, hand: ProsthesisState, now_ns: int, out: list[Output]
 ) -> ControllerCore:
     p = core.params
-    core = dataclasses.replace(core, hand=hand)
+    core = evolve(core, hand=hand)
     if core.mode is S.PRESHAPING and core.setpoint is not None:
         ap_err, wr_err = _errors(core.setpoint, hand)
         inside = abs(ap_err) <= p.aperture_tol_mm and abs(wr_err) <= p.wrist_tol_deg
@@ -503,11 +501,11 @@ def _on_hand(
                 f"{sp.aperture_mm:.1f} ± {p.aperture_tol_mm:g}), wrist "
                 f"{hand.wrist_angle_deg:.1f}° (target {wrist} ± {p.wrist_tol_deg:g})"
             )
-            core = dataclasses.replace(core, at_target=True)
+            core = evolve(core, at_target=True)
             core = apply_event(core, E.AT_TARGET, now_ns, reason, out)
     if core.mode is S.DIRECT:
         if not core.grasped and hand.grip_force_pct >= p.grip_on_pct:
-            core = dataclasses.replace(core, grasped=True, contact_mm=hand.aperture_mm)
+            core = evolve(core, grasped=True, contact_mm=hand.aperture_mm)
             reason = f"grip force {hand.grip_force_pct:.0f} % at {hand.aperture_mm:.1f} mm"
             core = apply_event(core, E.GRASPED, now_ns, reason, out)
         elif (
@@ -581,7 +579,7 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
         hold_ap, hold_wr = core.holding
         grasp, hold_ap = _servo(ap_err, p.aperture_gain_per_mm, p.aperture_tol_mm, hold_ap, p)
         wrist, hold_wr = _servo(wr_err, p.wrist_gain_per_deg, p.wrist_tol_deg, hold_wr, p)
-        core = dataclasses.replace(core, holding=(hold_ap, hold_wr))
+        core = evolve(core, holding=(hold_ap, hold_wr))
     elif core.mode is S.DIRECT:
         emg_ns = core.seen_ns.get(EMG)
         fresh = emg_ns is not None and now_ns - emg_ns <= p.velocity_hold_ms * 1e6
@@ -592,7 +590,7 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
             wrist = velocity
     seq = core.command_seq + 1
     out.append(ProsthesisCommand(seq=seq, t_ns=now_ns, grasp=float(grasp), wrist=float(wrist)))
-    return dataclasses.replace(core, command_seq=seq, commanded_since_tick=True)
+    return evolve(core, command_seq=seq, commanded_since_tick=True)
 
 
 def _publish(
@@ -619,7 +617,7 @@ def _publish(
             target_angle_deg=sp.wrist_deg if sp is not None else None,
         )
     )
-    return dataclasses.replace(core, state_seq=seq, published_ns=now_ns)
+    return evolve(core, state_seq=seq, published_ns=now_ns)
 
 
 def _topic_of(message: object) -> str | None:

@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from lpc_core.state import evolve
+
 N_CHANNELS = 2
 FLEXOR, EXTENSOR = 0, 1
 
@@ -268,9 +270,7 @@ def intent_step(
             prev if prev is not None else (t_ns if lv >= p.upper else None)
             for prev, lv in zip(episode.upper_ns, level, strict=True)
         )
-        episode = dataclasses.replace(
-            episode, on_ns=on_ns, upper_ns=upper_ns, co=episode.co or co_now
-        )  # type: ignore[arg-type]
+        episode = evolve(episode, on_ns=on_ns, upper_ns=upper_ns, co=episode.co or co_now)  # type: ignore[arg-type]
         if max(level) < p.off:
             below_since = t_ns if below_since is None else below_since
             if t_ns - below_since >= p.release_ms * 1e6:
@@ -280,7 +280,7 @@ def intent_step(
                     lockout = t_ns + int(p.lockout_ms * 1e6)
         else:
             below_since = None
-    new_state = dataclasses.replace(
+    new_state = evolve(
         state,
         window=window,
         episode=episode,
