@@ -37,13 +37,15 @@ Where lpc departs from the paper:
 
 from __future__ import annotations
 
+import itertools
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial import cKDTree
 
+from lpc_core.state import evolve
 from schemas import AimCue, ControllerState, GraspTarget, ScanLines, TactorCommand, from_wire
 
 N_TACTORS = 4
@@ -168,28 +170,80 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
         labels = new
 
 
+# Unit directions every 45 degrees, counter-clockwise, for the Akl-Toussaint filter.
+_OCTANTS = np.array(
+    [[math.cos(k * math.pi / 4) for k in range(8)], [math.sin(k * math.pi / 4) for k in range(8)]]
+)
+_FLAT_M = 1e-9  # a hull thinner than this is a segment
+
+
 def convex_hull(points: np.ndarray) -> np.ndarray:
     """Vertices (M, 2) of the convex hull of (N, 2) points, counter-clockwise for M >= 3.
 
     Degenerate input gives a degenerate hull: one point (M = 1) or the two ends of a segment
-    (M = 2) when the points are collinear, which projected scan lines often are.
+    (M = 2) when the points are collinear (within 1 nm), which projected scan lines often are.
+
+    Andrew's monotone chain, after the Akl-Toussaint filter: the extreme points in eight
+    directions span a polygon inside the hull, and no point inside it can be a vertex. Scan
+    lines project onto lines through the origin, so few points survive, and a frame's hulls
+    cost tens of microseconds (Qhull's set-up alone took ~120).
     """
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) == 0:
         raise ValueError(f"points must have shape (N, 2) with N >= 1, got {points.shape}")
-    centred = points - points.mean(axis=0)
-    _, _, vt = np.linalg.svd(centred, full_matrices=False)
-    along = centred @ vt[0]
-    ends = points[[int(np.argmin(along)), int(np.argmax(along))]]
-    if np.ptp(along) <= 1e-12:
-        return points[:1]
-    if len(points) < 3 or np.ptp(centred @ vt[-1]) <= 1e-9:
-        return ends
-    try:
-        hull = ConvexHull(points)
-    except QhullError:  # flat to Qhull's precision: a segment
-        return ends
-    return points[hull.vertices]  # scipy lists 2-D hull vertices counter-clockwise
+    extremes = np.argmax(points @ _OCTANTS, axis=0)
+    # Consecutive directions often share their extreme point: keep each once, in order.
+    ring = points[extremes[np.concatenate(([True], extremes[1:] != extremes[:-1]))]]
+    if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
+        ring = ring[:-1]
+    candidates = points
+    if len(ring) >= 3:
+        edges = np.concatenate((ring[1:], ring[:1])) - ring
+        # cross(edge, p - start) < 0: p lies right of (outside) that counter-clockwise edge.
+        cross = edges[:, 0] * (points[:, 1:2] - ring[:, 1]) - edges[:, 1] * (
+            points[:, 0:1] - ring[:, 0]
+        )
+        candidates = np.concatenate([ring, points[(cross < 0.0).any(axis=1)]])
+    hull = _monotone_chain(candidates.tolist())
+    if len(hull) >= 3 and _thickness(hull) > _FLAT_M:
+        return np.array(hull)
+    if len(hull) == 1 or max(math.dist(hull[0], q) for q in hull) <= 1e-12:
+        return np.array(hull[:1])
+    # Collinear: the segment between the two vertices farthest apart.
+    ends = max(itertools.combinations(hull, 2), key=lambda pq: math.dist(*pq))
+    return np.array(sorted(ends))
+
+
+Point = tuple[float, float]
+
+
+def _monotone_chain(points: list[list[float]]) -> list[Point]:
+    """Hull vertices, counter-clockwise from the lowest-x point; collinear points dropped."""
+    pts: list[Point] = sorted((x, y) for x, y in points)
+
+    def half(seq: list[Point]) -> list[Point]:
+        chain: list[Point] = []
+        for p in seq:
+            while len(chain) >= 2:
+                (ax, ay), (bx, by) = chain[-2], chain[-1]
+                if (bx - ax) * (p[1] - ay) - (by - ay) * (p[0] - ax) > 0.0:
+                    break
+                chain.pop()
+            chain.append(p)
+        return chain
+
+    lower, upper = half(pts), half(pts[::-1])
+    return lower[:-1] + upper[:-1] or pts[:1]
+
+
+def _thickness(hull: list[Point]) -> float:
+    """Twice the area over the longest edge: ~ the width of a thin polygon."""
+    area2 = longest = 0.0
+    (x0, y0) = hull[0]
+    for (ax, ay), (bx, by) in zip(hull, hull[1:] + hull[:1], strict=True):
+        area2 += (ax - x0) * (by - ay) - (ay - y0) * (bx - ax)
+        longest = max(longest, math.hypot(bx - ax, by - ay))
+    return abs(area2) / max(longest, 1e-300)
 
 
 def hull_distance(vertices: np.ndarray) -> tuple[float, np.ndarray]:
@@ -311,9 +365,9 @@ def aim_step(
     """
     del now_ns  # ages are measured between capture times, which replay reproduces
     if isinstance(message, GraspTarget):
-        return replace(state, target=message), []
+        return evolve(state, target=message), []
     if isinstance(message, ControllerState):
-        return replace(state, controller=message.state), []
+        return evolve(state, controller=message.state), []
     if not isinstance(message, ScanLines):
         raise ValueError(
             f"message must be ScanLines, GraspTarget or ControllerState, got {type(message)}"
@@ -349,7 +403,7 @@ def aim_step(
         pulse=ready,
         frequency_hz=params.frequency_hz,
     )
-    new_state = replace(
+    new_state = evolve(
         state, on_target=tracked.state == "on_target", chosen_xy=tracked.chosen_xy, seq=seq
     )
     return new_state, [cue, command]

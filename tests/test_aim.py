@@ -190,6 +190,33 @@ def test_convex_hull_degenerate_and_counter_clockwise() -> None:
     assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # positive area: CCW
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_convex_hull_matches_qhull(seed: int) -> None:
+    """The same vertices, counter-clockwise, as scipy's Qhull: on noisy blobs, and on points
+    lying on lines through the origin, as projected scan lines do."""
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(seed)
+    blob = rng.normal([0.01, -0.02], 0.01, (rng.integers(3, 400), 2))
+    lines = np.concatenate(
+        [ray(a, rng.uniform(0.0, 0.02), rng.uniform(0.03, 0.06))[:, :2] for a in (0, 45, 90, 135)]
+    )
+    lines += rng.normal(0.0, 1e-5, lines.shape)
+    for points in (blob, lines, np.concatenate([blob, lines])):
+        hull = convex_hull(points)
+        expected = points[ConvexHull(points).vertices]
+        assert sorted(map(tuple, hull)) == sorted(map(tuple, expected))
+        start = int(np.flatnonzero((expected == hull[0]).all(axis=1))[0])
+        assert np.array_equal(hull, np.roll(expected, -start, axis=0))  # same cyclic order
+
+
+def test_convex_hull_collinear_gives_the_far_ends() -> None:
+    points = np.concatenate([ray(135.0, 0.0, 0.04)[:, :2], ray(-45.0, 0.001, 0.02)[:, :2]])
+    hull = convex_hull(points[np.random.default_rng(1).permutation(len(points))])
+    assert hull.shape == (2, 2)
+    assert sorted(np.hypot(*hull.T)) == pytest.approx([0.02, 0.04])
+
+
 def test_hull_distance_point_segment_polygon() -> None:
     assert hull_distance(np.array([[0.03, 0.04]]))[0] == pytest.approx(0.05)
     d, q = hull_distance(np.array([[0.02, -0.01], [0.02, 0.01]]))
