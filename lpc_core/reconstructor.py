@@ -37,6 +37,7 @@ from schemas import (
     LineModel,
     Reconstruction,
     ScanLines,
+    decode,
     from_wire,
     to_wire,
 )
@@ -196,9 +197,7 @@ def reconstruct_step(
 ) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
     """One frame in-process: its reconstruction, then the window's grasp target."""
     del now_ns  # outputs carry the capture time of their frame
-    message = reconstruct_message(scans, state.params)
-    window, target = window_message(state.window, message)
-    return replace(state, window=window), [message, target]
+    return release_step(state, reconstruct_message(scans, state.params))
 
 
 def reconstruct_cloud_step(
@@ -206,9 +205,28 @@ def reconstruct_cloud_step(
 ) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
     """One depth frame in-process by the cloud method: its reconstruction, then the window's."""
     del now_ns  # outputs carry the capture time of their frame
-    message = reconstruct_cloud_message(frame, state.cloud)
+    return release_step(state, reconstruct_cloud_message(frame, state.cloud))
+
+
+def release_step(
+    state: ReconstructState, message: Reconstruction
+) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
+    """A frame's reconstruction, made here or by a worker process, through the window."""
     window, target = window_message(state.window, message)
     return replace(state, window=window), [message, target]
+
+
+def reconstruct_payload(state: ReconstructState, method: str, payload: bytes) -> Reconstruction:
+    """A worker's job: decode one recorded input of ``method`` and reconstruct it with the
+    parameters of ``state``, as ``reconstruct_step`` / ``reconstruct_cloud_step`` would.
+
+    ``BadMessage`` (a ``ValueError``) if the payload does not decode.
+    """
+    if method == "laser":
+        return reconstruct_message(decode(INPUT_TOPICS[method], payload), state.params)
+    if method == "cloud":
+        return reconstruct_cloud_message(decode(INPUT_TOPICS[method], payload), state.cloud)
+    raise ValueError(f"method must be 'laser' or 'cloud', got {method!r}")
 
 
 # --------------------------------------------------------------------------- pool bookkeeping
@@ -328,8 +346,10 @@ __all__ = [
     "reconstruct_cloud_message",
     "reconstruct_cloud_step",
     "reconstruct_message",
+    "reconstruct_payload",
     "reconstruct_step",
     "reconstruction_message",
+    "release_step",
     "scan_lines_from_message",
     "warmup_frame",
     "window_message",

@@ -230,19 +230,26 @@ class Replay:
             yield Event(at[0], key, message)
             self._dispatch(key, message, at)
 
+    def skips(self, node: Node, route: Route, message: Any) -> bool:
+        """Whether ``node`` skips ``message`` on ``route``, as the live service did (gating)."""
+        if not route.gated or node.gate is None or self.all_frames:
+            return False
+        frame = frame_id(message)
+        return (
+            frame is not None
+            and node.gate in self.recorded_keys
+            and frame not in self.recorded.get(node.gate, ())
+        )
+
     def _dispatch(self, key: str, message: Any, stamp: Stamp) -> None:
         for node, route in self._routes.get(key, ()):
-            if route.gated:
+            if route.gated and node.gate is not None:
                 frame = frame_id(message)
-                if frame is not None and node.gate is not None:
+                if frame is not None:
                     self.offered.setdefault(node.gate, set()).add(frame)
-                    if (
-                        node.gate in self.recorded_keys
-                        and not self.all_frames
-                        and frame not in self.recorded.get(node.gate, ())
-                    ):
-                        self.gated[node.name] += 1
-                        continue
+                if self.skips(node, route, message):
+                    self.gated[node.name] += 1
+                    continue
             self._step(node, route, message, stamp)
 
     def _step(self, node: Node, route: Route, message: Any, stamp: Stamp) -> None:

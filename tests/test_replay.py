@@ -422,6 +422,48 @@ def test_replay_cli_without_depth_replays_from_recorded_scans(
         assert "lpc/camera/depth" not in log.topics()
 
 
+def test_replay_cli_worker_processes_give_the_same_bytes_and_count_refusals(
+    tmp_path: Path, depth_images: list[np.ndarray], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Reconstructions made by two worker processes, ahead of the replay, come out as the
+    in-process ones, byte for byte; a frame a worker refuses is counted like one refused
+    in-process, and the frames after it go on."""
+    record_session(tmp_path / "base.mcap", depth_images, n_frames=30)
+    with McapLog(tmp_path / "base.mcap") as log:
+        events = [(m.log_time, m.key, m.message) for m in log.messages(decode=True)]
+    bad = 0
+    with LogWriter(tmp_path / "rec.mcap") as writer:
+        for t, key, message in events:
+            if key == "lpc/scans" and message.frame_seq == 10:
+                flat = to_wire(np.zeros((5, 2)))  # decodes, but a scan line is (N, 3)
+                lines = [msgspec.structs.replace(message.lines[0], points=flat)]
+                message = msgspec.structs.replace(message, lines=lines + message.lines[1:])
+                bad += 1
+            if key != "lpc/camera/depth":
+                writer.write(key, message, t)
+    assert bad == 1
+    outputs = {}
+    for jobs in ("0", "2"):
+        out_path = tmp_path / f"jobs{jobs}.mcap"
+        assert (
+            lpc(["replay", str(tmp_path / "rec.mcap"), "--jobs", jobs, "--out", str(out_path)]) == 0
+        )
+        out = capsys.readouterr().out
+        where = "in this process" if jobs == "0" else "2 worker processes"
+        assert f"reconstructor: laser (the default: no lpc/reconstruction recorded), {where}" in out
+        assert (
+            "reconstructor refused 1 messages; first: ValueError: scan line points must be" in out
+        )
+        assert "lpc/reconstruction            19" in out  # 20 scans recorded, one refused
+        outputs[jobs] = out_path.read_bytes()
+    assert outputs["0"] == outputs["2"]
+
+
+def test_replay_cli_rejects_negative_jobs(capsys: pytest.CaptureFixture[str]) -> None:
+    assert lpc(["replay", "missing.mcap", "--jobs", "-1"]) == 2
+    assert "--jobs must be >= 0" in capsys.readouterr().err
+
+
 def test_check_pairs_messages_without_frame_by_a_named_field() -> None:
     def command(t: int, amplitude: float) -> TactorCommand:
         return TactorCommand(seq=t, t_ns=T0 + t, amplitudes=[amplitude] * 4)

@@ -12,6 +12,11 @@ The file is read once: recorded outputs are indexed ``--horizon`` seconds of log
 of the inputs handed to the step functions, which is how the replay knows which frames the
 live services handled and when their outputs arrived.
 
+As live, the reconstructions run in worker processes (``--jobs``): each starts as soon as its
+input is read, a few frames ahead of the replay, and the reconstructor's step takes the
+finished result, in frame order, through the 10-frame window. The workers run the in-process
+step's own function, so the outputs are the same bytes with any number of workers.
+
 Exit status: 0 when the replay ran (and the check passed); 1 when the check found differences;
 2 when the file cannot be replayed. A file cut short is replayed up to its last good chunk and
 the cut is reported (status 0); if nothing before the cut is readable, status 2.
@@ -21,22 +26,27 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
+import multiprocessing
 import os
 import sys
 import time
 from collections import Counter, defaultdict, deque
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
+from lpc_core.reconstructor import INPUT_TOPICS, reconstruct_payload, release_step
 from lpc_core.replay import (
     Node,
     Recorded,
     Replay,
     check,
     default_nodes,
+    frame_id,
     match_fields,
     volatile_fields,
 )
@@ -124,8 +134,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the controller ran with --camera-fixed (implied for a simulated user)",
     )
     parser.add_argument(
+        "--jobs",
+        type=int,
+        default=DEFAULT_JOBS,
+        metavar="N",
+        help="worker processes that reconstruct ahead of the replay; 0 reconstructs in this "
+        f"process (default {DEFAULT_JOBS}: one fewer than the CPUs, at least one)",
+    )
+    parser.add_argument(
         "--max-differences", type=int, default=20, metavar="N", help="print at most N (20)"
     )
+
+
+DEFAULT_JOBS = max(1, (os.cpu_count() or 1) - 1)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -137,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
         return _fail("--from must be >= 0")
     if args.until is not None and not args.until > args.start:
         return _fail("--until must be after --from")
+    if args.jobs < 0:
+        return _fail("--jobs must be >= 0")
     path = Path(args.file)
     try:
         log = McapLog(path)
@@ -225,7 +248,11 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
         method, method_how = _reconstructor_method(args, log)
     except ValueError as exc:
         return _fail(str(exc))
-    nodes = _timed(default_nodes(controller_params, reconstructor_method=method), spent)
+    workers = _Workers(method, args.jobs) if args.jobs > 0 else None
+    nodes = default_nodes(controller_params, reconstructor_method=method)
+    if workers is not None:
+        nodes = workers.wrap(nodes)
+    nodes = _timed(nodes, spent)
     frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
     keys = log.topics() - set(args.without)
     replay = Replay(nodes, keys, frames, all_frames=args.all_frames)
@@ -234,8 +261,26 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
             return _fail(f"{path}: {log.cut.describe()}; no replay input before the cut")
         wanted = sorted({r.key for n in nodes for r in n.routes if not r.key.startswith("<")})
         return _fail(f"{path} holds none of the replay inputs ({', '.join(wanted)})")
+    try:
+        return _run(args, path, log, replay, workers, spent, (how, method, method_how))
+    finally:
+        if workers is not None:
+            workers.close()
 
-    reader = _ReadAhead(log, replay, frames, args)
+
+def _run(
+    args: argparse.Namespace,
+    path: Path,
+    log: McapLog,
+    replay: Replay,
+    workers: _Workers | None,
+    spent: Counter[str],
+    hows: tuple[str, str, str],
+) -> int:
+    how, method, method_how = hows
+    frames = replay.recorded
+    reader = _ReadAhead(log, replay, frames, args, keep_payload=bool(args.out) or bool(workers))
+    inputs = reader.inputs() if workers is None else workers.ahead(reader.inputs(), replay)
     out_tmp = Path(f"{args.out}.partial") if args.out else None
     writer = LogWriter(out_tmp, compression=args.compression) if out_tmp else None
     if writer is not None:
@@ -248,7 +293,7 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     first_ns = last_ns = 0
     started = time.perf_counter()
     try:
-        for event in replay.run(reader.inputs()):
+        for event in replay.run(inputs):
             first_ns = first_ns or event.log_time
             last_ns = event.log_time
             source = event.source
@@ -276,7 +321,8 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
         os.replace(out_tmp, args.out)
     _report_run(args, path, replay, reader, counts, (last_ns - first_ns) / 1e9, elapsed)
     print(f"  controller: {how}")
-    print(f"  reconstructor: {method} ({method_how})")
+    where = f"{args.jobs} worker processes" if workers else "in this process"
+    print(f"  reconstructor: {method} ({method_how}), {where}")
     steps = ", ".join(
         f"{name} {spent[name]:.3f} s" for name in sorted(spent, key=spent.get, reverse=True)
     )
@@ -331,6 +377,118 @@ def _report_run(
         print(f"wrote {args.out}")
 
 
+class _Workers:
+    """The reconstructor's worker processes.
+
+    ``ahead`` reads the replay's inputs until ``depth`` reconstructions are under way, starting
+    them as their inputs are read (unless the live reconstructor skipped that frame), in
+    batches of ``batch`` frames: each hand-over to the pool's threads costs the replay a
+    switch of the interpreter lock (~1 ms), so one per frame ate most of the gain. The
+    wrapped step then takes its frame's result, or reconstructs in-process a frame that was
+    not started (one whose recorded output arrived later than the read-ahead).
+    """
+
+    def __init__(self, method: str, jobs: int, batch: int = 8) -> None:
+        self.method = method
+        self.key = INPUT_TOPICS[method]
+        self.batch = batch
+        self.depth = batch * (jobs + 1)
+        # Forked workers start at once with every module already imported; elsewhere the
+        # platform's default start method.
+        methods = multiprocessing.get_all_start_methods()
+        context = multiprocessing.get_context("fork" if "fork" in methods else None)
+        self.pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context)
+        self.started: dict[int, tuple[Future[Any], int]] = {}
+        self.job: Any = None  # reconstruct_payload, bound to the reconstructor's parameters
+
+    def wrap(self, nodes: Iterable[Node]) -> tuple[Node, ...]:
+        """The nodes, with the reconstructor's route on its input taking the workers' results."""
+
+        def pooled(step: Any) -> Any:
+            def step_(state: Any, message: Any, now_ns: int) -> Any:
+                started = self.started.pop(frame_id(message), None)
+                if started is None:
+                    return step(state, message, now_ns)
+                future, index = started
+                result = future.result()[index]
+                if isinstance(result, ValueError):
+                    raise result
+                return release_step(state, result)
+
+            return step_
+
+        for n in nodes:
+            if n.name == "reconstructor":
+                self.job = functools.partial(reconstruct_payload, n.init(), self.method)
+        return tuple(
+            dataclasses.replace(
+                n,
+                routes=tuple(
+                    dataclasses.replace(r, step=pooled(r.step)) if r.key == self.key else r
+                    for r in n.routes
+                ),
+            )
+            if n.name == "reconstructor"
+            else n
+            for n in nodes
+        )
+
+    def ahead(self, inputs: Iterator[Recorded], replay: Replay) -> Iterator[Recorded]:
+        node = next((n for n in replay.plan.nodes if n.name == "reconstructor"), None)
+        route = None if node is None else next(r for r in node.routes if r.key == self.key)
+        ready: deque[tuple[Recorded, bool]] = deque()
+        batch: list[tuple[int, bytes]] = []
+        running = 0
+        for item in inputs:
+            frame = frame_id(item.message)
+            job = (
+                node is not None
+                and route is not None
+                and frame is not None
+                and item.key == self.key
+                and not replay.skips(node, route, item.message)
+                and frame not in self.started
+                and all(f != frame for f, _ in batch)
+            )
+            if job:
+                assert frame is not None
+                batch.append((frame, item.payload))
+                running += 1
+                if len(batch) == self.batch:
+                    self._submit(batch)
+            ready.append((item, job))
+            while running >= self.depth:
+                if batch and ready[0][1]:
+                    self._submit(batch)  # the next frame's batch must be under way
+                item, job = ready.popleft()
+                running -= job
+                yield item
+        self._submit(batch)
+        for item, _ in ready:
+            yield item
+
+    def _submit(self, batch: list[tuple[int, bytes]]) -> None:
+        if batch:
+            future = self.pool.submit(_reconstruct_batch, self.job, [p for _, p in batch])
+            for index, (frame, _) in enumerate(batch):
+                self.started[frame] = (future, index)
+            batch.clear()
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _reconstruct_batch(job: Any, payloads: list[bytes]) -> list[Any]:
+    """A worker's batch: each frame's reconstruction, or the ``ValueError`` it raised."""
+    results: list[Any] = []
+    for payload in payloads:
+        try:
+            results.append(job(payload))
+        except ValueError as exc:
+            results.append(exc)
+    return results
+
+
 class _FrameOf(msgspec.Struct):
     """Just enough of an output message to name its frame."""
 
@@ -350,8 +508,10 @@ class _ReadAhead:
         self,
         log: McapLog,
         replay: Replay,
-        frames: dict[str, dict[int, tuple[int, int]]],
+        frames: Any,
         args: argparse.Namespace,
+        *,
+        keep_payload: bool,
     ) -> None:
         self.log = log
         self.replay = replay
@@ -361,7 +521,7 @@ class _ReadAhead:
         self.horizon_ns = int(args.horizon * 1e9)
         self.start_ns = int(args.start * 1e9)
         self.until_ns = None if args.until is None else int(args.until * 1e9)
-        self.keep_payload = bool(args.out)
+        self.keep_payload = keep_payload
         self.recorded: dict[str, list[tuple[int, int, Any]]] = defaultdict(list)
         self.bad_recorded: Counter[str] = Counter()
         self.undecodable: Counter[str] = Counter()
