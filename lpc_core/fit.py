@@ -245,6 +245,25 @@ def _line_lsq(x: np.ndarray, y: np.ndarray) -> LineModel | FailedFit:
     return LineModel(origin=(mx, my), direction=(ux, uy))
 
 
+def _line_from_moments(g: list[list[float]]) -> tuple[float, float, float, float] | None:
+    """:func:`_line_lsq` from the moments ``[x, y, 1]' [x, y, 1]`` of the points (3x3, Python
+    floats): ``(mx, my, ux, uy)``, or None when the points coincide."""
+    (sxx, sxy, sx), (_, syy, sy), (_, _, n) = g
+    if not n >= 2.0:
+        return None
+    mx, my = sx / n, sy / n
+    # Central moments; the coordinates are centred on their segment, so the cancellation is
+    # of the inliers' offset from it, not of the coordinates' magnitude.
+    cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my
+    if _coincide(cxx + cyy, int(n), mx, my):
+        return None
+    phi = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)
+    ux, uy = math.cos(phi), math.sin(phi)
+    if ux < 0.0 or (ux == 0.0 and uy < 0.0):
+        ux, uy = -ux, -uy
+    return mx, my, ux, uy
+
+
 # --------------------------------------------------------------------------- circle
 
 
@@ -363,39 +382,39 @@ def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
 
 
 def _circle_kasa_batch(
-    x: np.ndarray, y: np.ndarray, inl: np.ndarray
+    x: np.ndarray, y: np.ndarray, basis: np.ndarray, inl: np.ndarray
 ) -> list[tuple[float, float, float] | None]:
     """Kasa's circle on each row's points ``inl`` of ``x, y`` (L, W), all rows at once: the
     start of :func:`_circle_lsq` without its Gauss-Newton polish (radius: the mean distance
-    to the centre). ``(cx, cy, r)`` per row, None where degenerate."""
-    with np.errstate(all="ignore"):
-        m = inl.sum(axis=1)
-        mx = np.where(inl, x, 0.0).sum(axis=1) / m
-        my = np.where(inl, y, 0.0).sum(axis=1) / m
-        xs, ys = np.where(inl, x - mx[:, None], 0.0), np.where(inl, y - my[:, None], 0.0)
-        scale = np.sqrt((xs * xs + ys * ys).sum(axis=1) / m)
-        inv = 1.0 / scale[:, None]
-        xs, ys = xs * inv, ys * inv
-        moments = np.stack([xs, ys, xs * xs + ys * ys], axis=1)  # (L, 3, W)
-        g = (moments @ moments.transpose(0, 2, 1)).reshape(-1, 9)[:, [0, 1, 4, 2, 5]]
+    to the centre). ``basis`` (L, 4, W) holds ``[x, y, x^2 + y^2, 1]``; the moments over the
+    inliers come from one product and are centred on the inliers' mean in Python floats.
+    ``(cx, cy, r)`` per row, None where degenerate."""
+    d = np.where(inl[:, None, :], basis, 0.0)
     centres = []
-    for mk, (sxx, sxy, syy, sxz, syz), sk in zip(
-        m.tolist(), g.tolist(), scale.tolist(), strict=True
-    ):
-        det = sxx * syy - sxy * sxy
-        if mk < 3 or not sk > 0.0 or not det > 1e-12 * (sxx + syy) ** 2:
+    for g in (d @ d.transpose(0, 2, 1)).tolist():
+        (sxx, sxy, sxz, sx), (_, syy, syz, sy), (_, _, _, sz), (_, _, _, m) = g
+        if not m >= 3.0:
             centres.append((math.nan, math.nan))
             continue
-        centres.append((0.5 * (syy * sxz - sxy * syz) / det, 0.5 * (sxx * syz - sxy * sxz) / det))
+        mx, my = sx / m, sy / m
+        q = mx * mx + my * my
+        # Moments of x' = x - mx, y' = y - my and z' = x'^2 + y'^2 from the raw ones.
+        cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my
+        cxz = sxz - 2.0 * (mx * sxx + my * sxy) - mx * sz + 2.0 * m * mx * q
+        cyz = syz - 2.0 * (mx * sxy + my * syy) - my * sz + 2.0 * m * my * q
+        det = cxx * cyy - cxy * cxy
+        if not det > 1e-12 * (cxx + cyy) ** 2:
+            centres.append((math.nan, math.nan))
+            continue
+        centres.append((mx + 0.5 * (cyy * cxz - cxy * cyz) / det,
+                        my + 0.5 * (cxx * cyz - cxy * cxz) / det))  # fmt: skip
     cx, cy = (_column(v) for v in zip(*centres, strict=True))
     with np.errstate(all="ignore"):
-        dx, dy = xs - cx, ys - cy
-        r = np.where(inl, np.sqrt(dx * dx + dy * dy), 0.0).sum(axis=1) / m
+        dx, dy = x - cx, y - cy
+        r = np.where(inl, np.sqrt(dx * dx + dy * dy), 0.0).sum(axis=1) / inl.sum(axis=1)
     out: list[tuple[float, float, float] | None] = []
-    for (cxk, cyk), rk, sk, mxk, myk in zip(
-        centres, r.tolist(), scale.tolist(), mx.tolist(), my.tolist(), strict=True
-    ):
-        circle = (mxk + sk * cxk, myk + sk * cyk, sk * rk)
+    for (cxk, cyk), rk in zip(centres, r.tolist(), strict=True):
+        circle = (cxk, cyk, rk)
         out.append(circle if all(map(math.isfinite, circle)) else None)
     return out
 
@@ -658,43 +677,49 @@ def _ellipse_lsq(x: np.ndarray, y: np.ndarray) -> EllipseModel | FailedFit:
 
 
 def _ellipse_direct_batch(
-    x: np.ndarray, y: np.ndarray, inl: np.ndarray
+    mono: np.ndarray, inl: np.ndarray, scale: list[float]
 ) -> list[EllipseModel | FailedFit]:
-    """:func:`_ellipse_lsq` on each row's points ``inl`` of ``x, y`` (L, W), all rows at once
-    (the scatter matrices in one product, the 3x3 eigenproblems in Python floats)."""
-    with np.errstate(all="ignore"):
-        m = inl.sum(axis=1)
-        mx = np.where(inl, x, 0.0).sum(axis=1) / m
-        my = np.where(inl, y, 0.0).sum(axis=1) / m
-        xs, ys = np.where(inl, x - mx[:, None], 0.0), np.where(inl, y - my[:, None], 0.0)
-        spread2 = (xs * xs + ys * ys).sum(axis=1)
-        scale = np.sqrt(spread2 / m)
-        inv = 1.0 / scale[:, None]
-        xs, ys = xs * inv, ys * inv
-        # Halir & Flusser's blocks of D'D, D = [x^2, xy, y^2 | x, y, 1], in one product.
-        d = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, inl.astype(np.float64)], axis=1)
-        scatter = d @ d.transpose(0, 2, 1)  # (L, 6, 6)
-    s1, s2, s3 = scatter[:, :3, :3], scatter[:, :3, 3:], scatter[:, 3:, 3:]
-    s3_det = s3[:, 0, 0] * s3[:, 1, 1] - s3[:, 0, 1] ** 2
-    bad = ~(s3_det > 1e-10 * (s3[:, 0, 0] + s3[:, 1, 1]) ** 2)
-    # Collinear rows get a stand-in so one failure does not stop the batched solve.
-    s3 = np.where(bad[:, None, None], np.eye(3), s3)
-    t = -np.linalg.solve(s3, s2.transpose(0, 2, 1))
-    reduced = (s1 + s2 @ t).tolist()
+    """:func:`_ellipse_lsq` on each row's points ``inl`` (L, W), all rows at once.
+
+    ``mono`` (L, 6, W) holds the monomials ``[x^2, xy, y^2, x, y, 1]`` of each row's points in
+    a frame centred on the row and scaled by ``scale`` to RMS radius 1 (``_EllipseFrame``), so
+    the scatter matrix of every row comes from one product and stays O(1); the 3x3 blocks and
+    eigenproblems are solved in Python floats. Models are returned in the centred frame,
+    metres (multiplied back by ``scale``).
+    """
+    d = np.where(inl[:, None, :], mono, 0.0)
     out: list[EllipseModel | FailedFit] = []
-    for k, (mk, sp, sk, mxk, myk) in enumerate(
-        zip(m.tolist(), spread2.tolist(), scale.tolist(), mx.tolist(), my.tolist(), strict=True)
-    ):
-        if mk < 5:
-            out.append(FailedFit(f"an ellipse needs at least 5 points, got {mk}"))
+    for g, sk in zip((d @ d.transpose(0, 2, 1)).tolist(), scale, strict=True):
+        m = g[5][5]
+        if m < 5:
+            out.append(FailedFit(f"an ellipse needs at least 5 points, got {m:.0f}"))
             continue
-        if _coincide(sp, mk, mxk, myk) or not math.isfinite(sk):
+        # Halir & Flusser's blocks of D'D, D = [x^2, xy, y^2 | x, y, 1]: S1 = D1'D1,
+        # S2 = D1'D2, S3 = D2'D2 = [[Sxx, Sxy, Sx], [Sxy, Syy, Sy], [Sx, Sy, m]].
+        s1 = [row[:3] for row in g[:3]]
+        s2 = [row[3:] for row in g[:3]]
+        (sxx, sxy, sx), (_, syy, sy), _ = (row[3:] for row in g[3:])
+        mx, my = sx / m, sy / m
+        cxx, cxy, cyy = sxx - sx * mx, sxy - sx * my, syy - sy * my
+        if _coincide(cxx + cyy, int(m), mx, my):
             out.append(FailedFit("ellipse: all points coincide"))
             continue
-        if bad[k]:
+        # Collinear points make S3 singular (the centred 2x2 block, scale-free test).
+        if cxx * cyy - cxy * cxy <= 1e-10 * (cxx + cyy) ** 2:
             out.append(FailedFit("ellipse: points are collinear"))
             continue
-        mr = reduced[k]
+        # T = -S3^-1 S2' (a2 = T a1) by the adjugate of the symmetric S3.
+        a11, a12, a13, a22, a23, a33 = sxx, sxy, sx, syy, sy, m
+        c11, c12, c13 = a22 * a33 - a23 * a23, a13 * a23 - a12 * a33, a12 * a23 - a13 * a22
+        c22, c23, c33 = a11 * a33 - a13 * a13, a12 * a13 - a11 * a23, a11 * a22 - a12 * a12
+        det = a11 * c11 + a12 * c12 + a13 * c13
+        adj = ((c11, c12, c13), (c12, c22, c23), (c13, c23, c33))
+        # t[i][j] = -(S3^-1 S2')[i][j] = -sum_k adj[i][k] S2[j][k] / det
+        t = [[-(ai[0] * s2j[0] + ai[1] * s2j[1] + ai[2] * s2j[2]) / det for s2j in s2]
+             for ai in adj]  # fmt: skip
+        # Reduced scatter M = S1 + S2 T; the constraint 4AC - B^2 = 1 as C1^-1 M.
+        mr = [[s1[i][j] + s2[i][0] * t[0][j] + s2[i][1] * t[1][j] + s2[i][2] * t[2][j]
+               for j in range(3)] for i in range(3)]  # fmt: skip
         found = None
         for lam, a1 in _eig3([[0.5 * v for v in mr[2]], [-v for v in mr[1]],
                               [0.5 * v for v in mr[0]]]):  # fmt: skip
@@ -704,15 +729,14 @@ def _ellipse_direct_batch(
             out.append(FailedFit("ellipse: no elliptic solution"))
             continue
         a1 = found[1]
-        tk = t[k].tolist()
-        a2 = [tk[i][0] * a1[0] + tk[i][1] * a1[1] + tk[i][2] * a1[2] for i in range(3)]
+        a2 = [t[i][0] * a1[0] + t[i][1] * a1[1] + t[i][2] * a1[2] for i in range(3)]
         params = _conic_params(*a1, *a2)
         if params is None:
             out.append(FailedFit("ellipse: degenerate conic"))
             continue
         cx, cy, a, b, theta = params
-        out.append(EllipseModel(center=(mxk + sk * cx, myk + sk * cy),
-                                axis_lengths=(sk * a, sk * b), theta=theta))  # fmt: skip
+        out.append(EllipseModel(center=(sk * cx, sk * cy), axis_lengths=(sk * a, sk * b),
+                                theta=theta))  # fmt: skip
     return out
 
 
@@ -1127,15 +1151,15 @@ def _fit_lines(
                                             for r in range(seg.count)), strict=True))  # fmt: skip
     x, y = seg.x, seg.y
     inl = np.abs(nx * x + ny * y + c) <= threshold
-    # Total least squares on each line's inliers, one line at a time: summing the compact
-    # inliers keeps exact data exact (a padded row would reorder numpy's pairwise sums).
-    xi, yi, ends = x[inl], y[inl], np.cumsum(inl.sum(axis=1)).tolist()
+    # Total least squares on each line's inliers, every line from one product: the moments
+    # [x, y, 1] x [x, y, 1] over the inliers (padding is never an inlier).
+    d = np.where(inl[:, None, :], seg.basis("line"), 0.0)  # (L, 3, W)
+    moments = (d @ d.transpose(0, 2, 1)).tolist()
     line = [(*nan3, math.nan)] * seg.count
     for r in found:
-        lo = ends[r - 1] if r else 0
-        model = _line_lsq(xi[lo : ends[r]], yi[lo : ends[r]])
-        if model:
-            (px, py), (ux, uy) = model.origin, model.direction
+        model = _line_from_moments(moments[r])
+        if model is not None:
+            px, py, ux, uy = model
         else:  # only if every inlier coincides, which two distinct inliers rule out
             a, b, cc = best[r][2]
             px, py, ux, uy = -cc * a, -cc * b, b, -a
@@ -1329,7 +1353,7 @@ def _fit_circles(
             refit = _circle_lsq(xi[lo : ends[r]], yi[lo : ends[r]]) if r in found else None
             refits.append((*refit.center, refit.radius) if refit else None)
     else:
-        refits = _circle_kasa_batch(x, y, inl)
+        refits = _circle_kasa_batch(x, y, seg.basis("circle"), inl)
     circle = [nan3] * seg.count
     for r in found:
         cxr, cyr, rr = best[r][2]
@@ -1644,7 +1668,7 @@ def _fit_ellipses(
             model: EllipseModel | FailedFit = _ellipse_lsq(x, y)
             refits.append((_ellipse_geometric(x, y, model) or model) if model else model)
     else:
-        refits = _ellipse_direct_batch(sub.x, sub.y, inl)
+        refits = _ellipse_direct_batch(frame.mono_full()[0], inl, frame.scale)
     found = []
     for k, r in enumerate(rows):
         if best[k] is None:
