@@ -458,7 +458,7 @@ class _Workers:
                     self._submit(batch)
             ready.append((item, job))
             while running >= self.depth:
-                if batch and ready[0][1]:
+                if ready[0][1] and any(f == frame_id(ready[0][0].message) for f, _ in batch):
                     self._submit(batch)  # the next frame's batch must be under way
                 item, job = ready.popleft()
                 running -= job
