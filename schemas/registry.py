@@ -7,7 +7,9 @@ of another version, and non-finite floats, raising ``BadMessage`` with a reason 
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -85,9 +87,8 @@ class Topic:
             raise BadMessage(key, f"malformed payload: {exc}") from exc
         if message.version != 1:
             raise BadMessage(key, f"version {message.version} not supported (expected 1)")
-        bad = _first_non_finite(message)
-        if bad is not None:
-            raise BadMessage(key, f"non-finite value in field {bad}")
+        if not _finite_check(self.type)(message):
+            raise BadMessage(key, f"non-finite value in field {_first_non_finite(message)}")
         return message
 
 
@@ -133,6 +134,64 @@ def decode(key: str, payload: bytes | memoryview) -> Any:
 def json_schema(message_type: type[Message]) -> dict[str, Any]:
     """The JSON schema of one message type, self-contained, for MCAP and outside subscribers."""
     return msgspec.json.schema(message_type)
+
+
+Check = Callable[[Any], bool]
+
+
+@functools.cache
+def _finite_check(message_type: type) -> Check:
+    """A check that every float in a message of ``message_type`` is finite, built once per type
+    from its schema so that only the fields that can hold floats are visited (the generic walk
+    below, which names the bad field, cost ~40 us per message)."""
+    return _check_of(msgspec.inspect.type_info(message_type)) or (lambda _: True)
+
+
+def _check_of(t: msgspec.inspect.Type) -> Check | None:
+    """The check for values of type ``t``; ``None`` when ``t`` holds no float. Each check passes
+    values of other types, so a union's checks can all run on its value."""
+    mi = msgspec.inspect
+    if isinstance(t, mi.FloatType):
+        return lambda v: not isinstance(v, float) or math.isfinite(v)
+    if isinstance(t, mi.UnionType):
+        parts = [c for c in map(_check_of, t.types) if c is not None]
+        return (lambda v: all(c(v) for c in parts)) if parts else None
+    if isinstance(t, mi.ListType | mi.VarTupleType | mi.SetType | mi.FrozenSetType):
+        if isinstance(t.item_type, mi.FloatType):
+            return lambda v: not isinstance(v, list | tuple) or all(map(math.isfinite, v))
+        item = _check_of(t.item_type)
+        return (
+            None
+            if item is None
+            else (lambda v: not isinstance(v, list | tuple) or all(map(item, v)))
+        )
+    if isinstance(t, mi.TupleType):
+        items = [(i, c) for i, c in enumerate(map(_check_of, t.item_types)) if c is not None]
+        return (
+            (lambda v: not isinstance(v, list | tuple) or all(c(v[i]) for i, c in items))
+            if items
+            else None
+        )
+    if isinstance(t, mi.DictType):
+        value = _check_of(t.value_type)
+        return (
+            None
+            if value is None
+            else (lambda v: not isinstance(v, dict) or all(map(value, v.values())))
+        )
+    if isinstance(t, mi.StructType):
+        fields = [(f.name, c) for f in t.fields if (c := _check_of(f.type)) is not None]
+        cls = t.cls
+        return (
+            (lambda v: not isinstance(v, cls) or all(c(getattr(v, n)) for n, c in fields))
+            if fields
+            else None
+        )
+    if isinstance(t, mi.IntType | mi.StrType | mi.BytesType | mi.BoolType | mi.NoneType):
+        return None
+    if isinstance(t, mi.LiteralType | mi.EnumType):
+        return None
+    return lambda v: _first_non_finite(v) is None  # anything else: the generic walk
 
 
 def _first_non_finite(value: Any, path: str = "") -> str | None:
