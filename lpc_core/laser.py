@@ -835,49 +835,54 @@ def _face_geometry(
     order = sort_around(uv, np.zeros(2))
     uv, cropped = uv[order], seeds.cropped[order]
     disc = None
+    # The seeds (and points beyond the edges) are a handful: Python floats from here on.
+    pts = uv.tolist()
+    uncut = [p for p, c in zip(pts, cropped.tolist(), strict=True) if not c]
     if paper:
         direction = principal_direction(uv, params.alpha_max_rad, pick="first")
         if direction is None:
             return "no principal direction: no three seed points are collinear"
-        u = direction / math.sqrt(direction @ direction)
-        a, b = uv @ u, uv @ _perp(u)
-        principal, width = u, float(b.max() - b.min())
+        pts_all = pts
     else:
         tol = params.edge_tolerance_m
         direction = _edge_direction(uv, cropped, tol)
         if direction is None:
             direction = _min_area_direction(uv)
-        u = direction / math.sqrt(direction @ direction)
+        pts_all = pts
         if beyond is not None and len(beyond):
-            uv_all = np.concatenate([uv, (beyond - origin) @ to_plane])
+            pts_all = pts + ((beyond - origin) @ to_plane).tolist()
+    dx, dy = direction.tolist()
+    norm = math.hypot(dx, dy)
+    ux, uy = dx / norm, dy / norm
+    # Coordinates along u and along _perp(u) = (-uy, ux).
+    a = [x * ux + y * uy for x, y in pts_all]
+    b = [y * ux - x * uy for x, y in pts_all]
+    alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
+    if paper:
+        principal, width = (ux, uy), bhi - blo
+    else:
+        if ahi - alo >= bhi - blo:
+            principal, width = (ux, uy), bhi - blo
         else:
-            uv_all = uv
-        a, b = uv_all @ u, uv_all @ _perp(u)
-        span_a, span_b = float(a.max() - a.min()), float(b.max() - b.min())
-        if span_a >= span_b:
-            principal, width = u, span_b
-        else:
-            principal, width = _perp(u), span_a
-        valid = uv[~cropped]
-        if len(valid) >= params.disc_min_seeds:
-            circle = fit_circle_2d(valid)
+            principal, width = (-uy, ux), ahi - alo
+        if len(uncut) >= params.disc_min_seeds:
+            circle = fit_circle_2d(np.array(uncut))
             if circle is not None:
-                off = valid - circle[0]
-                rho = np.sqrt(np.einsum("ij,ij->i", off, off))
-                rms = float(np.sqrt(np.mean((rho - circle[1]) ** 2)))
-                disc = (origin + circle[0][0] * e1 + circle[0][1] * e2, circle[1], rms)
-    residual = _rectangle_residual(uv[~cropped], u) if (~cropped).any() else 0.0
-    lo_hi = a.min(), a.max(), b.min(), b.max()
-    a_mid, b_mid = (lo_hi[0] + lo_hi[1]) / 2, (lo_hi[2] + lo_hi[3]) / 2
-    centre_uv = a_mid * u + b_mid * _perp(u)
-    centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
+                (cu, cv), radius = circle[0].tolist(), circle[1]
+                sq = [(math.hypot(x - cu, y - cv) - radius) ** 2 for x, y in uncut]
+                rms = math.sqrt(sum(sq) / len(sq))
+                disc = (origin + cu * e1 + cv * e2, radius, rms)
+    residual = _rectangle_residual(uncut, (ux, uy)) if uncut else 0.0
+    a_mid, b_mid = (alo + ahi) / 2, (blo + bhi) / 2
+    centre = origin + (a_mid * ux - b_mid * uy) * e1 + (a_mid * uy + b_mid * ux) * e2
     axis = principal[0] * e1 + principal[1] * e2
     return _Face(width, axis / math.sqrt(axis @ axis), centre, residual, disc)
 
 
-def _rectangle_residual(uv: np.ndarray, u: np.ndarray) -> float:
-    ux, uy = u.tolist()
-    pts = uv.tolist()
+def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
+    """Largest distance of the points ``pts`` to the nearest side of their bounding rectangle
+    along the unit direction ``u``."""
+    ux, uy = u
     a = [x * ux + y * uy for x, y in pts]
     b = [y * ux - x * uy for x, y in pts]
     alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
