@@ -857,19 +857,25 @@ def _draw_batch(rng: np.random.Generator, n: np.ndarray, size: int, k: int) -> n
     Floyd's algorithm, one column at a time for all samples: for j = n-k .. n-1 draw v
     uniform in [0, j] and take v, or j if v is already in the sample. Every k-subset is equally
     likely (the order within a sample is not uniform, which no model here cares about); no
-    sorting. With one row it draws exactly what ``_draw_samples`` draws.
+    sorting. The columns are drawn as contiguous ``(k, L, size)`` blocks (strided columns
+    cost a third more) and returned as a view in ``(L, size, k)`` order. With one row it
+    draws exactly what ``_draw_samples`` draws.
     """
-    v = rng.random((n.shape[0], size, k)) * (n[:, None, None] - k + np.arange(1.0, k + 1.0))
+    v = rng.random((k, n.shape[0], size)) * (n[:, None] + _FLOYD_OFFSETS[k])
     v = v.astype(np.intp)
-    cols = [v[:, :, c] for c in range(k)]  # views: replacing in place updates v
+    top = n[:, None] - k
     for col in range(1, k):
-        current = cols[col]
+        current = v[col]
         # Compare with each earlier column: cheaper than an any() reduction at this size.
-        taken = current == cols[0]
+        taken = current == v[0]
         for c in range(1, col):
-            taken |= current == cols[c]
-        np.copyto(current, n[:, None] - k + col, where=taken)
-    return v
+            taken |= current == v[c]
+        np.copyto(current, top + col, where=taken)
+    return v.transpose(1, 2, 0)
+
+
+# Column j of a sample of k draws from [0, n - k + j]: n + (1 - k + j) values.
+_FLOYD_OFFSETS = {k: np.arange(1.0 - k, 1.0)[:, None, None] for k in range(1, 8)}
 
 
 def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
