@@ -857,12 +857,13 @@ def _draw_batch(rng: np.random.Generator, n: np.ndarray, size: int, k: int) -> n
     Floyd's algorithm, one column at a time for all samples: for j = n-k .. n-1 draw v
     uniform in [0, j] and take v, or j if v is already in the sample. Every k-subset is equally
     likely (the order within a sample is not uniform, which no model here cares about); no
-    sorting. The columns are drawn as contiguous ``(k, L, size)`` blocks (strided columns
+    sorting. The columns are worked on as contiguous ``(k, L, size)`` blocks (strided columns
     cost a third more) and returned as a view in ``(L, size, k)`` order. With one row it
     draws exactly what ``_draw_samples`` draws.
     """
-    v = rng.random((k, n.shape[0], size)) * (n[:, None] + _FLOYD_OFFSETS[k])
-    v = v.astype(np.intp)
+    # The uniforms are drawn in (L, size, k) order, as ever, and scaled into column blocks.
+    u = rng.random((n.shape[0], size, k)).transpose(2, 0, 1)
+    v = np.multiply(u, n[:, None] + _FLOYD_OFFSETS[k], out=np.empty(u.shape)).astype(np.intp)
     top = n[:, None] - k
     for col in range(1, k):
         current = v[col]
