@@ -46,7 +46,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lpc_core.state import evolve
-from schemas import AimCue, ControllerState, GraspTarget, ScanLines, TactorCommand, from_wire
+from schemas import (
+    AimCue,
+    ControllerState,
+    GraspTarget,
+    ProsthesisState,
+    ScanLines,
+    TactorCommand,
+    from_wire,
+)
 
 N_TACTORS = 4
 CueState = Literal["nothing", "guiding", "on_target", "ready"]
@@ -88,6 +96,11 @@ class AimParams:
     on_target_amplitude: float = 1.0
     target_max_age_ns: int = 1_000_000_000
     frequency_hz: float = 250.0
+    # The camera turns with the wrist (on the hand, as in the paper) while the tactors stay on
+    # the forearm: the tactor directions above are at wrist angle 0 and turn by minus the
+    # hand's reported wrist angle (an axis seen at image angle a lies at wrist + a, as the
+    # controller's set-point has it).
+    follow_wrist: bool = False
 
     def __post_init__(self) -> None:
         positive = ("half_width_m", "width_m", "cluster_gap_m", "track_radius_m")
@@ -297,8 +310,11 @@ def guide(
     *,
     was_on_target: bool = False,
     chosen_xy: tuple[float, float] | None = None,
+    tactor_angles_rad: tuple[float, ...] | None = None,
 ) -> Guidance:
-    """The cue for capture-volume ``points`` (N, 3), given what the previous frame chose."""
+    """The cue for capture-volume ``points`` (N, 3), given what the previous frame chose;
+    ``tactor_angles_rad`` (default ``params.tactor_angles_rad``) are the tactors' image
+    directions now."""
     if len(points) < params.min_points:
         return Guidance("nothing")
     labels = cluster_points(points, params.cluster_gap_m)
@@ -330,7 +346,8 @@ def guide(
         return Guidance("on_target", 0.0, 0.0, amplitude, len(kept), s, centroid)
     rho = min(s / params.width_m, 1.0)
     theta = float(math.atan2(nearest[pick, 1], nearest[pick, 0]))
-    shares = (1.0 - rho) * tactor_shares(theta, params.tactor_angles_rad)
+    angles = params.tactor_angles_rad if tactor_angles_rad is None else tactor_angles_rad
+    shares = (1.0 - rho) * tactor_shares(theta, angles)
     amplitudes = tuple(float(a) for a in np.clip(shares, 0.0, 1.0))
     return Guidance("guiding", rho, theta, amplitudes, len(kept), s, centroid)
 
@@ -347,6 +364,15 @@ class AimState:
     # The controller's newest state; None until it is heard from (cues on: aiming works with
     # no controller running).
     controller: str | None = None
+    wrist_deg: float = 0.0  # the hand's newest reported wrist angle
+
+    @property
+    def tactor_angles_rad(self) -> tuple[float, ...]:
+        """The tactors' image directions at the current wrist angle."""
+        if not self.params.follow_wrist or self.wrist_deg == 0.0:
+            return self.params.tactor_angles_rad
+        turn = math.radians(self.wrist_deg)
+        return tuple((a - turn) % (2 * math.pi) for a in self.params.tactor_angles_rad)
 
     @property
     def cues_off(self) -> bool:
@@ -355,10 +381,12 @@ class AimState:
 
 
 def aim_step(
-    state: AimState, message: ScanLines | GraspTarget | ControllerState, now_ns: int
+    state: AimState,
+    message: ScanLines | GraspTarget | ControllerState | ProsthesisState,
+    now_ns: int,
 ) -> tuple[AimState, list[AimCue | TactorCommand]]:
-    """One step: a grasp target or a controller state updates the state; scan lines give a
-    cue and a tactor command (all off while the controller is ``stopped``).
+    """One step: a grasp target, a controller state or the hand's status updates the state;
+    scan lines give a cue and a tactor command (all off while the controller is ``stopped``).
 
     Both outputs carry the scans' capture ``t_ns``, so the tactor bridge can tell a stale cue
     and a latency measurement can follow a frame to the serial line.
@@ -368,13 +396,22 @@ def aim_step(
         return evolve(state, target=message), []
     if isinstance(message, ControllerState):
         return evolve(state, controller=message.state), []
+    if isinstance(message, ProsthesisState):
+        return evolve(state, wrist_deg=message.wrist_angle_deg), []
     if not isinstance(message, ScanLines):
         raise ValueError(
-            f"message must be ScanLines, GraspTarget or ControllerState, got {type(message)}"
+            "message must be ScanLines, GraspTarget, ControllerState or ProsthesisState, "
+            f"got {type(message)}"
         )
     params = state.params
     points = capture_points([from_wire(line.points) for line in message.lines], params)
-    tracked = guide(points, params, was_on_target=state.on_target, chosen_xy=state.chosen_xy)
+    tracked = guide(
+        points,
+        params,
+        was_on_target=state.on_target,
+        chosen_xy=state.chosen_xy,
+        tactor_angles_rad=state.tactor_angles_rad,
+    )
     # Stopped: the geometry is still tracked, so the cue resumes where it would have been.
     g = Guidance("nothing", objects=tracked.objects) if state.cues_off else tracked
     target = state.target

@@ -505,12 +505,14 @@ def default_nodes(
         ),
         Node(
             name="aim",
-            init=aim.AimState,
+            init=lambda: aim.AimState(params=aim.AimParams(follow_wrist=params.camera_on_hand)),
             routes=(
                 Route("lpc/scans", aim.aim_step, gated=True),
                 Route("lpc/grasp/target", aim.aim_step),
                 # Cues off while the controller has stopped the hand.
                 Route("lpc/controller/state", aim.aim_step, feedback=True),
+                # The tactor directions turn with the wrist when the camera does.
+                Route("lpc/prosthesis/state", aim.aim_step, feedback=True),
             ),
             outputs=("lpc/aim/cue", "lpc/tactors/command"),
             gate="lpc/aim/cue",

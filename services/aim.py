@@ -1,6 +1,7 @@
-"""Aim guidance: ``lpc/scans``, ``lpc/grasp/target`` and ``lpc/controller/state`` in;
-``lpc/tactors/command`` and ``lpc/aim/cue`` out, one of each per frame (all off while the
-controller has stopped the hand)."""
+"""Aim guidance: ``lpc/scans``, ``lpc/grasp/target``, ``lpc/controller/state`` and
+``lpc/prosthesis/state`` in; ``lpc/tactors/command`` and ``lpc/aim/cue`` out, one of each per
+frame (all off while the controller has stopped the hand). With the camera on the hand (the
+default), the tactor directions turn with the hand's reported wrist angle."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ def params_from(args: argparse.Namespace) -> AimParams:
         tactor_angles_rad=tactor_placement(arm, float(rotation or 0.0)),
         cluster_gap_m=args.gap_mm / 1000.0,
         hysteresis_m=args.hysteresis_mm / 1000.0,
+        follow_wrist=not args.camera_fixed,
     )
 
 
@@ -37,9 +39,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         async for message in bus.subscribe(key):
             state, _ = aim_step(state, message, bus.clock.now_ns())
 
-    followers = [
-        asyncio.create_task(follow(key)) for key in ("lpc/grasp/target", "lpc/controller/state")
-    ]
+    keys = ["lpc/grasp/target", "lpc/controller/state"]
+    if state.params.follow_wrist:
+        keys.append("lpc/prosthesis/state")
+    followers = [asyncio.create_task(follow(key)) for key in keys]
     try:
         async for scans in bus.subscribe("lpc/scans"):
             try:
@@ -69,6 +72,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--hysteresis-mm", type=float, default=2.0, help="on-target hysteresis band (mm)"
+    )
+    parser.add_argument(
+        "--camera-fixed",
+        action="store_true",
+        help="the camera does not turn with the wrist: tactor directions ignore the wrist angle",
     )
     args = parser.parse_args(argv)
     try:

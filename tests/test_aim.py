@@ -24,6 +24,7 @@ from lpc_core.aim import (
 from schemas import (
     ControllerState,
     GraspTarget,
+    ProsthesisState,
     ScanLine,
     ScanLines,
     TactorCommand,
@@ -253,6 +254,28 @@ def test_aim_step_emits_cue_and_command_with_capture_time() -> None:
     assert command.amplitudes == pytest.approx([0.7, 0, 0, 0], abs=1e-6)
     assert not command.pulse
     assert state.seq == 1
+
+
+@pytest.mark.parametrize(
+    ("follow", "wrist_deg", "expected"),
+    [
+        (True, 90.0, [0, 0.7, 0, 0]),  # the wrist (and camera) turned a quarter: tactor 1
+        (True, -45.0, [0.35, 0, 0, 0.35]),  # halfway between tactors 3 and 0
+        (False, 90.0, [0.7, 0, 0, 0]),  # camera fixed: the wrist does not matter
+    ],
+)
+def test_aim_step_tactor_directions_turn_with_the_wrist(
+    follow: bool, wrist_deg: float, expected: list[float]
+) -> None:
+    """An object seen to the right (image angle 0) lies at forearm direction wrist + 0, so
+    with the camera on the hand the tactor at that forearm direction vibrates."""
+    state = AimState(params=AimParams(follow_wrist=follow))
+    hand = ProsthesisState(seq=1, t_ns=T0, wrist_angle_deg=wrist_deg, aperture_mm=80.0)
+    state, out = aim_step(state, hand, T0)
+    assert out == []
+    _, (cue, command) = aim_step(state, scans(ray(0.0, 0.030, 0.045)), T0)
+    assert cue.theta_deg == pytest.approx(0.0, abs=1e-4)  # the cue's image direction is kept
+    assert command.amplitudes == pytest.approx(expected, abs=1e-6)
 
 
 def test_aim_step_ready_pulses_only_with_a_fresh_reconstruction() -> None:

@@ -109,7 +109,8 @@ SERVICES: dict[str, ServiceSpec] = {
             + (["--tactor-port", args.tactor_port] if args.tactor_port else [])
         ),
     ),
-    "aim": ServiceSpec("services.aim"),
+    # The simulated hand carries no camera: the tactor directions do not turn with its wrist.
+    "aim": ServiceSpec("services.aim", lambda args: ["--camera-fixed"]),
     # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand.
     "prosthesis_bridge": ServiceSpec("services.prosthesis_bridge", lambda args: ["--sim-hand"]),
     "controller": ServiceSpec("services.controller", _controller_argv),
