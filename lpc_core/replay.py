@@ -463,18 +463,30 @@ def _short(value: Any, width: int = 80) -> str:
 
 
 def default_nodes(
-    controller_params: Any = None, reconstructor_method: str = "laser"
+    controller_params: Any = None,
+    reconstructor_method: str = "laser",
+    *,
+    states: Mapping[str, Any] | None = None,
 ) -> tuple[Node, ...]:
     """The pipeline as the services run it, in data-flow order: input topic -> step.
 
     ``controller_params`` (a ``ControllerParams``) are the controller service's, which come
     from its flags and the user's profile; ``reconstructor_method`` is the reconstructor's
-    ``--method``: ``laser`` reconstructs the scan lines, ``cloud`` the whole depth frame. The
-    other services run on their defaults.
+    ``--method``: ``laser`` reconstructs the scan lines, ``cloud`` the whole depth frame.
+    ``states`` gives a node's initial state by name (``scans``, ``reconstructor``, ``aim``,
+    ``controller``), as its service built it from its flags; the others start from their
+    defaults (the aim's tactors follow the wrist when the controller's camera is on the hand).
     """
     from lpc_core import aim, controller, pipeline, reconstructor
 
     params = controller_params or controller.ControllerParams()
+    given = dict(states or {})
+
+    def initial(name: str, default: Callable[[], Any]) -> Callable[[], Any]:
+        if name not in given:
+            return default
+        state = given[name]  # frozen: one instance serves every replay of the nodes
+        return lambda: state
     if reconstructor_method == "laser":
         reconstruct = Route("lpc/scans", reconstructor.reconstruct_step, gated=True)
         # Live, compute_ms is the worker's measured time; seq follows the scans'.
@@ -490,14 +502,14 @@ def default_nodes(
     return (
         Node(
             name="scans",
-            init=pipeline.ScansState,
+            init=initial("scans", pipeline.ScansState),
             routes=(Route("lpc/camera/depth", pipeline.scans_step, gated=True),),
             outputs=("lpc/scans",),
             gate="lpc/scans",
         ),
         Node(
             name="reconstructor",
-            init=reconstructor.ReconstructState,
+            init=initial("reconstructor", reconstructor.ReconstructState),
             routes=(reconstruct,),
             outputs=("lpc/reconstruction", "lpc/grasp/target"),
             gate="lpc/reconstruction",
@@ -505,7 +517,10 @@ def default_nodes(
         ),
         Node(
             name="aim",
-            init=lambda: aim.AimState(params=aim.AimParams(follow_wrist=params.camera_on_hand)),
+            init=initial(
+                "aim",
+                lambda: aim.AimState(params=aim.AimParams(follow_wrist=params.camera_on_hand)),
+            ),
             routes=(
                 Route("lpc/scans", aim.aim_step, gated=True),
                 Route("lpc/grasp/target", aim.aim_step),
@@ -520,7 +535,7 @@ def default_nodes(
         ),
         Node(
             name="controller",
-            init=lambda: controller.ControllerCore(params=params),
+            init=initial("controller", lambda: controller.ControllerCore(params=params)),
             routes=(
                 Route("lpc/emg", controller.controller_step),
                 Route("lpc/grasp/target", controller.controller_step),

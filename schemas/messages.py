@@ -203,6 +203,8 @@ class Health(Message, frozen=True, kw_only=True, tag="health"):
 
     ``rates_hz`` per topic published, ``latency_ms`` as ``{"p50": .., "p99": ..}`` from capture
     time to publication, ``counters`` such as received, published, dropped, rejected.
+    ``argv`` holds the service's command-line flags, so that a replay of a recording runs each
+    step function with the parameters its service had.
     """
 
     service: str
@@ -213,6 +215,7 @@ class Health(Message, frozen=True, kw_only=True, tag="health"):
     counters: dict[str, int] = {}
     rss_bytes: int = 0
     detail: str = ""
+    argv: list[str] = []
 
 
 class Log(Message, frozen=True, kw_only=True, tag="log"):

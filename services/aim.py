@@ -29,7 +29,7 @@ def params_from(args: argparse.Namespace) -> AimParams:
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    state = AimState(params=params_from(args))
+    state = initial_state(args)
     commands = bus.publisher("lpc/tactors/command")
     cues = bus.publisher("lpc/aim/cue")
 
@@ -62,7 +62,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             task.cancel()
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """The service's flags (a replay parses the recorded ones with it)."""
     parser = service_parser("aim", __doc__ or "")
     parser.add_argument("--profile", metavar="FILE", help="user profile JSON (tactor placement)")
     parser.add_argument("--arm", choices=("left", "right"), help="arm wearing the tactors")
@@ -78,11 +79,21 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the camera does not turn with the wrist: tactor directions ignore the wrist angle",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def initial_state(args: argparse.Namespace) -> AimState:
+    """The step function's state at start, from the flags; ``ValueError`` if they are bad."""
+    return AimState(params=params_from(args))
+
+
+def main(argv: list[str] | None = None) -> int:
+    service = parser()
+    args = service.parse_args(argv)
     try:
-        params_from(args)
+        initial_state(args)
     except ValueError as exc:
-        parser.error(str(exc))
+        service.error(str(exc))
     return run_service("aim", serve, args)
 
 

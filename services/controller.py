@@ -30,8 +30,46 @@ TICK_NS = 10_000_000
 INPUTS = {EMG: False, TARGET: True, "lpc/aim/cue": True, HAND: True}  # key -> newest only
 
 
+def parser() -> argparse.ArgumentParser:
+    """The service's flags (a replay parses the recorded ones with it)."""
+    parser = service_parser("controller", __doc__ or "")
+    parser.add_argument("--profile", metavar="FILE", help="user profile JSON (its emg section)")
+    parser.add_argument(
+        "--sim-user",
+        action="store_true",
+        help="calibration of the simulated user (lpc_core.emg_sim defaults) instead of a profile",
+    )
+    parser.add_argument("--stale-emg-ms", type=float, default=250.0)
+    parser.add_argument("--stale-hand-ms", type=float, default=200.0)
+    parser.add_argument(
+        "--stale-target-ms", type=float, default=1000.0, help="0: do not watch the grasp target"
+    )
+    parser.add_argument(
+        "--camera-fixed",
+        action="store_true",
+        help="target angles are not relative to the wrist (camera not on the hand)",
+    )
+    return parser
+
+
+def initial_state(args: argparse.Namespace) -> ControllerCore:
+    """The step function's state at start, from the flags; ``ValueError`` if they are bad.
+    Without ``--sim-user`` the EMG calibration is read from ``--profile`` (or the default
+    profile); with none, the default calibration."""
+    if min(args.stale_emg_ms, args.stale_hand_ms, args.stale_target_ms) < 0:
+        raise ValueError("--stale-*-ms must be >= 0 (0 turns that watchdog off)")
+    profile = sim_user_params().profile if args.sim_user else load_emg_profile(args.profile)
+    stale = {EMG: args.stale_emg_ms, HAND: args.stale_hand_ms, TARGET: args.stale_target_ms}
+    params = ControllerParams(
+        profile=profile or EmgProfile(),
+        stale_ms=MappingProxyType({k: v for k, v in stale.items() if v > 0}),
+        camera_on_hand=not args.camera_fixed,
+    )
+    return ControllerCore(params=params)
+
+
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    core = ControllerCore(params=args.params)
+    core = initial_state(args)
     publishers = {
         "ControllerState": bus.publisher("lpc/controller/state"),
         "ProsthesisCommand": bus.publisher("lpc/prosthesis/command"),
@@ -80,37 +118,13 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = service_parser("controller", __doc__ or "")
-    parser.add_argument("--profile", metavar="FILE", help="user profile JSON (its emg section)")
-    parser.add_argument(
-        "--sim-user",
-        action="store_true",
-        help="calibration of the simulated user (lpc_core.emg_sim defaults) instead of a profile",
-    )
-    parser.add_argument("--stale-emg-ms", type=float, default=250.0)
-    parser.add_argument("--stale-hand-ms", type=float, default=200.0)
-    parser.add_argument(
-        "--stale-target-ms", type=float, default=1000.0, help="0: do not watch the grasp target"
-    )
-    parser.add_argument(
-        "--camera-fixed",
-        action="store_true",
-        help="target angles are not relative to the wrist (camera not on the hand)",
-    )
-    args = parser.parse_args(argv)
-    if min(args.stale_emg_ms, args.stale_hand_ms, args.stale_target_ms) < 0:
-        parser.error("--stale-*-ms must be >= 0 (0 turns that watchdog off)")
+    service = parser()
+    args = service.parse_args(argv)
     try:
-        profile = sim_user_params().profile if args.sim_user else load_emg_profile(args.profile)
-        stale = {EMG: args.stale_emg_ms, HAND: args.stale_hand_ms, TARGET: args.stale_target_ms}
-        args.params = ControllerParams(
-            profile=profile or EmgProfile(),
-            stale_ms=MappingProxyType({k: v for k, v in stale.items() if v > 0}),
-            camera_on_hand=not args.camera_fixed,
-        )
+        initial_state(args)
     except ValueError as exc:
-        parser.error(str(exc))
-    if profile is None:
+        service.error(str(exc))
+    if not args.sim_user and load_emg_profile(args.profile) is None:
         print("[controller] warning: no EMG profile: run 'lpc emg calibrate'", file=sys.stderr)
     return run_service("controller", serve, args)
 

@@ -29,6 +29,7 @@ from lpc_core.reconstructor import (
     Dropped,
     PoolParams,
     PoolState,
+    ReconstructState,
     Release,
     Submit,
     frame_arrived,
@@ -47,9 +48,9 @@ _METHOD = "laser"
 _PARAMS = LaserParams()
 
 
-def _init_worker(method: str, variant: str) -> None:
+def _init_worker(method: str, params: LaserParams) -> None:
     global _METHOD, _PARAMS
-    _METHOD, _PARAMS = method, LaserParams(variant=variant)  # type: ignore[arg-type]
+    _METHOD, _PARAMS = method, params
     # Pay the imports and first calls now, before the service subscribes.
     frame = warmup_frame()
     work(encode(frame if method == "cloud" else scans_step(ScansState(), frame, 0)[1]))
@@ -80,7 +81,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     targets = bus.publisher("lpc/grasp/target")
     topic = INPUT_TOPICS[args.method]
     spawn = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(args.workers, spawn, _init_worker, (args.method, args.variant))
+    pool = ProcessPoolExecutor(
+        args.workers, spawn, _init_worker, (args.method, initial_state(args).params)
+    )
 
     async def pump() -> None:
         # Depth frames are big: keep the newest only. Scans all queue, for in-order release.
@@ -138,7 +141,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             child.terminate()
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """The service's flags (a replay parses the recorded ones with it)."""
     parser = service_parser("reconstructor", __doc__ or "")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument(
@@ -154,11 +158,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--variant", choices=("lpc", "paper"), default="lpc", help="the laser method's variant"
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def initial_state(args: argparse.Namespace) -> ReconstructState:
+    """The in-process step's state at start (the parameters the workers run with)."""
+    return ReconstructState(params=LaserParams(variant=args.variant))
+
+
+def main(argv: list[str] | None = None) -> int:
+    service = parser()
+    args = service.parse_args(argv)
     try:
         PoolParams(workers=args.workers, max_pending=args.max_pending)
     except ValueError as exc:
-        parser.error(str(exc))
+        service.error(str(exc))
     return run_service("reconstructor", serve, args)
 
 

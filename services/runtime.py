@@ -146,8 +146,9 @@ class _Stream:
 class HealthCounters:
     """What a service reports on ``lpc/health/<service>``."""
 
-    def __init__(self, service: str) -> None:
+    def __init__(self, service: str, argv: list[str] | None = None) -> None:
         self.service = service
+        self.argv = list(argv or [])
         self.published: dict[str, _Stream] = collections.defaultdict(_Stream)
         self.received: dict[str, _Stream] = collections.defaultdict(_Stream)
         self.counters: collections.Counter[str] = collections.Counter()
@@ -178,6 +179,7 @@ class HealthCounters:
             counters=counters,
             rss_bytes=_rss_bytes(),
             detail=self.detail,
+            argv=self.argv,
         )
 
 
@@ -301,12 +303,13 @@ class Bus:
         loop: asyncio.AbstractEventLoop,
         clock: Clock | None = None,
         quiet: bool = False,
+        argv: list[str] | None = None,
     ) -> None:
         self.session = session
         self.service = service
         self.loop = loop
         self.clock: Clock = clock or SystemClock()
-        self.health = HealthCounters(service)
+        self.health = HealthCounters(service, argv)
         self.quiet = quiet
         self.status = "starting"
         self._health_pub = session.declare_publisher(f"lpc/health/{service}")
@@ -387,8 +390,18 @@ def _answer_schema_query(query: zenoh.Query) -> None:
 Serve = Callable[[Bus, argparse.Namespace], Awaitable[None]]
 
 
+class ServiceParser(argparse.ArgumentParser):
+    """A service's parser: the parsed namespace keeps the flags as given (``argv``), which the
+    service reports in its health, so that a replay can rebuild its parameters."""
+
+    def parse_args(self, args: Any = None, namespace: Any = None) -> Any:
+        parsed = super().parse_args(args, namespace)
+        parsed.argv = list(sys.argv[1:] if args is None else args)
+        return parsed
+
+
 def service_parser(name: str, description: str) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=f"python -m services.{name}", description=description)
+    parser = ServiceParser(prog=f"python -m services.{name}", description=description)
     add_bus_arguments(parser)
     parser.add_argument("--quiet", action="store_true", help="log only warnings and errors")
     return parser
@@ -419,7 +432,14 @@ async def _run(name: str, serve: Serve, args: argparse.Namespace, clock: Clock |
         print(f"[{name}] error: cannot open the Zenoh session: {exc}", file=sys.stderr)
         return 2
     with session:
-        bus = Bus(session, name, loop=loop, clock=clock, quiet=getattr(args, "quiet", False))
+        bus = Bus(
+            session,
+            name,
+            loop=loop,
+            clock=clock,
+            quiet=getattr(args, "quiet", False),
+            argv=getattr(args, "argv", None),
+        )
         bus.log("info", f"started (pid {os.getpid()})")
         bus.status = "ok"
         health = asyncio.create_task(bus.health_loop())

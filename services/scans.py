@@ -10,8 +10,24 @@ from lpc_core.scans import ScanParams
 from services.runtime import Bus, run_service, service_parser
 
 
+def parser() -> argparse.ArgumentParser:
+    """The service's flags (a replay parses the recorded ones with it)."""
+    parser = service_parser("scans", __doc__ or "")
+    parser.add_argument(
+        "--band-mm", type=float, default=0.5, help="half-width of a scan line (default 0.5 mm)"
+    )
+    return parser
+
+
+def initial_state(args: argparse.Namespace) -> ScansState:
+    """The step function's state at start, from the flags; ``ValueError`` if they are bad."""
+    if not 0 < args.band_mm <= 10:
+        raise ValueError("--band-mm must be in (0, 10]")
+    return ScansState(params=ScanParams(band_m=args.band_mm / 1000.0))
+
+
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    state = ScansState(params=ScanParams(band_m=args.band_mm / 1000.0))
+    state = initial_state(args)
     scans = bus.publisher("lpc/scans")
     async for frame in bus.subscribe("lpc/camera/depth"):
         try:
@@ -23,13 +39,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = service_parser("scans", __doc__ or "")
-    parser.add_argument(
-        "--band-mm", type=float, default=0.5, help="half-width of a scan line (default 0.5 mm)"
-    )
-    args = parser.parse_args(argv)
-    if not 0 < args.band_mm <= 10:
-        parser.error("--band-mm must be in (0, 10]")
+    service = parser()
+    args = service.parse_args(argv)
+    try:
+        initial_state(args)
+    except ValueError as exc:
+        service.error(str(exc))
     return run_service("scans", serve, args)
 
 

@@ -34,6 +34,7 @@ from schemas import (
     DepthFrame,
     EmgSample,
     GraspTarget,
+    Health,
     ProsthesisState,
     ScanLines,
     TactorCommand,
@@ -372,6 +373,45 @@ def test_replay_cli_catches_a_changed_algorithm(
     out = capsys.readouterr().out
     assert "check: 4 differences" in out
     assert "lpc/scans frame 0 " in out and "recorded" in out and "replayed" in out
+
+
+def with_health(path: Path, out: Path, service: str, argv: list[str]) -> None:
+    """``path`` again, with one health message of ``service`` holding ``argv``."""
+    with McapLog(path) as log:
+        events = [(m.log_time, m.key, m.message) for m in log.messages(decode=True)]
+    health = Health(seq=1, t_ns=T0, service=service, pid=1, argv=argv)
+    events.insert(0, (T0, f"lpc/health/{service}", health))
+    with LogWriter(out) as writer:
+        for t, key, message in events:
+            writer.write(key, message, t)
+
+
+def test_replay_cli_runs_each_service_with_its_recorded_flags(
+    tmp_path: Path, depth_images: list[np.ndarray], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A session whose scans service ran with --band-mm 2 replays without differences: its
+    health holds its flags; without them (or with flags that do not apply) the defaults give
+    other scan lines, and the replay says so."""
+    record_session(
+        tmp_path / "base.mcap", depth_images, n_frames=6, params=ScanParams(band_m=0.002)
+    )
+    with_health(tmp_path / "base.mcap", tmp_path / "rec.mcap", "scans", ["--band-mm", "2"])
+    out1 = tmp_path / "out1.mcap"
+    assert lpc(["replay", str(tmp_path / "rec.mcap"), "--check", "--out", str(out1)]) == 0
+    out = capsys.readouterr().out
+    assert "scans: the recorded flags (--band-mm 2)" in out and "check: no differences" in out
+    # The output keeps the flags: replaying it reproduces it.
+    assert lpc(["replay", str(out1), "--check", "--out", str(tmp_path / "out2.mcap")]) == 0
+    assert out1.read_bytes() == (tmp_path / "out2.mcap").read_bytes()
+    capsys.readouterr()
+
+    assert lpc(["replay", str(tmp_path / "base.mcap"), "--check"]) == 1
+    assert "check: 4 differences" in capsys.readouterr().out
+    with_health(tmp_path / "base.mcap", tmp_path / "bad.mcap", "scans", ["--band-mm", "99"])
+    assert lpc(["replay", str(tmp_path / "bad.mcap"), "--check"]) == 1
+    out = capsys.readouterr().out
+    assert "scans: the recorded flags ['--band-mm', '99'] do not apply here" in out
+    assert "--band-mm must be in (0, 10]" in out
 
 
 def test_replay_cli_cut_file_replays_readable_part_and_names_last_good_time(

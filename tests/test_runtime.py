@@ -139,3 +139,15 @@ def test_runtime_default_config_is_loopback_without_multicast() -> None:
     assert conf.get_json("scouting/multicast/enabled") == "false"
     assert "127.0.0.1" in conf.get_json("listen/endpoints")
     assert "127.0.0.1" in conf.get_json("connect/endpoints")
+
+
+def test_service_flags_are_kept_and_reported_in_health() -> None:
+    # A replay rebuilds each service's parameters from the flags its health reported.
+    from services.runtime import HealthCounters, service_parser
+
+    parser = service_parser("scans", "")
+    parser.add_argument("--band-mm", type=float, default=0.5)
+    args = parser.parse_args(["--band-mm", "2", "--quiet"])
+    assert args.argv == ["--band-mm", "2", "--quiet"] and args.band_mm == 2.0
+    health = HealthCounters("scans", args.argv).snapshot(now_ns=5)
+    assert decode("lpc/health/scans", encode(health)).argv == ["--band-mm", "2", "--quiet"]

@@ -25,8 +25,11 @@ the cut is reported (status 0); if nothing before the cut is readable, status 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
+import importlib
+import io
 import multiprocessing
 import os
 import sys
@@ -195,8 +198,62 @@ def _timed(nodes: tuple[Node, ...], spent: Counter[str]) -> tuple[Node, ...]:
     )
 
 
+# The services whose step functions replay runs; each defines parser() and initial_state(args).
+FLAGGED = ("scans", "reconstructor", "aim", "controller")
+
+
+def _recorded_flags(log: McapLog) -> dict[str, LoggedMessage]:
+    """Per service of the pipeline, its first recorded health message: it holds the service's
+    flags (``argv``). A replay's own output keeps the ones it used."""
+    wanted = {f"lpc/health/{name}" for name in FLAGGED} & log.topics()
+    found: dict[str, LoggedMessage] = {}
+    for m in log.messages(sorted(wanted), ordered=False) if wanted else ():
+        name = m.key.rsplit("/", 1)[1]
+        if name not in found:
+            found[name] = m
+        if len(found) == len(wanted):
+            break
+    return found
+
+
+def _states_from_flags(
+    args: argparse.Namespace, flags: dict[str, LoggedMessage]
+) -> tuple[dict[str, Any], list[str]]:
+    """Each step function's initial state, built by its service's own code from the recorded
+    flags, and what was used. The controller's flags give way to ``--profile`` and
+    ``--camera-fixed``; flags that do not apply here (a profile file this machine lacks)
+    leave that service on the defaults, and say so."""
+    states: dict[str, Any] = {}
+    notes: list[str] = []
+    for name in FLAGGED:
+        m = flags.get(name)
+        if m is None:
+            continue
+        if name == "controller" and (args.profile or args.camera_fixed):
+            notes.append(f"{name}: --profile/--camera-fixed given, its recorded flags not used")
+            continue
+        try:
+            argv = list(decode(m.key, m.payload).argv)
+        except BadMessage as exc:
+            notes.append(f"{name}: its recorded health does not decode ({exc.reason})")
+            continue
+        module = importlib.import_module(f"services.{name}")
+        errors = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(errors):
+                states[name] = module.initial_state(module.parser().parse_args(argv))
+        except (SystemExit, ValueError) as exc:
+            why = str(exc) if isinstance(exc, ValueError) else errors.getvalue().strip()
+            notes.append(f"{name}: the recorded flags {argv} do not apply here ({why}); defaults")
+            continue
+        shown = " ".join(a for a in argv if a) or "no flags"
+        notes.append(f"{name}: the recorded flags ({shown})")
+    return states, notes
+
+
 def _controller_params(args: argparse.Namespace, log: McapLog) -> tuple[Any, str]:
-    """The controller's parameters as its service had them live, and how they were chosen."""
+    """The controller's parameters as its service had them live, and how they were chosen,
+    when its flags were not recorded."""
     from lpc_core.controller import ControllerParams, sim_user_params
     from lpc_core.emg import EmgProfile
     from services.drivers.emg import load_emg_profile
@@ -243,13 +300,18 @@ def _reconstructor_method(args: argparse.Namespace, log: McapLog) -> tuple[str, 
 
 def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
     spent: Counter[str] = Counter()
+    flags = _recorded_flags(log)
+    states, flag_notes = _states_from_flags(args, flags)
     try:
-        controller_params, how = _controller_params(args, log)
+        if "controller" in states:
+            controller_params, how = states["controller"].params, "as its recorded flags say"
+        else:
+            controller_params, how = _controller_params(args, log)
         method, method_how = _reconstructor_method(args, log)
     except ValueError as exc:
         return _fail(str(exc))
     workers = _Workers(method, args.jobs) if args.jobs > 0 else None
-    nodes = default_nodes(controller_params, reconstructor_method=method)
+    nodes = default_nodes(controller_params, reconstructor_method=method, states=states)
     if workers is not None:
         nodes = workers.wrap(nodes)
     nodes = _timed(nodes, spent)
@@ -262,7 +324,9 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
         wanted = sorted({r.key for n in nodes for r in n.routes if not r.key.startswith("<")})
         return _fail(f"{path} holds none of the replay inputs ({', '.join(wanted)})")
     try:
-        return _run(args, path, log, replay, workers, spent, (how, method, method_how))
+        return _run(
+            args, path, log, replay, workers, spent, (how, method, method_how), (flags, flag_notes)
+        )
     finally:
         if workers is not None:
             workers.close()
@@ -276,8 +340,10 @@ def _run(
     workers: _Workers | None,
     spent: Counter[str],
     hows: tuple[str, str, str],
+    recorded: tuple[dict[str, LoggedMessage], list[str]],
 ) -> int:
     how, method, method_how = hows
+    flags, flag_notes = recorded
     frames = replay.recorded
     reader = _ReadAhead(log, replay, frames, args, keep_payload=bool(args.out) or bool(workers))
     inputs = reader.inputs() if workers is None else workers.ahead(reader.inputs(), replay)
@@ -288,6 +354,15 @@ def _run(
         # the same nodes (a node whose recorded topic is empty handles no frame).
         for key in sorted(replay.outputs):
             writer.declare(key)
+        # The flags used, so that replaying the output runs the same parameters.
+        for m in flags.values():
+            writer.write_raw(
+                m.key,
+                m.payload,
+                log_time=m.log_time,
+                publish_time=m.publish_time,
+                sequence=m.sequence,
+            )
     replayed: dict[str, list[Any]] = defaultdict(list)
     counts: Counter[str] = Counter()
     first_ns = last_ns = 0
@@ -320,6 +395,8 @@ def _run(
     if out_tmp is not None:
         os.replace(out_tmp, args.out)
     _report_run(args, path, replay, reader, counts, (last_ns - first_ns) / 1e9, elapsed)
+    for note in flag_notes:
+        print(f"  {note}")
     print(f"  controller: {how}")
     where = f"{args.jobs} worker processes" if workers else "in this process"
     print(f"  reconstructor: {method} ({method_how}), {where}")
