@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Literal, Protocol
+from typing import Literal, Protocol, Self
 
 import numpy as np
 
@@ -626,13 +626,14 @@ def _march_implicit(
 
 
 @dataclass(frozen=True, eq=False)
-class Superellipsoid:
-    """|x/a|^p + |y/b|^p + |z/c|^p <= 1 (a bar of soap for p ≈ 4). Ray marched: slower."""
+class _MarchedSolid:
+    """A solid inside ``_f <= 0``, an implicit function of the local coordinates, with
+    positive ``semi_axes``; rays are marched through an enclosing solid (``_shell``): slower
+    than the closed-form solids."""
 
     center: np.ndarray
     rotation: np.ndarray
     semi_axes: np.ndarray
-    exponent: float = 4.0
     steps: int = 48
 
     def __post_init__(self) -> None:
@@ -642,6 +643,29 @@ class Superellipsoid:
         if np.any(semi <= 0):
             raise ValueError(f"semi_axes must be positive, got {self.semi_axes!r}")
         object.__setattr__(self, "semi_axes", semi)
+
+    def _f(self, p: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _shell(self) -> Cuboid | Ellipsoid:
+        raise NotImplementedError
+
+    def intersect(self, rays: Rays) -> np.ndarray:
+        return _march_implicit(self._f, self.center, self.rotation, self._shell(), rays, self.steps)
+
+    def transformed(self, pose: np.ndarray) -> Self:
+        rot = pose[:3, :3]
+        return replace(self, center=rot @ self.center + pose[:3, 3], rotation=rot @ self.rotation)
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Superellipsoid(_MarchedSolid):
+    """|x/a|^p + |y/b|^p + |z/c|^p <= 1 (a bar of soap for p ≈ 4)."""
+
+    exponent: float = 4.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
         if self.exponent < 2.0:
             raise ValueError(f"exponent must be >= 2 (convex), got {self.exponent}")
 
@@ -657,14 +681,8 @@ class Superellipsoid:
             q = np.abs(p / self.semi_axes) ** e
         return np.sum(q, axis=-1) - 1.0
 
-    def intersect(self, rays: Rays) -> np.ndarray:
-        # The solid lies within its box of semi-axes.
-        box = Cuboid(self.center, self.rotation, 2.0 * self.semi_axes)
-        return _march_implicit(self._f, self.center, self.rotation, box, rays, self.steps)
-
-    def transformed(self, pose: np.ndarray) -> Superellipsoid:
-        rot = pose[:3, :3]
-        return replace(self, center=rot @ self.center + pose[:3, 3], rotation=rot @ self.rotation)
+    def _shell(self) -> Cuboid:
+        return Cuboid(self.center, self.rotation, 2.0 * self.semi_axes)  # its box
 
     def bounds(self) -> tuple[np.ndarray, float]:
         return self.center, float(np.linalg.norm(self.semi_axes)) * 1.001
@@ -674,25 +692,16 @@ class Superellipsoid:
         return float(self.center @ direction + np.abs(direction @ self.rotation) @ self.semi_axes)
 
 
-@dataclass(frozen=True, eq=False)
-class BumpyEllipsoid:
+@dataclass(frozen=True, eq=False, kw_only=True)
+class BumpyEllipsoid(_MarchedSolid):
     """An ellipsoid whose radius is modulated by smooth bumps (a potato): in scaled local
     coordinates q = p / semi_axes, inside when |q| <= 1 + amplitude * g(q/|q|), with
-    g = sin(3 qx + 0.7) sin(2 qy + 1.9) + 0.5 sin(5 qz + 0.3). Ray marched: slower."""
+    g = sin(3 qx + 0.7) sin(2 qy + 1.9) + 0.5 sin(5 qz + 0.3)."""
 
-    center: np.ndarray
-    rotation: np.ndarray
-    semi_axes: np.ndarray
     amplitude: float = 0.06
-    steps: int = 48
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "center", _vec3(self.center, "center"))
-        object.__setattr__(self, "rotation", _rotation(self.rotation, "rotation"))
-        semi = _vec3(self.semi_axes, "semi_axes")
-        if np.any(semi <= 0):
-            raise ValueError(f"semi_axes must be positive, got {self.semi_axes!r}")
-        object.__setattr__(self, "semi_axes", semi)
+        super().__post_init__()
         if not 0.0 <= self.amplitude < 0.5:
             raise ValueError(f"amplitude must be in [0, 0.5), got {self.amplitude}")
 
@@ -705,14 +714,9 @@ class BumpyEllipsoid:
         )
         return r - 1.0 - self.amplitude * g
 
-    def intersect(self, rays: Rays) -> np.ndarray:
+    def _shell(self) -> Ellipsoid:
         # |g| <= 1.5, so the solid lies within the ellipsoid scaled by 1 + 1.5 amplitude.
-        shell = Ellipsoid(self.center, self.rotation, self.semi_axes * (1.0 + 1.5 * self.amplitude))
-        return _march_implicit(self._f, self.center, self.rotation, shell, rays, self.steps)
-
-    def transformed(self, pose: np.ndarray) -> BumpyEllipsoid:
-        rot = pose[:3, :3]
-        return replace(self, center=rot @ self.center + pose[:3, 3], rotation=rot @ self.rotation)
+        return Ellipsoid(self.center, self.rotation, self.semi_axes * (1.0 + 1.5 * self.amplitude))
 
     def bounds(self) -> tuple[np.ndarray, float]:
         return self.center, float(np.max(self.semi_axes)) * (1.0 + 1.5 * self.amplitude)
