@@ -499,6 +499,9 @@ def _prepare_lines(
     return lines
 
 
+_COVERED = "not fitted: a simpler model covers the line"
+
+
 def _fit_lines_models(
     lines: list[LineModels], params: LaserParams, rng: np.random.Generator
 ) -> None:
@@ -518,6 +521,17 @@ def _fit_lines_models(
     pierced: list[dict[str, np.ndarray]] = [{} for _ in lines]
     ellipse_margin = params.paper_ellipse_margin if paper else params.model_margin
     for model in MODELS:
+        if model == "circle" and lazy and _straight_pieces(lines, pierced, params):
+            # Every line is a straight run through the axis with straight pieces beside it
+            # (a box's faces, a face and the table): no circle or ellipse is fitted.
+            for k, ln in enumerate(lines):
+                n = len(ln.points)
+                covered = len(pierced[k]["line"]) >= n * (1.0 - params.model_margin)
+                why = _COVERED if covered else "not fitted: the line is straight pieces"
+                for richer in ("circle", "ellipse"):
+                    ln.fits[richer] = fit.FailedFit(why)
+                    all_runs[k][richer], pierced[k][richer] = [], _EMPTY_RUN
+            break
         rows, goals = [], []
         for k, ln in enumerate(lines):
             n = len(ln.points)
@@ -530,7 +544,7 @@ def _fit_lines_models(
                     margin = ellipse_margin if simpler == "circle" else params.model_margin
                     goal = len(pierced[k][simpler]) + margin * n
             if lazy and any(len(r) >= n * (1.0 - params.model_margin) for r in pierced[k].values()):
-                ln.fits[model] = fit.FailedFit("not fitted: a simpler model covers the line")
+                ln.fits[model] = fit.FailedFit(_COVERED)
                 all_runs[k][model], pierced[k][model] = [], _EMPTY_RUN
             else:
                 rows.append(k)
@@ -565,6 +579,37 @@ def _fit_lines_models(
                         ln.fits["line"], all_runs[k]["line"], pierced[k]["line"] = second, runs, run
     for k, ln in enumerate(lines):
         _choose(ln, all_runs[k], pierced[k], params, ellipse_margin)
+
+
+def _straight_pieces(
+    lines: list[LineModels], pierced: list[dict[str, np.ndarray]], params: LaserParams
+) -> bool:
+    """Whether every line is its line model's pierced run plus, on either side of it, points
+    that one straight line holds within ``threshold_m`` (fewer than three always do).
+
+    A polyhedron's scan lines look like this (a face through the axis, then the next face or
+    the table); a circle or an ellipse could then win a line only by following a crease, which
+    neither does. On a sphere or a cylinder the sides of a line run curve away: at least one
+    line fails, and every model is fitted as usual.
+    """
+    thr = params.threshold_m
+    for k, ln in enumerate(lines):
+        n, run = len(ln.sz), pierced[k].get("line", _EMPTY_RUN)
+        if len(run) >= n * (1.0 - params.model_margin):
+            continue
+        if not len(run):
+            return False
+        for side in (ln.sz[: run[0]], ln.sz[run[-1] + 1 :]):
+            m = len(side)
+            if m < 3:
+                continue
+            # Total least squares: the normal is the minor axis of the 2x2 scatter matrix.
+            d = side - side.sum(axis=0) / m
+            (sxx, sxy), (_, syy) = (d.T @ d).tolist()
+            phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+            if np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() > thr:
+                return False
+    return True
 
 
 def _choose(

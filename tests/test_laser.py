@@ -230,6 +230,22 @@ def test_analyse_lines_fits_nothing_once_a_line_decides_the_frame() -> None:
     assert len(analyse_lines(lines)[0].fits) == 3  # and all three models when none does
 
 
+def test_analyse_lines_fits_no_circle_or_ellipse_on_straight_pieces() -> None:
+    # A box tilted 35 degrees: every line crosses the top face onto the front face.
+    rotation = rotation_x(35.0) @ rotation_z(30.0)
+    lines = scan(box((0.0, 0.0, 0.215), rotation, (0.040, 0.120, 0.040)), 1)
+    models = analyse_lines(lines, seed=1)
+    reasons = [ln.fits[m].reason for ln in models for m in ("circle", "ellipse")]
+    assert any("straight pieces" in r for r in reasons)
+    assert all(r.startswith("not fitted") for r in reasons)
+    result = reconstruct_laser(lines, seed=1)
+    assert result.shape == "cuboid", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+    # The sides of a cylinder's lines curve away: the richer models are fitted there.
+    curved = analyse_lines(scan(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), 1), seed=1)
+    assert any(ln.fits["circle"] or ln.fits["ellipse"] for ln in curved)
+
+
 def test_reconstruct_laser_shuffled_points_give_the_sorted_result() -> None:
     lines = scan(cylinder((0.0, 0.0, 0.2), (1.0, 0.2, 0.1), 0.025), 3)
     rng = np.random.default_rng(4)
