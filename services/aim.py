@@ -12,7 +12,7 @@ import sys
 from lpc_core.aim import AimParams, AimState, aim_step, tactor_placement
 from schemas import AimCue, TactorCommand
 from services.drivers.tactors import load_profile
-from services.runtime import Bus, run_service, service_parser
+from services.runtime import Bus, service_main, service_parser
 
 
 def params_from(args: argparse.Namespace) -> AimParams:
@@ -88,13 +88,7 @@ def initial_state(args: argparse.Namespace) -> AimState:
 
 
 def main(argv: list[str] | None = None) -> int:
-    service = parser()
-    args = service.parse_args(argv)
-    try:
-        initial_state(args)
-    except ValueError as exc:
-        service.error(str(exc))
-    return run_service("aim", serve, args)
+    return service_main("aim", parser(), initial_state, serve, argv)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ from lpc_core.controller import (
 from lpc_core.emg import EmgProfile
 from schemas import ControllerState
 from services.drivers.emg import load_emg_profile
-from services.runtime import Bus, run_service, service_parser
+from services.runtime import Bus, service_main, service_parser
 
 TICK_NS = 10_000_000
 INPUTS = {EMG: False, TARGET: True, "lpc/aim/cue": True, HAND: True}  # key -> newest only
@@ -118,15 +118,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    service = parser()
-    args = service.parse_args(argv)
-    try:
+    def check(args: argparse.Namespace) -> None:
         initial_state(args)
-    except ValueError as exc:
-        service.error(str(exc))
-    if not args.sim_user and load_emg_profile(args.profile) is None:
-        print("[controller] warning: no EMG profile: run 'lpc emg calibrate'", file=sys.stderr)
-    return run_service("controller", serve, args)
+        if not args.sim_user and load_emg_profile(args.profile) is None:
+            print("[controller] warning: no EMG profile: run 'lpc emg calibrate'", file=sys.stderr)
+
+    return service_main("controller", parser(), check, serve, argv)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ from lpc_core.reconstructor import (
 from lpc_core.window import WindowState
 from schemas import BadMessage, decode, encode
 from services.mcap_log import read_header
-from services.runtime import Bus, run_service, service_parser
+from services.runtime import Bus, service_main, service_parser
 
 _METHOD = "laser"
 _PARAMS = LaserParams()
@@ -167,13 +167,10 @@ def initial_state(args: argparse.Namespace) -> ReconstructState:
 
 
 def main(argv: list[str] | None = None) -> int:
-    service = parser()
-    args = service.parse_args(argv)
-    try:
+    def check(args: argparse.Namespace) -> None:
         PoolParams(workers=args.workers, max_pending=args.max_pending)
-    except ValueError as exc:
-        service.error(str(exc))
-    return run_service("reconstructor", serve, args)
+
+    return service_main("reconstructor", parser(), check, serve, argv)
 
 
 if __name__ == "__main__":

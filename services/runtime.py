@@ -407,6 +407,23 @@ def service_parser(name: str, description: str) -> argparse.ArgumentParser:
     return parser
 
 
+def service_main(
+    name: str,
+    parser: argparse.ArgumentParser,
+    check: Callable[[argparse.Namespace], Any],
+    serve: Serve,
+    argv: list[str] | None = None,
+) -> int:
+    """A service's ``main``: parse its flags, ``check`` them (a ``ValueError`` exits 2 with
+    the reason, as a bad flag does), then run ``serve``."""
+    args = parser.parse_args(argv)
+    try:
+        check(args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return run_service(name, serve, args)
+
+
 def run_service(
     name: str,
     serve: Serve,

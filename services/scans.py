@@ -7,7 +7,7 @@ import sys
 
 from lpc_core.pipeline import ScansState, scans_step
 from lpc_core.scans import ScanParams
-from services.runtime import Bus, run_service, service_parser
+from services.runtime import Bus, service_main, service_parser
 
 
 def parser() -> argparse.ArgumentParser:
@@ -39,13 +39,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    service = parser()
-    args = service.parse_args(argv)
-    try:
-        initial_state(args)
-    except ValueError as exc:
-        service.error(str(exc))
-    return run_service("scans", serve, args)
+    return service_main("scans", parser(), initial_state, serve, argv)
 
 
 if __name__ == "__main__":
