@@ -585,12 +585,14 @@ def _straight_pieces(
     lines: list[LineModels], pierced: list[dict[str, np.ndarray]], params: LaserParams
 ) -> bool:
     """Whether every line is its line model's pierced run plus, on either side of it, points
-    that one straight line holds within ``threshold_m`` (fewer than three always do).
+    that one straight line holds within ``threshold_m`` (fewer than three always do), or two
+    that meet in a concave corner (a side face, then the table it stands on).
 
     A polyhedron's scan lines look like this (a face through the axis, then the next face or
     the table); a circle or an ellipse could then win a line only by following a crease, which
-    neither does. On a sphere or a cylinder the sides of a line run curve away: at least one
-    line fails, and every model is fitted as usual.
+    neither does. On a sphere or a cylinder the sides of a line run curve away, and they bulge
+    toward the camera (convex), so no concave corner stands in for the curve: at least one line
+    fails, and every model is fitted as usual.
     """
     thr = params.threshold_m
     for k, ln in enumerate(lines):
@@ -600,16 +602,45 @@ def _straight_pieces(
         if not len(run):
             return False
         for side in (ln.sz[: run[0]], ln.sz[run[-1] + 1 :]):
-            m = len(side)
-            if m < 3:
-                continue
-            # Total least squares: the normal is the minor axis of the 2x2 scatter matrix.
-            d = side - side.sum(axis=0) / m
-            (sxx, sxy), (_, syy) = (d.T @ d).tolist()
-            phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-            if np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() > thr:
+            if not (_straight(side, thr) or _concave_corner(side, thr)):
                 return False
     return True
+
+
+def _straight(sz: np.ndarray, threshold: float) -> bool:
+    """Whether one line holds the (m, 2) points within ``threshold`` (total least squares:
+    the normal is the minor axis of the 2x2 scatter matrix)."""
+    m = len(sz)
+    if m < 3:
+        return True
+    d = sz - sz.sum(axis=0) / m
+    (sxx, sxy), (_, syy) = (d.T @ d).tolist()
+    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    return bool(np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() <= threshold)
+
+
+_CONCAVE_SIN = math.sin(math.radians(15.0))
+
+
+def _concave_corner(sz: np.ndarray, threshold: float) -> bool:
+    """Whether the (m, 2) points (s, z), in order of s, are two straight pieces that turn
+    away from the camera by more than 15 degrees where they meet, at the point farthest from
+    the chord through the ends (Douglas and Peucker's split)."""
+    if len(sz) < 4:
+        return False
+    (s0, z0), (s1, z1) = sz[0].tolist(), sz[-1].tolist()
+    # Distance to the chord, up to its length: |(p - p0) x (p1 - p0)|.
+    k = int(np.abs((sz[:, 0] - s0) * (z1 - z0) - (sz[:, 1] - z0) * (s1 - s0)).argmax())
+    if not 2 <= k <= len(sz) - 2:
+        return False
+    (a0, b0), (ak, bk) = (s0, z0), sz[k].tolist()
+    u = (ak - a0, bk - b0)
+    v = (s1 - ak, z1 - bk)
+    # z(s) concave at the corner: the slope falls, u x v < 0 (a convex bulge turns the other way).
+    turn = (u[0] * v[1] - u[1] * v[0]) / (math.hypot(*u) * math.hypot(*v))
+    return turn < -_CONCAVE_SIN and _straight(sz[: k + 1], threshold) and _straight(
+        sz[k:], threshold
+    )
 
 
 def _choose(
