@@ -246,14 +246,17 @@ class CylinderSolid:
             raise ValueError("axis must be a non-zero finite vector")
         d = [v / norm for v in d]
         e1, e2 = _basis(*d)
-        start = fit_circle_2d(points @ np.array([e1, e2]).T)
+        # Coordinates as rows (3, N): each pass of the normal equations then works on
+        # contiguous rows, a third cheaper than on the columns of (N, 3).
+        rows = np.ascontiguousarray(points.T)
+        start = fit_circle_2d((np.array([e1, e2]) @ rows).T)
         if start is None:
             return FailedSolid("points are collinear across the axis")
         u, v = start[0].tolist()
         # The state (centre, axis, basis across it, radius) is kept in Python floats: each
         # Levenberg-Marquardt step is a handful of 3-vectors besides the normal equations.
         state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
-        cost, jtj, jtr = _cylinder_normal_equations(points, *state)
+        cost, jtj, jtr = _cylinder_normal_equations(rows, *state)
         damping = 1e-4
         for _ in range(iterations):
             h = jtj.copy()
@@ -275,7 +278,7 @@ class CylinderSolid:
                   dn[0] * f1[1] - dn[1] * f1[0]]  # fmt: skip
             cn = [c[i] + e1[i] * s0 + e2[i] * s1 for i in range(3)]
             new_state = (cn, dn, f1, f2, radius + s4)
-            new_cost, new_jtj, new_jtr = _cylinder_normal_equations(points, *new_state)
+            new_cost, new_jtj, new_jtr = _cylinder_normal_equations(rows, *new_state)
             if new_cost < cost:
                 state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
                 damping = max(damping / 4, 1e-9)
@@ -299,25 +302,28 @@ class CylinderSolid:
 
 
 def _cylinder_normal_equations(
-    points: np.ndarray, c: list[float], d: list[float], e1: _Vec3, e2: _Vec3, radius: float
+    rows: np.ndarray, c: list[float], d: list[float], e1: _Vec3, e2: _Vec3, radius: float
 ) -> tuple[float, np.ndarray, np.ndarray]:
-    """Cost, J^T J and J^T r of the orthogonal residuals |q| - r.
+    """Cost, J^T J and J^T r of the orthogonal residuals |q| - r of the points ``rows``
+    (3, N).
 
     For c += e1 u + e2 v and d += e1 a + e2 b (e1, e2 span the plane across d), the Jacobian
     rows are (-n.e1, -n.e2, -t n.e1, -t n.e2, -1), with n the unit radial direction and t the
     position along the axis.
     """
-    # (t, w . e1, w . e2) for every point in one product.
-    proj = (points - np.array(c)) @ np.array([d, e1, e2]).T
-    qb = proj[:, 1:]
-    rho = np.sqrt(np.einsum("ij,ij->i", qb, qb))
-    # [J | r]: J'J, J'r and r'r from one product.
-    aug = np.empty((len(points), 6))
-    np.divide(qb, -np.maximum(rho, 1e-12)[:, None], out=aug[:, :2])
-    np.multiply(aug[:, :2], proj[:, :1], out=aug[:, 2:4])
-    aug[:, 4] = -1.0
-    np.subtract(rho, radius, out=aug[:, 5])
-    normal = aug.T @ aug
+    # (t, w . e1, w . e2) for every point in one product, as rows.
+    m = np.array([d, e1, e2])
+    proj = m @ rows
+    proj -= (m @ np.array(c))[:, None]
+    t, qb = proj[0], proj[1:]
+    rho = np.sqrt(qb[0] * qb[0] + qb[1] * qb[1])
+    # [J | r] as rows: J'J, J'r and r'r from one product.
+    aug = np.empty((6, rows.shape[1]))
+    np.divide(qb, -np.maximum(rho, 1e-12), out=aug[:2])
+    np.multiply(aug[:2], t, out=aug[2:4])
+    aug[4] = -1.0
+    np.subtract(rho, radius, out=aug[5])
+    normal = aug @ aug.T
     return float(normal[5, 5]), normal[:5, :5], normal[:5, 5]
 
 
