@@ -272,10 +272,11 @@ def sphere_from_circles(
     bc = sum(c * sz[0] for (c, _), sz in zip(cs, centres, strict=True))
     bs = sum(s * sz[0] for (_, s), sz in zip(cs, centres, strict=True))
     z = sum(sz[1] for sz in centres) / len(centres)
-    centre = np.array([(sss * bc - scs * bs) / det, (scc * bs - scs * bc) / det, z])
-    d = np.asarray(extreme_points, dtype=np.float64) - centre
-    radius = float(np.sqrt(np.einsum("ij,ij->i", d, d)).mean())
-    return centre, radius
+    cx, cy = (sss * bc - scs * bs) / det, (scc * bs - scs * bc) / det
+    # Mean distance to the extreme points (a few: Python floats).
+    extremes = np.asarray(extreme_points, dtype=np.float64).reshape(-1, 3).tolist()
+    radius = math.fsum(math.dist(p, (cx, cy, z)) for p in extremes) / len(extremes)
+    return np.array([cx, cy, z]), radius
 
 
 # --------------------------------------------------------------------------- one scan line
@@ -1054,22 +1055,24 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     fraction = _fraction(first.residuals(clean), thr)
     if fraction >= 1.0 - params.cuboid_margin:
         return _Candidate("cuboid", fraction, first)
-    ends = np.array([ln.points[[ln.run[0], ln.run[-1]]] for ln in lines])  # (L, 2, 3)
-    i, j = _pairs(len(lines))
-    along = ends[:, 1] - ends[:, 0]
-    a, b = along[i], along[j]
-    cross = a[:, [1, 2, 0]] * b[:, [2, 0, 1]] - a[:, [2, 0, 1]] * b[:, [1, 2, 0]]
-    norm = np.sqrt((cross * cross).sum(axis=1))
-    ok = norm > 1e-6
-    middles = (ends[i].sum(axis=1) + ends[j].sum(axis=1)) / 4
-    normals_ = np.concatenate([first.normal[None, :], cross[ok] / norm[ok, None]])
-    points = np.concatenate([first.point[None, :], middles[ok]])
-    offsets = (normals_ * points).sum(axis=1)
-    counts = (np.abs(clean @ normals_.T - offsets) <= thr).sum(axis=0)
+    # The planes through two runs' end points, in Python floats (six pairs of 3-vectors).
+    ends = [ln.points[[ln.run[0], ln.run[-1]]].tolist() for ln in lines]
+    normals, points = [first.normal.tolist()], [first.point.tolist()]
+    for (p0, p1), (q0, q1) in itertools.combinations(ends, 2):
+        a = (p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2])
+        b = (q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2])
+        c = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+        norm = math.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+        if norm > 1e-6:
+            normals.append([c[0] / norm, c[1] / norm, c[2] / norm])
+            points.append([(p0[k] + p1[k] + (q0[k] + q1[k])) / 4 for k in range(3)])
+    offsets = [n[0] * q[0] + n[1] * q[1] + n[2] * q[2]
+               for n, q in zip(normals, points, strict=True)]  # fmt: skip
+    counts = (np.abs(clean @ np.array(normals).T - offsets) <= thr).sum(axis=0)
     best = int(np.argmax(counts))
     solid = first
     if best != 0:
-        solid = PlaneSolid(point=points[best], normal=normals_[best])
+        solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
     inliers = clean[solid.residuals(clean) <= thr]
     if len(inliers) >= 3:
         solid = PlaneSolid.estimate(inliers) or solid
@@ -1083,9 +1086,9 @@ def _sphere_candidate(
     init = None
     if len(circles) >= 2:
         init = sphere_from_circles(
-            np.array([ln.angle for ln in circles]),
-            np.array([ln.fits["circle"].params[:2] for ln in circles]),
-            np.concatenate([ln.seeds() for ln in circles]),
+            [ln.angle for ln in circles],
+            [ln.fits["circle"].params[:2] for ln in circles],
+            [p for ln in circles for p in ln.seeds().tolist()],
         )
     solid = SphereSolid.estimate(clean, init=init, iterations=2)
     if not solid:
