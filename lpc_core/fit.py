@@ -1015,10 +1015,7 @@ def _ransac(
         float(max_trials) if g <= 0.0 else _trials_needed(g, m, k, confidence)
         for g, m in zip(goal, n_scored, strict=True)
     ]
-    # The first chunk already holds the trials the goals ask for: a chunk costs numpy's
-    # per-call overhead more than its arithmetic, so two chunks cost nearly twice one.
-    first = max((needed[r] for r in rows if goal[r] > 0.0), default=0.0)
-    size, spent = max(min(min_trials, max_trials), math.ceil(min(first, max_trials))), 0
+    size, spent = min(min_trials, max_trials), 0
     while rows and size > 0:
         idx = _draw_batch(rng, np.array([n[r] for r in rows]), size, k)
         found = score(idx, None if len(rows) == len(n) else np.array(rows))
