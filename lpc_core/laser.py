@@ -338,22 +338,30 @@ def _runs(
 ) -> list[np.ndarray]:
     """Runs of inlier indices. A run ends at more than ``max_outlier_run`` outliers in a row or
     a jump of ``segment_gap_m``, except over a bump: outliers all in ``front`` of the model
-    (toward the camera; a remote's buttons) spanning at most ``run_gap_m``."""
+    (toward the camera; a remote's buttons) spanning at most ``run_gap_m``.
+
+    ``points`` is a segment (``_prepare_lines``): neighbours lie within ``segment_gap_m``, so
+    only inliers with outliers between them can end a run, and only those are measured.
+    """
     idx = inliers.nonzero()[0]
     if len(idx) < 2:
         return [idx] if len(idx) else []
-    p = points[idx]
-    d = p[1:] - p[:-1]
+    skip = (idx[1:] - idx[:-1] > 1).nonzero()[0]
+    if not len(skip):
+        return [idx]
+    a, b = idx[skip], idx[skip + 1]
+    d = points[b] - points[a]
     dist2 = (d * d).sum(axis=1)
-    split = ((idx[1:] - idx[:-1]) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
-    breaks = split.nonzero()[0].tolist()
+    split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
+    ends = split.nonzero()[0]
+    breaks = skip[ends].tolist()
     if not breaks:
         return [idx]
     if front is not None:
         # behind[j]: points up to j that are not in front; none between two inliers is a bump.
         behind = np.cumsum(~front).tolist()
         at = idx.tolist()
-        gaps = dist2[breaks].tolist()
+        gaps = dist2[ends].tolist()
         limit = params.run_gap_m**2
         breaks = [
             b
