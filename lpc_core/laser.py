@@ -42,9 +42,10 @@ from __future__ import annotations
 
 import bisect
 import copy
+import functools
 import itertools
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
@@ -308,7 +309,16 @@ class LineModels:
     fits: dict[str, Any] = field(default_factory=dict)
     model: str = "none"
     run: np.ndarray = field(default_factory=lambda: _EMPTY_RUN)
-    step: float = 0.0  # median change of s/z between neighbouring samples
+    # Median change of s/z between neighbouring samples of the run (``step``), computed when
+    # first asked for: only a cuboid's seeds use it.
+    _step: float | None = field(default=None, repr=False)
+
+    @property
+    def step(self) -> float:
+        """Median change of s/z between neighbouring samples of the chosen model's run."""
+        if self._step is None:
+            self._step = _median_step(self.sz[self.run]) if not self.reason else 0.0
+        return self._step
 
     @property
     def label(self) -> str:
@@ -334,11 +344,15 @@ class LineModels:
 
 
 def _runs(
-    inliers: np.ndarray, points: np.ndarray, params: LaserParams, front: np.ndarray | None = None
+    inliers: np.ndarray,
+    points: np.ndarray,
+    params: LaserParams,
+    front: np.ndarray | Callable[[], np.ndarray | None] | None = None,
 ) -> list[np.ndarray]:
     """Runs of inlier indices. A run ends at more than ``max_outlier_run`` outliers in a row or
     a jump of ``segment_gap_m``, except over a bump: outliers all in ``front`` of the model
-    (toward the camera; a remote's buttons) spanning at most ``run_gap_m``.
+    (toward the camera; a remote's buttons) spanning at most ``run_gap_m``. ``front`` may be
+    a function giving that mask: it is called only when some run would end.
 
     ``points`` is a segment (``_prepare_lines``): neighbours lie within ``segment_gap_m``, so
     only inliers with outliers between them can end a run, and only those are measured.
@@ -357,6 +371,8 @@ def _runs(
     breaks = skip[ends].tolist()
     if not breaks:
         return [idx]
+    if callable(front):
+        front = front()
     if front is not None:
         # behind[j]: points up to j that are not in front; none between two inliers is a bump.
         behind = np.cumsum(~front).tolist()
@@ -565,11 +581,8 @@ def _fit_lines_models(
         for k, found in zip(rows, found_all, strict=True):
             ln = lines[k]
             ln.fits[model] = found
-            runs = (
-                _runs(found.inliers, ln.points, params, _front(model, found, ln.sz))
-                if found
-                else []
-            )
+            front = functools.partial(_front, model, found, ln.sz)
+            runs = _runs(found.inliers, ln.points, params, front) if found else []
             all_runs[k][model] = runs
             pierced[k][model] = _pierced_run(runs, ln.sz[:, 0], params)
         if model == "line":
@@ -582,7 +595,8 @@ def _fit_lines_models(
                     if second is None:
                         continue
                     ln = lines[k]
-                    runs = _runs(second.inliers, ln.points, params, _front("line", second, ln.sz))
+                    front = functools.partial(_front, "line", second, ln.sz)
+                    runs = _runs(second.inliers, ln.points, params, front)
                     run = _pierced_run(runs, ln.sz[:, 0], params)
                     if len(run) > len(pierced[k]["line"]):
                         ln.fits["line"], all_runs[k]["line"], pierced[k]["line"] = second, runs, run
@@ -673,8 +687,6 @@ def _choose(
         line.run = longest[line.model]
     if len(line.run) < need:
         line.reason = f"too few inliers on {line.label}: {len(line.run)} < {need}"
-        return
-    line.step = _median_step(line.sz[line.run])
 
 
 def _median_step(sz: np.ndarray) -> float:
@@ -1399,6 +1411,7 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
         run = max(runs, key=len)
         if len(run) < params.min_points_per_line:
             return None
+    _ = line.step  # the step belongs to the model's run, not the face run
     moved = copy.copy(line)  # dataclasses.replace, without re-running __init__
     moved.run = run
     return moved
