@@ -64,22 +64,32 @@ def test_up_records_every_message_decodable(session) -> None:
 
 
 def test_up_recorder_loses_nothing(session) -> None:
-    """Every message a service says it published is in the file (final health is recorded,
-    because the recorder is stopped last)."""
+    """The recorder writes every message it receives, and every message of the FIFO topics
+    (commands and states, which block rather than drop) a service says it published is in the
+    file (final health is recorded, because the recorder is stopped last). Sensor topics drop
+    under congestion rather than stall the camera: a frame dropped on the way never reaches
+    the recorder, so the file may lack a few depth frames, which stay rare."""
     _, out = session
     counts: collections.Counter[str] = collections.Counter()
+    seq: dict[str, list[int]] = collections.defaultdict(list)
     final: dict[str, object] = {}
     with McapLog(out) as log:
         for item in log.messages(None, decode=True):
             counts[item.key] += 1
+            seq[item.key].append(item.message.seq)
             if item.key.startswith("lpc/health/"):
                 final[item.message.service] = item.message
-    camera = final["camera"]
-    scans = final["scans"]
-    assert camera.counters["published"] == counts["lpc/camera/depth"]
-    assert scans.counters["published"] == counts["lpc/scans"]
     recorder = final["recorder"]
     assert recorder.counters.get("dropped", 0) == 0
+    assert recorder.counters["received"] == recorder.counters["written"]
+    # A FIFO topic has no gap once the recorder's subscription is known to its publisher (the
+    # controller publishes from its start, before that).
+    for key in ("lpc/controller/state", "lpc/prosthesis/command"):
+        seqs = sorted(seq[key])
+        assert len(seqs) > 50 and seqs == list(range(seqs[0], seqs[0] + len(seqs))), key
+    for service, key in (("camera", "lpc/camera/depth"), ("scans", "lpc/scans")):
+        published = final[service].counters["published"]
+        assert published - 0.02 * published <= counts[key] <= published, (service, published)
 
 
 def test_up_rejects_bad_parameters() -> None:

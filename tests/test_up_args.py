@@ -111,7 +111,7 @@ def test_up_args_services_take_what_up_passes(
 ) -> None:
     # Each service's own parser takes the argv (a stray flag would exit 2), and the controller
     # ends up with the calibrated profile, not the simulated user's.
-    from services import controller, emg
+    from services import controller, emg, runtime
 
     started: dict[str, argparse.Namespace] = {}
 
@@ -120,17 +120,19 @@ def test_up_args_services_take_what_up_passes(
         return 0
 
     monkeypatch.setattr(emg, "run_service", capture)
-    monkeypatch.setattr(controller, "run_service", capture)
+    monkeypatch.setattr(runtime, "run_service", capture)  # the controller's, via service_main
     args = parse("--emg", "serial", "--emg-port", "loop://", "--profile", str(profile))
     assert emg.main(argv_of("emg", args)) == 0
     assert controller.main(argv_of("controller", args)) == 0
     assert started["emg"].source == "serial" and started["emg"].port == "loop://"
-    assert started["controller"].params.profile.user == "p1"
-    assert started["controller"].params.profile.maximal == pytest.approx((0.9, 0.8))
-    assert not started["controller"].params.camera_on_hand
+    params = controller.initial_state(started["controller"]).params
+    assert params.profile.user == "p1"
+    assert params.profile.maximal == pytest.approx((0.9, 0.8))
+    assert not params.camera_on_hand
     args = parse("--emg", "can", "--can-channel", "vcan0", "--profile", str(profile))
     assert emg.main(argv_of("emg", args)) == 0
     assert (started["emg"].source, started["emg"].can) == ("can", "vcan0")
     assert emg.main(argv_of("emg", parse())) == 0
     assert controller.main(argv_of("controller", parse())) == 0
-    assert started["emg"].source == "sim" and started["controller"].params.profile.user == "sim"
+    assert started["emg"].source == "sim"
+    assert controller.initial_state(started["controller"]).params.profile.user == "sim"
