@@ -388,6 +388,10 @@ def _run(
                 writer.write(event.key, event.message, event.log_time)
             if args.check:
                 replayed[event.key].append(event.message)
+    except KeyboardInterrupt:
+        if out_tmp is not None:
+            print(f"lpc replay: interrupted; the part replayed is in {out_tmp}", file=sys.stderr)
+        raise
     finally:
         if writer is not None:
             writer.finish()
