@@ -525,6 +525,7 @@ def _prepare_lines(
 
 
 _COVERED = "not fitted: a simpler model covers the line"
+_STRAIGHT = "not fitted: the line is straight pieces"
 
 
 def _fit_lines_models(
@@ -552,7 +553,7 @@ def _fit_lines_models(
             for k, ln in enumerate(lines):
                 n = len(ln.points)
                 covered = len(pierced[k]["line"]) >= n * (1.0 - params.model_margin)
-                why = _COVERED if covered else "not fitted: the line is straight pieces"
+                why = _COVERED if covered else _STRAIGHT
                 for richer in ("circle", "ellipse"):
                     ln.fits[richer] = fit.FailedFit(why)
                     all_runs[k][richer], pierced[k][richer] = [], _EMPTY_RUN
@@ -1310,6 +1311,11 @@ def _decide(
     clean = np.concatenate([ln.points[ln.run] for ln in lines])
     candidates = {"cuboid": _plane_candidate(lines, clean, params)}
     shape, bar = "cuboid", candidates["cuboid"].score + params.cuboid_margin
+    if _polyhedral(lines):
+        # Every line is straight pieces (no circle was fitted on any): a polyhedron, whose
+        # runs may lie on two faces, but never a sphere's or a cylinder's (see
+        # _straight_pieces).
+        bar = math.inf
     if bar < 1.0:
         candidates["sphere"] = _sphere_candidate(lines, clean, params)
         if candidates["sphere"].score > bar:
@@ -1397,6 +1403,13 @@ def _decide(
         points=total,
         extra=extra,
     )
+
+
+def _polyhedral(lines: list[LineModels]) -> bool:
+    """Whether ``_straight_pieces`` held on the frame: no line has a circle fitted because
+    each is straight pieces or covered by its line."""
+    return all(getattr(ln.fits.get("circle"), "reason", None) in (_COVERED, _STRAIGHT)
+               for ln in lines)  # fmt: skip
 
 
 def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineModels | None:
