@@ -246,6 +246,17 @@ def test_analyse_lines_fits_no_circle_or_ellipse_on_straight_pieces() -> None:
     assert any(ln.fits["circle"] or ln.fits["ellipse"] for ln in curved)
 
 
+def test_reconstruct_laser_fits_no_sphere_or_cylinder_on_straight_pieces() -> None:
+    # The axis pierces near the crease: the runs lie on two faces, no one plane holds them.
+    rotation = rotation_x(45.0) @ rotation_z(30.0)
+    lines = scan(box((0.0, 0.02, 0.215), rotation, (0.040, 0.120, 0.040)), 1)
+    result = reconstruct_laser(lines, seed=1)
+    assert result.shape == "cuboid", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+    assert result.extra["f_cuboid"] < 0.9
+    assert "f_sphere" not in result.extra and "f_cylinder" not in result.extra
+
+
 def test_reconstruct_laser_shuffled_points_give_the_sorted_result() -> None:
     lines = scan(cylinder((0.0, 0.0, 0.2), (1.0, 0.2, 0.1), 0.025), 3)
     rng = np.random.default_rng(4)
