@@ -13,6 +13,8 @@ along each image line through the principal point; their indices are computed on
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -37,13 +39,15 @@ class ScanParams:
     min_points: int = 10
 
     def __post_init__(self) -> None:
-        if not self.angles_deg or not all(np.isfinite(a) for a in self.angles_deg):
+        # math.isfinite, not np.isfinite: a ScanParams is built per frame, and numpy's
+        # scalar calls cost most of its construction.
+        if not self.angles_deg or not all(math.isfinite(a) for a in self.angles_deg):
             raise ValueError(f"angles_deg must be finite and non-empty, got {self.angles_deg}")
-        if not np.isfinite(self.band_m) or self.band_m <= 0:
+        if not math.isfinite(self.band_m) or self.band_m <= 0:
             raise ValueError(f"band_m must be positive, got {self.band_m}")
         for name in ("x_limits_m", "y_limits_m", "z_limits_m"):
             lo, hi = getattr(self, name)
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
                 raise ValueError(f"{name} must be finite with lo < hi, got {(lo, hi)}")
         if self.z_limits_m[0] <= 0:
             raise ValueError(f"z_limits_m must be in front of the camera, got {self.z_limits_m}")
@@ -187,6 +191,11 @@ class _VolumeWindow:
     slope_y: np.ndarray  # (h, 1)
     lo_units: np.ndarray  # (h, w) int32
     hi_units: np.ndarray  # (h, w) int32
+    # When every pixel's interval is non-empty: lo and hi - lo as uint16, so that a depth d
+    # is inside when (d - lo) mod 2^16 <= hi - lo, one comparison with no cast (below lo, d
+    # wraps past hi).
+    lo_u16: np.ndarray | None
+    span_u16: np.ndarray | None
 
 
 @lru_cache(maxsize=16)
@@ -204,7 +213,10 @@ def _volume_window(intrinsics: Intrinsics, params: ScanParams) -> _VolumeWindow:
         rs, cs = slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
     sx, sy = xs[:1, cs].copy(), ys[rs, :1].copy()
     lo, hi = _depth_bounds(sx, sy, None, params, intrinsics.depth_scale)
-    return _VolumeWindow(rs, cs, sx, sy, lo, hi)
+    lo_u16 = span_u16 = None
+    if (lo <= hi).all():
+        lo_u16, span_u16 = lo.astype(np.uint16), (hi - lo).astype(np.uint16)
+    return _VolumeWindow(rs, cs, sx, sy, lo, hi, lo_u16, span_u16)
 
 
 def _check_depth(depth: object, intrinsics: Intrinsics) -> np.ndarray:
@@ -239,16 +251,22 @@ def cut_scan_lines(
     keep, z = keep[order], z[order]
     pts = np.column_stack([z * tab.slope_x[keep], z * tab.slope_y[keep], z])
     pts.setflags(write=False)
-    ends = np.cumsum(np.bincount(line, minlength=len(params.angles_deg)))[:-1]
+    # Each line's rows as slices (np.split costs more than the cut's arithmetic).
+    counts = np.bincount(line, minlength=len(params.angles_deg)).tolist()
+    bounds = [0, *itertools.accumulate(counts)]
+    pixels = tab.flat_index[keep]
     capture_count = -1
     if count_capture:
         win = _volume_window(intrinsics, params)
         d = depth[win.rows, win.cols]
-        capture_count = int(np.count_nonzero((d >= win.lo_units) & (d <= win.hi_units)))
+        if win.lo_u16 is not None:
+            capture_count = int(np.count_nonzero(np.subtract(d, win.lo_u16) <= win.span_u16))
+        else:
+            capture_count = int(np.count_nonzero((d >= win.lo_units) & (d <= win.hi_units)))
     return ScanLines(
         angles_rad=params.angles_rad,
-        points=tuple(np.split(pts, ends)),
-        pixels=tuple(np.split(tab.flat_index[keep], ends)),
+        points=tuple(pts[a:b] for a, b in itertools.pairwise(bounds)),
+        pixels=tuple(pixels[a:b] for a, b in itertools.pairwise(bounds)),
         min_points=params.min_points,
         capture_count=capture_count,
     )

@@ -142,6 +142,16 @@ def test_capture_points_inside_volume() -> None:
     assert cut_scan_lines(depth, INTR).capture_count == len(pts)
 
 
+@pytest.mark.parametrize("limits", [(-0.05, 0.05), (0.01, 0.05)])
+def test_cut_capture_count_is_the_capture_points(limits: tuple[float, float]) -> None:
+    # Off-centre limits leave pixels whose depth interval is empty (x and y ask for
+    # disjoint depths): the count then takes its two-comparison path.
+    params = ScanParams(x_limits_m=limits, y_limits_m=limits)
+    depth = np.random.default_rng(5).integers(0, 320, size=(240, 424)).astype(np.uint16)
+    depth[:, ::7] = 65535
+    count = cut_scan_lines(depth, INTR, params).capture_count
+    assert count == len(capture_points(depth, INTR, params)) > 100
+
 def test_cut_invalid_input_raises_value_error_naming_depth() -> None:
     good = np.zeros((240, 424), np.uint16)
     with pytest.raises(ValueError, match="depth"):
