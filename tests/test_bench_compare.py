@@ -38,6 +38,8 @@ def test_bench_compare_quick_prints_both_methods_per_shape(capsys):
     ratio = re.search(r"points per frame\s+([\d.]+)", out)
     assert ratio and 0.0 < float(ratio[1]) < 1.0
     assert re.search(r"CPU time p50\s+[\d.]+\s+laser from its scan lines", out)
+    assert re.search(r"CPU time mean\s+[\d.]+\s+laser", out)
+    assert "least of 3 per frame" in out
     assert "5300 ± 2100" in out and "138 vs 75 ms" in out
     assert "compare: sphere_small" in captured.err  # progress goes to stderr
 
@@ -45,6 +47,8 @@ def test_bench_compare_quick_prints_both_methods_per_shape(capsys):
 def test_bench_compare_rejects_zero_frames(capsys):
     assert bench_compare.run(_args("--frames", "0")) == 2
     assert "--frames" in capsys.readouterr().err
+    assert bench_compare.run(_args("--repeat", "0")) == 2
+    assert "--repeat" in capsys.readouterr().err
 
 
 def test_bench_compare_quick_views_cover_each_shape_once():
