@@ -55,6 +55,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             ):
                 bus.log("info", f"tactor port {link.driver.port} open ({args.driver})")
                 inbox.appendleft(PORT_OPENED)
+            # Replies, and a port that hung up while idle, are taken every pass.
+            if link.up and link.poll() == "reset":
+                inbox.appendleft(PORT_OPENED)
             events = [inbox.popleft() for _ in range(len(inbox))] or [TICK]
             for event in events:
                 state, outputs = bridge_step(state, event, bus.clock.now_ns())

@@ -182,6 +182,25 @@ def test_bridge_link_all_off_on_error_and_reopens_when_port_returns(tmp_path) ->
             second.close()
 
 
+def test_bridge_link_notices_a_port_that_hangs_up_while_idle() -> None:
+    # Nothing to write (the cue has not changed): the poll of the replies finds the hang-up.
+    from services.drivers.tactors import EaiDriver
+
+    sim = TactorSim()
+    link = TactorLink(lambda: EaiDriver(sim.port), retry_ns=100 * MS)
+    try:
+        assert link.reopen(T0)
+        assert link.write(out(0.5, 0, 0, 0)) == "ok"
+        assert link.poll() == "ok" and link.up
+        sim.close()
+        assert link.poll() == "down"
+        assert not link.up and link.counters["errors"] == 1
+        assert "read from" in link.last_error
+        assert link.poll() == "down"  # down stays down until reopened
+    finally:
+        link.close()
+
+
 def _put(session: zenoh.Session, message: TactorCommand) -> None:
     session.put("lpc/tactors/command", encode(message))
 

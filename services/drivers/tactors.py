@@ -309,20 +309,37 @@ class TactorLink:
         try:
             self.driver.send(output, timeout)
             self.counters["writes"] += 1
-            refused = False
-            while (reply := self.driver.recv(0.0)) is not None:
-                self.counters["acks" if reply.ok else "naks"] += 1
-                refused |= not reply.ok
-            if refused:
-                self.last_error = "the controller refused a command"
-                self.driver.all_off(timeout)
-                return "reset"
-            return "ok"
+            return self._replies(timeout)
         except DriverError as exc:
-            self.counters["errors"] += 1
-            self.last_error = str(exc)
-            self.close()
+            return self._lost(exc)
+
+    def poll(self, timeout: float = 0.05) -> str:
+        """Take the controller's pending replies, as ``write`` does after a command: a port
+        that hung up while nothing was written is noticed here (``"down"``)."""
+        if self.driver is None:
             return "down"
+        try:
+            return self._replies(timeout)
+        except DriverError as exc:
+            return self._lost(exc)
+
+    def _replies(self, timeout: float) -> str:
+        assert self.driver is not None
+        refused = False
+        while (reply := self.driver.recv(0.0)) is not None:
+            self.counters["acks" if reply.ok else "naks"] += 1
+            refused |= not reply.ok
+        if refused:
+            self.last_error = "the controller refused a command"
+            self.driver.all_off(timeout)
+            return "reset"
+        return "ok"
+
+    def _lost(self, exc: DriverError) -> str:
+        self.counters["errors"] += 1
+        self.last_error = str(exc)
+        self.close()
+        return "down"
 
     def close(self) -> None:
         if self.driver is not None:
