@@ -316,8 +316,9 @@ class Bus:
         self._log_pub = session.declare_publisher(f"lpc/log/{service}")
         self._log_seq = 0
         self._reject_reports: collections.Counter[str] = collections.Counter()
-        self._token = session.liveliness().declare_token(f"lpc/alive/{service}")
+        # Alive last: a peer that sees the token can already query the schemas.
         self._schemas = session.declare_queryable("lpc/schemas/**", _answer_schema_query)
+        self._token = session.liveliness().declare_token(f"lpc/alive/{service}")
         self._subs: list[Subscription] = []
 
     def publisher(self, key: str) -> Publisher:
