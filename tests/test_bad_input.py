@@ -741,3 +741,29 @@ def test_lpc_rejects_wrong_parameters_with_exit_2(
     assert "Traceback" not in result.stderr, message
     assert message, "a clear message on stderr"
     assert "error" in message.lower() or "usage" in message.lower(), message
+
+
+def test_cli_stops_quietly_when_its_reader_goes_away(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """``lpc schemas | head -1``: the pipe closes under the command, which stops with the
+    pipe's status (141), not a traceback."""
+    from services.cli import main
+
+    sink = open(tmp_path / "sink", "w")  # noqa: SIM115 - its descriptor is redirected
+
+    class ClosedPipe:
+        def write(self, text: str) -> int:
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self) -> None:
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def fileno(self) -> int:
+            return sink.fileno()
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    try:
+        assert main(["schemas"]) == 141
+    finally:
+        sink.close()
