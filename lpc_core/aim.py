@@ -45,6 +45,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lpc_core.cloud import CloudParams, find_support_plane
 from lpc_core.state import evolve
 from schemas import (
     AimCue,
@@ -96,6 +97,10 @@ class AimParams:
     on_target_amplitude: float = 1.0
     target_max_age_ns: int = 1_000_000_000
     frequency_hz: float = 250.0
+    # The supporting plane (the table under the objects) is no object to aim at: the largest
+    # plane of the capture points with (almost) none behind it is set aside when an object
+    # remains in front of it (a box face that fills the view stays).
+    remove_support: bool = True
     # The camera turns with the wrist (on the hand, as in the paper) while the tactors stay on
     # the forearm: the tactor directions above are at wrist angle 0 and turn by minus the
     # hand's reported wrist angle (an axis seen at image angle a lies at wrist + a, as the
@@ -188,6 +193,23 @@ _OCTANTS = np.array(
     [[math.cos(k * math.pi / 4) for k in range(8)], [math.sin(k * math.pi / 4) for k in range(8)]]
 )
 _FLAT_M = 1e-9  # a hull thinner than this is a segment
+
+
+# The table under an object holds a third or more of the scan points: 64 triples find it.
+_SUPPORT = CloudParams(support_trials=64, support_min_points=30)
+
+
+def without_support(points: np.ndarray, params: AimParams, seed: int = 0) -> np.ndarray:
+    """``points`` without the supporting plane's, when the plane spans half the capture width
+    or more and an object (``min_cluster_points``) stands in front of it; else ``points`` as
+    they are. The plane is the cloud method's
+    (``lpc_core.cloud.find_support_plane``): the largest with (almost) no point behind it."""
+    support = find_support_plane(points, _SUPPORT, np.random.default_rng(seed))
+    # A table spans the capture volume; a small flat object behind another does not.
+    if support is None or np.ptp(points[support, :2], axis=0).max() < params.width_m / 2:
+        return points
+    rest = points[~support]
+    return rest if len(rest) >= params.min_cluster_points else points
 
 
 def convex_hull(points: np.ndarray) -> np.ndarray:
@@ -311,12 +333,15 @@ def guide(
     was_on_target: bool = False,
     chosen_xy: tuple[float, float] | None = None,
     tactor_angles_rad: tuple[float, ...] | None = None,
+    seed: int = 0,
 ) -> Guidance:
     """The cue for capture-volume ``points`` (N, 3), given what the previous frame chose;
     ``tactor_angles_rad`` (default ``params.tactor_angles_rad``) are the tactors' image
-    directions now."""
+    directions now; ``seed`` seeds the search for the supporting plane (the frame's seq)."""
     if len(points) < params.min_points:
         return Guidance("nothing")
+    if params.remove_support:
+        points = without_support(points, params, seed)
     labels = cluster_points(points, params.cluster_gap_m)
     counts = np.bincount(labels)
     kept = np.flatnonzero(counts >= params.min_cluster_points)
@@ -411,6 +436,7 @@ def aim_step(
         was_on_target=state.on_target,
         chosen_xy=state.chosen_xy,
         tactor_angles_rad=state.tactor_angles_rad,
+        seed=message.frame_seq,
     )
     # Stopped: the geometry is still tracked, so the cue resumes where it would have been.
     g = Guidance("nothing", objects=tracked.objects) if state.cues_off else tracked

@@ -164,6 +164,30 @@ def test_guide_objects_at_different_depths_are_separate() -> None:
     assert guide(np.concatenate([near, far]), AimParams()).objects == 2
 
 
+def test_guide_sets_the_table_aside_and_leads_to_the_object_on_it() -> None:
+    """A 30 mm ball 30 mm right of the axis, on a table spanning the capture volume at
+    Z + 30 mm (the scan lines see both): the cue leads to the ball, not onto the table under
+    the axis; without the table removal, ball and table are one object around the axis."""
+    table = patch(-0.05, 0.05, -0.05, 0.05, step=0.004) + np.array([0, 0, 0.030])
+    u, v = np.meshgrid(np.linspace(-1, 1, 15), np.linspace(-1, 1, 15))
+    inside = u**2 + v**2 <= 1
+    ball = np.column_stack(
+        [
+            0.030 + 0.015 * u[inside],
+            0.015 * v[inside],
+            Z + 0.015 - 0.015 * np.sqrt(1 - u[inside] ** 2 - v[inside] ** 2),
+        ]
+    )
+    # The ball hides the table behind it.
+    hidden = np.hypot(table[:, 0] - 0.030, table[:, 1]) < 0.016
+    points = np.concatenate([table[~hidden], ball])
+    g = guide(points, AimParams())
+    assert g.state == "guiding" and g.objects == 1
+    assert math.degrees(g.theta_rad) == pytest.approx(0.0, abs=1.0)
+    assert g.signed_distance_m == pytest.approx(0.015, abs=0.002)
+    assert guide(points, AimParams(remove_support=False)).state == "on_target"
+
+
 def test_guide_nothing_in_view_switches_all_off() -> None:
     params = AimParams()
     assert guide(np.empty((0, 3)), params).amplitudes == (0.0,) * 4
