@@ -27,6 +27,10 @@ Where lpc departs from the paper:
   lead into the gap between them). Points are first split into objects by single linkage in
   3-D: two points closer than ``cluster_gap_m`` belong to the same object. The cue leads to the
   object that contains the axis or lies nearest to it.
+- The supporting plane is no object: the table under the objects (the largest plane of the
+  points with almost none behind it, spanning half the capture width or more) is set aside
+  when an object stands in front of it. Without this, a small ball touching the table made
+  one object of both, whose hull held the axis while it pointed at the table.
 - Hysteresis: once on target, the cue stays on target until the axis leaves the hull by more
   than ``hysteresis_m``; the chosen object is kept while it stays within ``switch_margin_m`` of
   the nearest one, so the cue does not flicker between two objects at equal distance.
