@@ -342,10 +342,42 @@ def guide(
     """The cue for capture-volume ``points`` (N, 3), given what the previous frame chose;
     ``tactor_angles_rad`` (default ``params.tactor_angles_rad``) are the tactors' image
     directions now; ``seed`` seeds the search for the supporting plane (the frame's seq)."""
-    if len(points) < params.min_points:
+    objects = object_points(points, params, seed)
+    if objects is None:
         return Guidance("nothing")
-    if params.remove_support:
-        points = without_support(points, params, seed)
+    return _cue(
+        objects,
+        params,
+        was_on_target=was_on_target,
+        chosen_xy=chosen_xy,
+        tactor_angles_rad=tactor_angles_rad,
+    )
+
+
+def object_points(points: np.ndarray, params: AimParams, seed: int = 0) -> np.ndarray | None:
+    """The capture-volume ``points`` that may belong to objects: without the supporting plane
+    (``remove_support``); ``None`` when there are too few to look at (``min_points``). It
+    depends on the frame alone, so a replay computes it in its worker processes."""
+    if len(points) < params.min_points:
+        return None
+    return without_support(points, params, seed) if params.remove_support else points
+
+
+def frame_object_points(scans: ScanLines, params: AimParams) -> np.ndarray | None:
+    """``object_points`` of one ``lpc/scans`` message (seeded by its frame); ``ValueError`` if
+    a scan line is malformed."""
+    points = capture_points([from_wire(line.points) for line in scans.lines], params)
+    return object_points(points, params, scans.frame_seq)
+
+
+def _cue(
+    points: np.ndarray,
+    params: AimParams,
+    *,
+    was_on_target: bool,
+    chosen_xy: tuple[float, float] | None,
+    tactor_angles_rad: tuple[float, ...] | None,
+) -> Guidance:
     labels = cluster_points(points, params.cluster_gap_m)
     counts = np.bincount(labels)
     kept = np.flatnonzero(counts >= params.min_cluster_points)
@@ -432,15 +464,25 @@ def aim_step(
             "message must be ScanLines, GraspTarget, ControllerState or ProsthesisState, "
             f"got {type(message)}"
         )
+    return cue_step(state, message, frame_object_points(message, state.params))
+
+
+def cue_step(
+    state: AimState, message: ScanLines, objects: np.ndarray | None
+) -> tuple[AimState, list[AimCue | TactorCommand]]:
+    """The scan-lines half of ``aim_step``, on the frame's ``frame_object_points`` (found here
+    or by a replay's worker process)."""
     params = state.params
-    points = capture_points([from_wire(line.points) for line in message.lines], params)
-    tracked = guide(
-        points,
-        params,
-        was_on_target=state.on_target,
-        chosen_xy=state.chosen_xy,
-        tactor_angles_rad=state.tactor_angles_rad,
-        seed=message.frame_seq,
+    tracked = (
+        Guidance("nothing")
+        if objects is None
+        else _cue(
+            objects,
+            params,
+            was_on_target=state.on_target,
+            chosen_xy=state.chosen_xy,
+            tactor_angles_rad=state.tactor_angles_rad,
+        )
     )
     # Stopped: the geometry is still tracked, so the cue resumes where it would have been.
     g = Guidance("nothing", objects=tracked.objects) if state.cues_off else tracked

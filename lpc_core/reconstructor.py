@@ -37,7 +37,6 @@ from schemas import (
     LineModel,
     Reconstruction,
     ScanLines,
-    decode,
     from_wire,
     to_wire,
 )
@@ -216,17 +215,15 @@ def release_step(
     return replace(state, window=window), [message, target]
 
 
-def reconstruct_payload(state: ReconstructState, method: str, payload: bytes) -> Reconstruction:
-    """A worker's job: decode one recorded input of ``method`` and reconstruct it with the
-    parameters of ``state``, as ``reconstruct_step`` / ``reconstruct_cloud_step`` would.
-
-    ``BadMessage`` (a ``ValueError``) if the payload does not decode.
-    """
-    if method == "laser":
-        return reconstruct_message(decode(INPUT_TOPICS[method], payload), state.params)
-    if method == "cloud":
-        return reconstruct_cloud_message(decode(INPUT_TOPICS[method], payload), state.cloud)
-    raise ValueError(f"method must be 'laser' or 'cloud', got {method!r}")
+def reconstruct(state: ReconstructState, message: ScanLines | DepthFrame) -> Reconstruction:
+    """One frame's reconstruction with the parameters of ``state``: scan lines by the laser
+    method, a depth frame by the cloud method, as the in-process steps do. It depends on the
+    frame alone, so a replay runs it in worker processes, as the service does."""
+    if isinstance(message, ScanLines):
+        return reconstruct_message(message, state.params)
+    if isinstance(message, DepthFrame):
+        return reconstruct_cloud_message(message, state.cloud)
+    raise ValueError(f"message must be ScanLines or DepthFrame, got {type(message).__name__}")
 
 
 # --------------------------------------------------------------------------- pool bookkeeping
@@ -343,10 +340,10 @@ __all__ = [
     "frame_arrived",
     "frame_done",
     "grasp_target_message",
+    "reconstruct",
     "reconstruct_cloud_message",
     "reconstruct_cloud_step",
     "reconstruct_message",
-    "reconstruct_payload",
     "reconstruct_step",
     "reconstruction_message",
     "release_step",

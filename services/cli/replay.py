@@ -12,10 +12,11 @@ The file is read once: recorded outputs are indexed ``--horizon`` seconds of log
 of the inputs handed to the step functions, which is how the replay knows which frames the
 live services handled and when their outputs arrived.
 
-As live, the reconstructions run in worker processes (``--jobs``): each starts as soon as its
-input is read, a few frames ahead of the replay, and the reconstructor's step takes the
-finished result, in frame order, through the 10-frame window. The workers run the in-process
-step's own function, so the outputs are the same bytes with any number of workers.
+As live, the reconstructions run in worker processes (``--jobs``), and so does the aim step's
+search for the objects in view (the supporting plane set aside): each starts as soon as its
+input is read, a few frames ahead of the replay, and the node's step finishes with the result,
+in frame order. The workers run the in-process steps' own functions, so the outputs are the
+same bytes with any number of workers.
 
 Exit status: 0 when the replay ran (and the check passed); 1 when the check found differences;
 2 when the file cannot be replayed. A file cut short is replayed up to its last good chunk and
@@ -35,14 +36,16 @@ import os
 import sys
 import time
 from collections import Counter, defaultdict, deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from lpc_core.reconstructor import INPUT_TOPICS, reconstruct_payload, release_step
+from lpc_core import aim
+from lpc_core.reconstructor import INPUT_TOPICS, reconstruct, release_step
 from lpc_core.replay import (
     Node,
     Recorded,
@@ -141,15 +144,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=DEFAULT_JOBS,
         metavar="N",
-        help="worker processes that reconstruct ahead of the replay; 0 reconstructs in this "
-        f"process (default {DEFAULT_JOBS}: one fewer than the CPUs, at least one)",
+        help="worker processes that reconstruct (and find the objects in view) ahead of the "
+        f"replay; 0 does it all in this process (default {DEFAULT_JOBS}: the CPUs)",
     )
     parser.add_argument(
         "--max-differences", type=int, default=20, metavar="N", help="print at most N (20)"
     )
 
 
-DEFAULT_JOBS = max(1, (os.cpu_count() or 1) - 1)
+# One per CPU: the replay's own loop mostly waits on them once their share is the larger.
+DEFAULT_JOBS = max(1, os.cpu_count() or 1)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -310,10 +314,10 @@ def _replay(args: argparse.Namespace, path: Path, log: McapLog) -> int:
         method, method_how = _reconstructor_method(args, log)
     except ValueError as exc:
         return _fail(str(exc))
-    workers = _Workers(method, args.jobs) if args.jobs > 0 else None
+    workers = _Workers(args.jobs) if args.jobs > 0 else None
     nodes = default_nodes(controller_params, reconstructor_method=method, states=states)
     if workers is not None:
-        nodes = workers.wrap(nodes)
+        nodes = workers.wrap(nodes, method)
     nodes = _timed(nodes, spent)
     frames: dict[str, dict[int, tuple[int, int]]] = defaultdict(dict)
     keys = log.topics() - set(args.without)
@@ -458,20 +462,48 @@ def _report_run(
         print(f"wrote {args.out}")
 
 
-class _Workers:
-    """The reconstructor's worker processes.
+@dataclass(frozen=True)
+class _Task:
+    """A node's per-frame work that workers can do: ``compute(message)`` depends on the frame
+    alone; ``finish(state, message, result)`` is the rest of the node's step, run in order."""
 
-    ``ahead`` reads the replay's inputs until ``depth`` reconstructions are under way, starting
-    them as their inputs are read (unless the live reconstructor skipped that frame), in
-    batches of ``batch`` frames: each hand-over to the pool's threads costs the replay a
+    key: str
+    compute: Callable[[Any], Any]
+    finish: Callable[[Any, Any, Any], Any]
+
+
+def _tasks(nodes: Iterable[Node], method: str) -> dict[str, _Task]:
+    """The reconstruction (the reconstructor) and the objects in view without the supporting
+    plane (the aim step), bound to each node's initial parameters."""
+    tasks = {}
+    for n in nodes:
+        if n.name == "reconstructor":
+            tasks[n.name] = _Task(
+                INPUT_TOPICS[method],
+                functools.partial(reconstruct, n.init()),
+                lambda state, message, result: release_step(state, result),
+            )
+        elif n.name == "aim":
+            tasks[n.name] = _Task(
+                "lpc/scans",
+                functools.partial(aim.frame_object_points, params=n.init().params),
+                aim.cue_step,
+            )
+    return tasks
+
+
+class _Workers:
+    """Worker processes for the nodes' per-frame work (``_tasks``).
+
+    ``ahead`` reads the replay's inputs until ``depth`` frames are under way, starting each
+    node's work on a frame as its input is read (unless the live service skipped the frame),
+    in batches of ``batch`` frames: each hand-over to the pool's threads costs the replay a
     switch of the interpreter lock (~1 ms), so one per frame ate most of the gain. The
-    wrapped step then takes its frame's result, or reconstructs in-process a frame that was
-    not started (one whose recorded output arrived later than the read-ahead).
+    wrapped step then finishes with its frame's result, or runs whole in-process on a frame
+    that was not started (one whose recorded output arrived later than the read-ahead).
     """
 
-    def __init__(self, method: str, jobs: int, batch: int = 8) -> None:
-        self.method = method
-        self.key = INPUT_TOPICS[method]
+    def __init__(self, jobs: int, batch: int = 8) -> None:
         self.batch = batch
         self.depth = batch * (jobs + 1)
         # Forked workers start at once with every module already imported; elsewhere the
@@ -479,94 +511,113 @@ class _Workers:
         methods = multiprocessing.get_all_start_methods()
         context = multiprocessing.get_context("fork" if "fork" in methods else None)
         self.pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context)
-        self.started: dict[int, tuple[Future[Any], int]] = {}
-        self.job: Any = None  # reconstruct_payload, bound to the reconstructor's parameters
+        self.tasks: dict[str, _Task] = {}
+        self.started: dict[tuple[str, int], tuple[Future[Any], int]] = {}
 
-    def wrap(self, nodes: Iterable[Node]) -> tuple[Node, ...]:
-        """The nodes, with the reconstructor's route on its input taking the workers' results."""
+    def wrap(self, nodes: Iterable[Node], method: str) -> tuple[Node, ...]:
+        """The nodes, each task's route finishing with the workers' results."""
+        nodes = tuple(nodes)
+        self.tasks = _tasks(nodes, method)
 
-        def pooled(step: Any) -> Any:
+        def pooled(name: str, task: _Task, step: Any) -> Any:
             def step_(state: Any, message: Any, now_ns: int) -> Any:
-                started = self.started.pop(frame_id(message), None)
+                started = self.started.pop((name, frame_id(message)), None)  # type: ignore[arg-type]
                 if started is None:
                     return step(state, message, now_ns)
                 future, index = started
-                result = future.result()[index]
+                result = future.result()[index][name]
                 if isinstance(result, ValueError):
                     raise result
-                return release_step(state, result)
+                return task.finish(state, message, result)
 
             return step_
 
-        for n in nodes:
-            if n.name == "reconstructor":
-                self.job = functools.partial(reconstruct_payload, n.init(), self.method)
-        return tuple(
-            dataclasses.replace(
-                n,
-                routes=tuple(
-                    dataclasses.replace(r, step=pooled(r.step)) if r.key == self.key else r
-                    for r in n.routes
-                ),
+        def wrapped(n: Node) -> Node:
+            task = self.tasks.get(n.name)
+            if task is None:
+                return n
+            routes = tuple(
+                dataclasses.replace(r, step=pooled(n.name, task, r.step))
+                if r.key == task.key
+                else r
+                for r in n.routes
             )
-            if n.name == "reconstructor"
-            else n
-            for n in nodes
-        )
+            return dataclasses.replace(n, routes=routes)
+
+        return tuple(wrapped(n) for n in nodes)
 
     def ahead(self, inputs: Iterator[Recorded], replay: Replay) -> Iterator[Recorded]:
-        node = next((n for n in replay.plan.nodes if n.name == "reconstructor"), None)
-        route = None if node is None else next(r for r in node.routes if r.key == self.key)
+        routes = [
+            (node.name, task.key, node, route)
+            for node in replay.plan.nodes
+            if (task := self.tasks.get(node.name)) is not None
+            for route in node.routes
+            if route.key == task.key
+        ]
         ready: deque[tuple[Recorded, bool]] = deque()
-        batch: list[tuple[int, bytes]] = []
+        batch: list[tuple[int, str, bytes, tuple[str, ...]]] = []
         running = 0
         for item in inputs:
             frame = frame_id(item.message)
-            job = (
-                node is not None
-                and route is not None
-                and frame is not None
-                and item.key == self.key
+            names = tuple(
+                name
+                for name, key, node, route in routes
+                if frame is not None
+                and item.key == key
                 and not replay.skips(node, route, item.message)
-                and frame not in self.started
-                and all(f != frame for f, _ in batch)
+                and (name, frame) not in self.started
             )
-            if job:
+            if names:
                 assert frame is not None
-                batch.append((frame, item.payload))
+                batch.append((frame, item.key, item.payload, names))
                 running += 1
                 if len(batch) == self.batch:
                     self._submit(batch)
-            ready.append((item, job))
+            ready.append((item, bool(names)))
             while running >= self.depth:
-                if ready[0][1] and any(f == frame_id(ready[0][0].message) for f, _ in batch):
+                head, job = ready[0]
+                if job and any(f == frame_id(head.message) for f, *_ in batch):
                     self._submit(batch)  # the next frame's batch must be under way
-                item, job = ready.popleft()
+                ready.popleft()
                 running -= job
-                yield item
+                yield head
         self._submit(batch)
         for item, _ in ready:
             yield item
 
-    def _submit(self, batch: list[tuple[int, bytes]]) -> None:
+    def _submit(self, batch: list[tuple[int, str, bytes, tuple[str, ...]]]) -> None:
         if batch:
-            future = self.pool.submit(_reconstruct_batch, self.job, [p for _, p in batch])
-            for index, (frame, _) in enumerate(batch):
-                self.started[frame] = (future, index)
+            computes = {name: task.compute for name, task in self.tasks.items()}
+            work = [(key, payload, names) for _, key, payload, names in batch]
+            future = self.pool.submit(_work, computes, work)
+            for index, (frame, _, _, names) in enumerate(batch):
+                for name in names:
+                    self.started[(name, frame)] = (future, index)
             batch.clear()
 
     def close(self) -> None:
         self.pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _reconstruct_batch(job: Any, payloads: list[bytes]) -> list[Any]:
-    """A worker's batch: each frame's reconstruction, or the ``ValueError`` it raised."""
-    results: list[Any] = []
-    for payload in payloads:
+def _work(
+    computes: dict[str, Callable[[Any], Any]], batch: list[tuple[str, bytes, tuple[str, ...]]]
+) -> list[dict[str, Any]]:
+    """A worker's batch: per frame, each named node's result, or the ``ValueError`` it raised
+    (the replay raises it in that node's step, which counts it)."""
+    results: list[dict[str, Any]] = []
+    for key, payload, names in batch:
         try:
-            results.append(job(payload))
-        except ValueError as exc:
-            results.append(exc)
+            message = decode(key, payload)
+        except BadMessage as exc:
+            results.append(dict.fromkeys(names, exc))
+            continue
+        done: dict[str, Any] = {}
+        for name in names:
+            try:
+                done[name] = computes[name](message)
+            except ValueError as exc:
+                done[name] = exc
+        results.append(done)
     return results
 
 
