@@ -42,7 +42,7 @@ from lpc_core.reconstructor import (
 from lpc_core.window import WindowState
 from schemas import BadMessage, decode, encode
 from services.mcap_log import read_header
-from services.runtime import Bus, service_main, service_parser
+from services.runtime import Bus, die_with_parent, service_main, service_parser
 
 _METHOD = "laser"
 _PARAMS = LaserParams()
@@ -50,6 +50,8 @@ _PARAMS = LaserParams()
 
 def _init_worker(method: str, params: LaserParams) -> None:
     global _METHOD, _PARAMS
+    # A service killed with SIGKILL cannot stop its pool: the workers go with it.
+    die_with_parent()
     _METHOD, _PARAMS = method, params
     # Pay the imports and first calls now, before the service subscribes.
     frame = warmup_frame()

@@ -317,6 +317,13 @@ def test_faults_controller_frozen_hand_stops(session: Session) -> None:
     assert session.watch.pid("controller") == pid, "a frozen controller is not restarted"
 
 
+def _alive(process: psutil.Process) -> bool:
+    try:
+        return process.is_running() and process.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
 def test_faults_kill_each_service_in_turn(session: Session) -> None:
     """SIGKILL every service of the session in turn: the others keep running, the killed one
     comes back (lpc up restarts it), its output flows again, and killing the controller stops
@@ -326,6 +333,8 @@ def test_faults_kill_each_service_in_turn(session: Session) -> None:
         old = watch.pid(name)
         assert old is not None, name
         others = {n: watch.pid(n) for n in session.services if n != name}
+        # A service's own children (the reconstructor's pool) must not outlive it.
+        children = psutil.Process(old).children(recursive=True)
         t_kill = time.time()
         os.kill(old, signal.SIGKILL)
         if name == "controller":
@@ -341,6 +350,7 @@ def test_faults_kill_each_service_in_turn(session: Session) -> None:
                 f"controller killed: hand stopped {1000 * (stop - last):.1f} ms after "
                 f"the last command, {1000 * (stop - t_kill):.1f} ms after the kill"
             )
+        wait_for(lambda c=children: not any(_alive(p) for p in c), 10, f"{name}'s children gone")
         wait_for(lambda n=name, o=old: watch.pid(n) not in (None, o), 60, f"{name} restarted")
         assert session.up.said(f"restarting {name}")
         key = OUTPUT.get(name)

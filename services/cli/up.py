@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import ctypes
 import json
 import os
 import signal
@@ -25,7 +24,7 @@ from pathlib import Path
 import zenoh
 
 from schemas import Health, decode
-from services.runtime import zenoh_config
+from services.runtime import die_with_parent, zenoh_config
 
 STOP_GRACE_S = 2.0
 START_TIMEOUT_S = 60.0
@@ -385,9 +384,7 @@ async def _spawn(child: Child, endpoint: str) -> None:
 def _prepare_child(nice: int) -> None:
     """In the child before exec: get SIGTERM if the supervisor dies, so no service is orphaned,
     and take the service's niceness."""
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    die_with_parent()
     if nice:
         with contextlib.suppress(OSError):
             os.nice(nice)
