@@ -41,8 +41,9 @@ from lpc_core.reconstructor import (
 )
 from lpc_core.window import WindowState
 from schemas import BadMessage, decode, encode
+from services.children import die_with_parent
 from services.mcap_log import read_header
-from services.runtime import Bus, die_with_parent, service_main, service_parser
+from services.runtime import Bus, service_main, service_parser
 
 _METHOD = "laser"
 _PARAMS = LaserParams()

@@ -12,7 +12,6 @@ import argparse
 import asyncio
 import collections
 import contextlib
-import ctypes
 import json
 import os
 import signal
@@ -390,14 +389,6 @@ def _answer_schema_query(query: zenoh.Query) -> None:
 # --------------------------------------------------------------------------- entry point
 
 Serve = Callable[[Bus, argparse.Namespace], Awaitable[None]]
-
-
-def die_with_parent(sig: int = signal.SIGTERM) -> None:
-    """Ask the kernel for ``sig`` when the parent process dies (Linux; elsewhere nothing), so
-    that no child outlives a supervisor or a service killed with SIGKILL."""
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, sig)  # PR_SET_PDEATHSIG
 
 
 class ServiceParser(argparse.ArgumentParser):

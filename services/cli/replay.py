@@ -57,6 +57,7 @@ from lpc_core.replay import (
     volatile_fields,
 )
 from schemas import BadMessage, decode
+from services.children import die_with_parent
 from services.mcap_log import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -510,7 +511,9 @@ class _Workers:
         # platform's default start method.
         methods = multiprocessing.get_all_start_methods()
         context = multiprocessing.get_context("fork" if "fork" in methods else None)
-        self.pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context)
+        self.pool = ProcessPoolExecutor(
+            max_workers=jobs, mp_context=context, initializer=die_with_parent
+        )
         self.tasks: dict[str, _Task] = {}
         self.started: dict[tuple[str, int], tuple[Future[Any], int]] = {}
 

@@ -24,7 +24,8 @@ from pathlib import Path
 import zenoh
 
 from schemas import Health, decode
-from services.runtime import die_with_parent, zenoh_config
+from services.children import die_with_parent
+from services.runtime import zenoh_config
 
 STOP_GRACE_S = 2.0
 START_TIMEOUT_S = 60.0
