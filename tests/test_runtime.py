@@ -94,8 +94,11 @@ def test_runtime_bad_payloads_are_counted_and_service_carries_on(
 
     sub = rendezvous.declare_subscriber("lpc/health/scans", on_health)
     proc = spawn_service("services.scans", endpoint)
+    depth = rendezvous.declare_publisher("lpc/camera/depth")
     try:
         wait_for(lambda: "lpc/alive/scans" in _alive_tokens(rendezvous), 30, "scans token")
+        # Alive comes before the service's own subscriptions: wait until it listens.
+        wait_for(lambda: depth.matching_status.matching, 30, "the scans subscriber")
         garbage = [
             b"\xc1",  # not msgpack
             encode(EmgSample(seq=1, t_ns=1, channels=[0.0])),  # another topic's type
@@ -104,7 +107,7 @@ def test_runtime_bad_payloads_are_counted_and_service_carries_on(
         # Sensor subscriptions keep only the newest sample: space the puts out until each
         # one has been counted, so the count is exact.
         for n, payload in enumerate(garbage, start=1):
-            rendezvous.put("lpc/camera/depth", payload)
+            depth.put(payload)
             wait_for(
                 lambda n=n: healths and healths[-1].counters.get("rejected", 0) >= n,
                 10,
