@@ -332,6 +332,7 @@ def check(
     match_by: Mapping[str, str] | None = None,
     cut: bool = False,
     all_frames: bool = False,
+    rel_tol: float = 0.0,
     limit: int = 20,
 ) -> CheckResult:
     """Compare outputs topic by topic.
@@ -341,7 +342,8 @@ def check(
     whose frame was never offered to its producer (its input is not in the recording) is
     skipped. Replayed outputs the recording lacks are differences, except past the end of a
     ``cut`` recording (or a replay of only its beginning: then only the overlap is compared),
-    or with ``all_frames`` (no gating) for frames the live service skipped.
+    or with ``all_frames`` (no gating) for frames the live service skipped. Floats within
+    ``rel_tol`` of each other are equal (see `first_difference`).
     """
     volatile = volatile or {}
     result = CheckResult()
@@ -379,13 +381,13 @@ def check(
                     add(Difference(key, where, "", _short(a), "nothing"))
                 else:
                     result.compared[key] += 1
-                    diff = first_difference(a, b, ignore)
+                    diff = first_difference(a, b, ignore, rel_tol)
                     if diff is not None:
                         add(Difference(key, where, *diff))
         else:
             for i, (a, b) in enumerate(zip(rec, rep, strict=False)):
                 result.compared[key] += 1
-                diff = first_difference(a, b, ignore)
+                diff = first_difference(a, b, ignore, rel_tol)
                 if diff is not None:
                     add(Difference(key, f"#{i}", *diff))
             if len(rec) > len(rep) and not cut:
@@ -403,13 +405,19 @@ def check(
     return result
 
 
-def first_difference(a: Any, b: Any, ignore: Collection[str] = ()) -> tuple[str, str, str] | None:
+def first_difference(
+    a: Any, b: Any, ignore: Collection[str] = (), rel_tol: float = 0.0
+) -> tuple[str, str, str] | None:
     """``(path, a, b)`` of the first field where two messages differ, ``None`` if equal.
-    Top-level fields named in ``ignore`` are skipped."""
-    return _diff(a, b, "", ignore)
+    Top-level fields named in ``ignore`` are skipped. Two floats within ``rel_tol`` of the
+    larger are equal: another CPU or BLAS kernel rounds the same algorithm's sums differently
+    in the last bits, and that is not a change of the algorithm."""
+    return _diff(a, b, "", ignore, rel_tol)
 
 
-def _diff(a: Any, b: Any, path: str, ignore: Collection[str]) -> tuple[str, str, str] | None:
+def _diff(
+    a: Any, b: Any, path: str, ignore: Collection[str], rel_tol: float
+) -> tuple[str, str, str] | None:
     if type(a) is not type(b):
         return path or "<message>", _short(a), _short(b)
     fields = getattr(type(a), "__struct_fields__", None)
@@ -420,7 +428,11 @@ def _diff(a: Any, b: Any, path: str, ignore: Collection[str]) -> tuple[str, str,
             if not path and name in ignore:
                 continue
             found = _diff(
-                getattr(a, name), getattr(b, name), f"{path}.{name}" if path else name, ()
+                getattr(a, name),
+                getattr(b, name),
+                f"{path}.{name}" if path else name,
+                (),
+                rel_tol,
             )
             if found is not None:
                 return found
@@ -429,17 +441,19 @@ def _diff(a: Any, b: Any, path: str, ignore: Collection[str]) -> tuple[str, str,
         if len(a) != len(b):
             return f"{path}", f"{len(a)} items", f"{len(b)} items"
         for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            found = _diff(x, y, f"{path}[{i}]", ())
+            found = _diff(x, y, f"{path}[{i}]", (), rel_tol)
             if found is not None:
                 return found
         return None
     if isinstance(a, dict):
         for k in sorted(set(a) | set(b), key=str):
-            found = _diff(a.get(k), b.get(k), f"{path}[{k!r}]", ())
+            found = _diff(a.get(k), b.get(k), f"{path}[{k!r}]", (), rel_tol)
             if found is not None:
                 return found
         return None
-    if isinstance(a, float) and math.isnan(a) and math.isnan(b):
+    if isinstance(a, float) and (
+        (math.isnan(a) and math.isnan(b)) or math.isclose(a, b, rel_tol=rel_tol)
+    ):
         return None
     if a != b:
         if isinstance(a, bytes):

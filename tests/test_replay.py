@@ -3,6 +3,7 @@ real MCAP files with the pipeline's own step functions."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -246,6 +247,20 @@ def test_first_difference_names_the_field() -> None:
     changed = msgspec.structs.replace(a, capture_points=11)
     assert first_difference(a, changed) == ("capture_points", "10", "11")
     assert first_difference(target(1, 40.0), target(1, 41.5)) == ("grasp_width_mm", "40.0", "41.5")
+
+
+def test_first_difference_tolerates_round_off_only() -> None:
+    width = 74.67085219126126
+    ulp = math.ulp(width)
+    assert first_difference(target(1, width), target(1, width + ulp)) is not None
+    assert first_difference(target(1, width), target(1, width + 30 * ulp), rel_tol=1e-9) is None
+    # A tenth of a micrometre is a change of the method, not round-off.
+    moved = first_difference(target(1, width), target(1, width + 1e-4), rel_tol=1e-9)
+    assert moved is not None and moved[0] == "grasp_width_mm"
+    recorded = {"lpc/grasp/target": [target(1, width), target(2, 40.0)]}
+    replayed = {"lpc/grasp/target": [target(1, width * (1 + 1e-12)), target(2, 40.001)]}
+    assert check(recorded, replayed, rel_tol=1e-9).total == 1
+    assert check(recorded, replayed).total == 2
 
 
 def test_check_matches_by_frame_and_skips_volatile_fields() -> None:
@@ -602,7 +617,9 @@ SESSIONS = ("depth", "shapes", "grasp", "faults")
 def test_recording_replays_without_differences(
     name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Every recorded session replays to the same outputs, byte for byte. When an algorithm
+    """Every recorded session replays to the same outputs, up to round-off (another machine's
+    BLAS kernel may round a sum differently in the last bit; byte identity on one machine is
+    test_replay_cli_check_passes_and_output_replays_byte_identical's). When an algorithm
     changes on purpose, regenerate them (recordings/README.md):
 
         for f in recordings/*.mcap; do .venv/bin/lpc replay "$f" --out "$f"; done
@@ -614,7 +631,6 @@ def test_recording_replays_without_differences(
     out = capsys.readouterr().out
     assert code == 0, out[out.find("check:") :]
     assert "check: no differences" in out
-    assert (tmp_path / "again.mcap").read_bytes() == path.read_bytes()
 
 
 def test_recording_catches_a_changed_algorithm(

@@ -31,6 +31,7 @@ import dataclasses
 import functools
 import importlib
 import io
+import math
 import multiprocessing
 import os
 import sys
@@ -149,8 +150,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"replay; 0 does it all in this process (default {DEFAULT_JOBS}: the CPUs)",
     )
     parser.add_argument(
+        "--rel-tol",
+        type=_rel_tol,
+        default=DEFAULT_REL_TOL,
+        metavar="R",
+        help="with --check, floats that differ by at most R of the larger are equal "
+        f"(default {DEFAULT_REL_TOL:g}: round-off from another CPU's or BLAS's kernels, far "
+        "below any change of the method; 0 asks for bit-identical outputs)",
+    )
+    parser.add_argument(
         "--max-differences", type=int, default=20, metavar="N", help="print at most N (20)"
     )
+
+
+# Another machine's BLAS kernel moved recorded widths by up to ~2e-14 relative; a change of
+# the method moves them by 1e-4 and more.
+DEFAULT_REL_TOL = 1e-9
+
+
+def _rel_tol(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0.0 <= value < 1.0):
+        raise argparse.ArgumentTypeError(f"--rel-tol must be in [0, 1), not {text}")
+    return value
 
 
 # One per CPU: the replay's own loop mostly waits on them once their share is the larger.
@@ -758,6 +783,7 @@ def _report_check(
         match_by=match_fields(replay.plan.nodes),
         cut=cut is not None or args.until is not None or args.start > 0,
         all_frames=args.all_frames,
+        rel_tol=args.rel_tol,
         limit=args.max_differences,
     )
     for key, n in reader.bad_recorded.items():
