@@ -227,6 +227,12 @@ def test_warmup_frame_is_a_50_mm_ball_for_both_methods() -> None:
 # --------------------------------------------------------------------------- the service
 
 
+def _wait_last_target(got: dict[str, list], frame_seq: int) -> None:
+    """The target is published after its reconstruction: wait until the last one is here."""
+    targets = got["lpc/grasp/target"]
+    wait_for(lambda: bool(targets) and targets[-1].frame_seq == frame_seq, 10.0, "the last target")
+
+
 def test_reconstructor_service_publishes_in_order(rendezvous: zenoh.Session, endpoint: str) -> None:
     got: dict[str, list] = collections.defaultdict(list)
     subs = [
@@ -257,12 +263,7 @@ def test_reconstructor_service_publishes_in_order(rendezvous: zenoh.Session, end
         assert [r.seq for r in recs] == list(range(2000, 2012))
         assert [r.shape for r in recs] == ["cylinder" if k % 2 else "sphere" for k in range(12)]
         assert all(r.compute_ms > 0 for r in recs)
-        # The target is published after its reconstruction: it may not be here yet.
-        wait_for(
-            lambda: bool(got["lpc/grasp/target"]) and got["lpc/grasp/target"][-1].frame_seq == 2011,
-            10.0,
-            "the last target",
-        )
+        _wait_last_target(got, 2011)
     finally:
         process.terminate()
         process.wait(timeout=20)
@@ -300,15 +301,7 @@ def test_reconstructor_service_cloud_publishes_newest_frames_in_order(
             "the last frame's reconstruction",
         )
         recs = list(got["lpc/reconstruction"])
-        # The target is published after its reconstruction: it may not be here yet.
-        wait_for(
-            lambda: (
-                bool(got["lpc/grasp/target"])
-                and got["lpc/grasp/target"][-1].frame_seq == frames[-1].seq
-            ),
-            10.0,
-            "target",
-        )
+        _wait_last_target(got, frames[-1].seq)
     finally:
         process.terminate()
         process.wait(timeout=20)
