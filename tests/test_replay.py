@@ -4,6 +4,7 @@ real MCAP files with the pipeline's own step functions."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -511,6 +512,45 @@ def test_replay_cli_worker_processes_give_the_same_bytes_and_count_refusals(
         )
         assert "lpc/reconstruction            19" in out  # 20 scans recorded, one refused
         outputs[jobs] = out_path.read_bytes()
+    assert outputs["0"] == outputs["2"]
+
+
+def test_replay_cli_workers_start_from_recorded_depth(
+    tmp_path: Path,
+    depth_images: list[np.ndarray],
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Where the replay cuts the scans from recorded depth, the workers cut them too and do
+    every frame's reconstruction and object search: none is left to this process, and the
+    bytes are those of the in-process replay."""
+    from lpc_core import aim, reconstructor
+
+    record_session(tmp_path / "rec.mcap", depth_images, n_frames=30)
+    in_process: Counter[str] = Counter()
+
+    def counted(name: str, step: Any) -> Any:
+        def step_(state: Any, message: Any, now_ns: int) -> Any:
+            in_process[name] += isinstance(message, ScanLines)
+            return step(state, message, now_ns)
+
+        return step_
+
+    monkeypatch.setattr(
+        reconstructor, "reconstruct_step", counted("reconstructor", reconstructor.reconstruct_step)
+    )
+    monkeypatch.setattr(aim, "aim_step", counted("aim", aim.aim_step))
+    outputs, steps = {}, {}
+    for jobs in ("0", "2"):
+        in_process.clear()
+        out_path = tmp_path / f"jobs{jobs}.mcap"
+        assert (
+            lpc(["replay", str(tmp_path / "rec.mcap"), "--jobs", jobs, "--out", str(out_path)]) == 0
+        )
+        out = capsys.readouterr().out
+        assert "lpc/reconstruction            20" in out  # the scans of 20 frames in 30
+        outputs[jobs], steps[jobs] = out_path.read_bytes(), dict(+in_process)
+    assert steps == {"0": {"reconstructor": 20, "aim": 20}, "2": {}}
     assert outputs["0"] == outputs["2"]
 
 
