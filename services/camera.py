@@ -1,6 +1,8 @@
 """Camera service: depth frames on ``lpc/camera/depth`` from the simulated scene (default), a
 RealSense camera or file, or an MCAP recording. Simulated and replayed frames are paced by the
-injected clock; a live camera paces itself."""
+injected clock; a live camera paces itself. A live camera that is missing at the start or lost
+mid-stream (unplugged) is looked for again every ``--reopen-every`` seconds: the service stays
+up, reports ``degraded`` and counts it, and frames resume with the next ``seq``."""
 
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from services.drivers.depth import (
     SimSource,
     SourceUnavailable,
 )
+from services.drivers.errors import OperationError
 from services.runtime import Bus, run_service, service_parser
 
 
@@ -32,7 +35,24 @@ def _frame(seq: int, t_ns: int, reading: DepthReading, intrinsics, source: str) 
     )
 
 
+async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSenseSource:
+    """The live camera, looked for every ``args.reopen_every`` seconds until it is there."""
+    bus.status = "degraded"
+    bus.log("error", f"{why}; looking for the camera every {args.reopen_every:g} s")
+    while True:
+        await bus.clock.sleep_until(bus.clock.now_ns() + round(args.reopen_every * 1e9))
+        try:
+            source = RealSenseSource(None, rate=round(args.rate))
+        except SourceUnavailable:
+            bus.health.counters["camera_reopen_failures"] += 1
+            continue
+        bus.status = "ok"
+        bus.log("info", "camera back")
+        return source
+
+
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
+    live = args.source == "realsense" and not args.file
     try:
         if args.source == "sim":
             source = SimSource(seed=args.seed)
@@ -41,8 +61,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         else:
             source = ReplaySource(args.file)
     except SourceUnavailable as exc:
-        bus.log("error", str(exc))
-        raise
+        if not live:  # a wrong file or a missing package: nothing to wait for
+            bus.log("error", str(exc))
+            raise
+        bus.health.counters["camera_missing"] += 1
+        source = await _open_camera(bus, args, str(exc))
     intrinsics = intrinsics_to_message(source.intrinsics)
     depth = bus.publisher("lpc/camera/depth")
     bus.log("info", f"source {args.source} {source.intrinsics.width}x{source.intrinsics.height}")
@@ -53,7 +76,16 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     try:
         while True:
             if args.source == "realsense":
-                reading = await asyncio.to_thread(source.read, 1.0)
+                try:
+                    reading = await asyncio.to_thread(source.read, 1.0)
+                except OperationError as exc:
+                    if not live:
+                        raise
+                    source.shutdown()
+                    bus.health.counters["camera_lost"] += 1
+                    source = await _open_camera(bus, args, f"camera lost: {exc}")
+                    intrinsics = intrinsics_to_message(source.intrinsics)
+                    continue
                 if reading is None:
                     bus.health.counters["timeouts"] += 1
                     continue
@@ -95,11 +127,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--file", help="recording for realsense (.bag/.db3) or replay (.mcap)")
     parser.add_argument("--rate", type=float, default=90.0, help="frame rate in Hz (default 90)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene")
+    parser.add_argument(
+        "--reopen-every",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="look for a missing or lost live camera every S seconds (default 1)",
+    )
     args = parser.parse_args(argv)
     if args.source == "replay" and not args.file:
         parser.error("--source replay needs --file FILE.mcap")
     if not 0 < args.rate <= 1000:
         parser.error("--rate must be in (0, 1000]")
+    if not 0.01 <= args.reopen_every <= 60:
+        parser.error("--reopen-every must be in [0.01, 60] s")
     return run_service("camera", serve, args)
 
 

@@ -26,6 +26,7 @@ import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import can
 import numpy as np
@@ -34,13 +35,16 @@ import pytest
 import zenoh
 
 from lpc_core import can_protocol as cp
+from lpc_core.intrinsics import D435_424X240
 from schemas import BadMessage, DepthFrame, Health, TactorCommand, decode, encode, to_wire
-from services import prosthesis_bridge
+from services import camera, prosthesis_bridge
 from services.cli.up import SERVICES
+from services.drivers.depth import DepthReading, SourceUnavailable
+from services.drivers.errors import OperationError
 from services.drivers.tactor_sim import TactorSim
 from services.mcap_log import McapLog
 from services.runtime import Bus, zenoh_config
-from tests.conftest import free_port, spawn_service, wait_for
+from tests.conftest import free_port, spawn_service, until, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 REPEATS = int(os.environ.get("LPC_FAULT_REPEATS", "12"))
@@ -529,16 +533,71 @@ def test_faults_restarted_recorder_keeps_the_cut_file(endpoint: str, tmp_path: P
         assert sum(1 for _ in log.messages(["lpc/camera/depth"], ordered=False)) == before
 
 
-# --------------------------------------------------------------------------- not yet
+# --------------------------------------------------------------------------- camera
 
 
-@pytest.mark.skip(
-    reason="camera: only the sim and replay sources exist without hardware; a RealSense "
-    "unplugged mid-stream is not simulated (pyrealsense2 has no fault injection). The camera "
-    "process killed and restarted is covered by test_faults_kill_each_service_in_turn"
-)
-def test_faults_camera_unplugged_and_plugged_back() -> None:
-    raise AssertionError("not reached")
+class UnpluggedCamera:
+    """Stands in for a live RealSense (``RealSenseSource`` with no file): open by open, ``SCRIPT``
+    says how many frames the camera gives before it is unplugged, or ``None`` when no camera
+    is there at that open, with the driver's own errors. It paces itself, as a camera does."""
+
+    SCRIPT: ClassVar[list[int | None]] = []
+
+    def __init__(self, file: str | None, rate: int = 90) -> None:
+        assert file is None
+        frames = self.SCRIPT.pop(0)
+        if frames is None:
+            raise SourceUnavailable("no RealSense camera found: is it plugged in (USB 3)?")
+        self.left = frames
+        self.period_s = 1 / rate
+        self.intrinsics = D435_424X240
+        self.shut = False
+
+    def read(self, timeout: float) -> DepthReading | None:
+        if self.left == 0:
+            raise OperationError("RealSense read failed: Frame didn't arrive within 5000")
+        self.left -= 1
+        time.sleep(self.period_s)
+        return DepthReading(depth=np.full((240, 424), 200, np.uint16))
+
+    def shutdown(self) -> None:
+        self.shut = True
+
+
+def test_faults_camera_unplugged_and_plugged_back(
+    endpoint: str, rendezvous: zenoh.Session, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Missing at the start, then 5 frames, unplugged, two looks that find nothing, back: the
+    camera service never stops, counts each, and the frames go on with the next seq."""
+    UnpluggedCamera.SCRIPT[:] = [None, 5, None, None, 1000]
+    monkeypatch.setattr(camera, "RealSenseSource", UnpluggedCamera)
+    seqs: list[int] = []
+    sub = rendezvous.declare_subscriber(
+        "lpc/camera/depth",
+        lambda s: seqs.append(decode("lpc/camera/depth", s.payload.to_bytes()).seq),
+    )
+    args = argparse.Namespace(source="realsense", file=None, rate=200.0, seed=0, reopen_every=0.05)
+
+    async def main() -> Bus:
+        loop = asyncio.get_running_loop()
+        with zenoh.open(zenoh_config(connect=[endpoint])) as session:
+            bus = Bus(session, "camera", loop=loop, quiet=True)
+            task = asyncio.create_task(camera.serve(bus, args))
+            await until(lambda: len(seqs) >= 20, 10.0, "20 frames")
+            assert not task.done() and bus.status == "ok"
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            bus.close()
+            return bus
+
+    bus = asyncio.run(main())
+    sub.undeclare()
+    assert UnpluggedCamera.SCRIPT == []
+    counters = bus.health.counters
+    assert (counters["camera_missing"], counters["camera_lost"]) == (1, 1)
+    assert counters["camera_reopen_failures"] == 2
+    # Nothing lost on the bus, nothing repeated: seq goes on across the reconnection.
+    assert seqs == list(range(len(seqs)))
 
 
 def test_faults_service_survives_a_payload_with_broken_text(endpoint: str) -> None:

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import signal
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import zenoh
@@ -15,17 +13,9 @@ from schemas import EmgSample, Health, ProsthesisState, decode, encode
 from services import recorder
 from services.mcap_log import REJECTED_PREFIX, LogWriter, McapLog
 from services.runtime import Bus, zenoh_config
-from tests.conftest import spawn_service, wait_for
+from tests.conftest import spawn_service, until, wait_for
 
 T0 = 1_700_000_000_000_000_000
-
-
-async def until(condition: Callable[[], bool], timeout: float = 10.0, what: str = "") -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        await asyncio.sleep(0.005)
 
 
 def payloads(n: int) -> list[tuple[str, bytes]]:
