@@ -521,17 +521,17 @@ def test_replay_cli_workers_start_from_recorded_depth(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """Where the replay cuts the scans from recorded depth, the workers cut them too and do
-    every frame's reconstruction and object search: none is left to this process, and the
-    bytes are those of the in-process replay."""
-    from lpc_core import aim, reconstructor
+    """Where the replay cuts the scans from recorded depth, the workers cut them and go on
+    with every frame's reconstruction and object search: none is left to this process, and
+    the bytes are those of the in-process replay."""
+    from lpc_core import aim, pipeline, reconstructor
 
     record_session(tmp_path / "rec.mcap", depth_images, n_frames=30)
     in_process: Counter[str] = Counter()
 
     def counted(name: str, step: Any) -> Any:
         def step_(state: Any, message: Any, now_ns: int) -> Any:
-            in_process[name] += isinstance(message, ScanLines)
+            in_process[name] += isinstance(message, ScanLines | DepthFrame)
             return step(state, message, now_ns)
 
         return step_
@@ -540,6 +540,7 @@ def test_replay_cli_workers_start_from_recorded_depth(
         reconstructor, "reconstruct_step", counted("reconstructor", reconstructor.reconstruct_step)
     )
     monkeypatch.setattr(aim, "aim_step", counted("aim", aim.aim_step))
+    monkeypatch.setattr(pipeline, "scans_step", counted("scans", pipeline.scans_step))
     outputs, steps = {}, {}
     for jobs in ("0", "2"):
         in_process.clear()
@@ -550,7 +551,8 @@ def test_replay_cli_workers_start_from_recorded_depth(
         out = capsys.readouterr().out
         assert "lpc/reconstruction            20" in out  # the scans of 20 frames in 30
         outputs[jobs], steps[jobs] = out_path.read_bytes(), dict(+in_process)
-    assert steps == {"0": {"reconstructor": 20, "aim": 20}, "2": {}}
+    # The scans node is offered 30 frames; the live service cut 20 of them.
+    assert steps == {"0": {"scans": 20, "reconstructor": 20, "aim": 20}, "2": {}}
     assert outputs["0"] == outputs["2"]
 
 

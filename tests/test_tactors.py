@@ -9,6 +9,7 @@ import tty
 import pytest
 
 from lpc_core.tactor_protocol import OFF, TactorOutput
+from services.drivers import tactors
 from services.drivers.errors import DeviceUnavailable, InitialisationError, OperationError
 from services.drivers.tactor_sim import TactorSim
 from services.drivers.tactors import (
@@ -53,6 +54,20 @@ def test_driver_contract_shutdown_all_off_and_idempotent(driver) -> None:
     with pytest.raises(OperationError):
         driver.send(OFF)
 
+
+@pytest.mark.parametrize("name", ["sim", "line"])
+def test_driver_simulator_keeps_a_bounded_history(
+    name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A service runs its simulated controller for hours: its record of the commands stays
+    at the last ``SIM_HISTORY`` while the commands go on."""
+    monkeypatch.setattr(tactors._OnSimulator, "SIM_HISTORY", 20)
+    with open_driver(name) as d:
+        for k in range(60):
+            d.send(TactorOutput((0.0, 0.0, 0.0, 0.2 + 0.01 * k)))
+        assert d.sim.wait_for(lambda s: s.levels[3] > 0.75, 2.0)
+        assert len(d.sim.events) == 20
+        assert d.sim.events[-1].levels[3] > 0.75
 
 def test_driver_nak_is_received_as_a_reply() -> None:
     with open_driver("sim") as d:

@@ -503,18 +503,26 @@ DEPTH, SCANS = "lpc/camera/depth", "lpc/scans"
 
 
 def _cut(state: ScansState, frame: Any) -> Any:
-    """The scans node's step on one depth frame, from its initial parameters: the scan lines a
-    worker starts from when the replay cuts them from recorded depth. Only ``seq`` (the scans
-    node's own count) can differ from the in-process step's."""
+    """The scans node's step on one depth frame, from its initial parameters, but for ``seq``
+    (the node's own count, given in order by ``_number``)."""
     return scans_step(ScansState(params=state.params), frame, 0)[1]
 
 
+def _number(state: ScansState, frame: Any, scans: Any) -> tuple[ScansState, Any]:
+    """The rest of the scans step: the scan lines cut by a worker get the node's next seq."""
+    del frame
+    state.seq += 1
+    return state, msgspec.structs.replace(scans, seq=state.seq)
+
+
 def _tasks(nodes: Iterable[Node], method: str) -> dict[str, _Task]:
-    """The reconstruction (the reconstructor) and the objects in view without the supporting
-    plane (the aim step), bound to each node's initial parameters."""
+    """The scan lines (the scans), the reconstruction (the reconstructor) and the objects in
+    view without the supporting plane (the aim step), bound to each node's initial parameters."""
     tasks = {}
     for n in nodes:
-        if n.name == "reconstructor":
+        if n.name == "scans":
+            tasks[n.name] = _Task(DEPTH, functools.partial(_cut, n.init()), _number)
+        elif n.name == "reconstructor":
             tasks[n.name] = _Task(
                 INPUT_TOPICS[method],
                 functools.partial(reconstruct, n.init()),
@@ -539,10 +547,10 @@ class _Workers:
     wrapped step then finishes with its frame's result, or runs whole in-process on a frame
     that was not started (one whose recorded output arrived later than the read-ahead).
 
-    When the replay cuts the scan lines from recorded depth, a task on ``lpc/scans`` starts
-    from the depth frame: its worker cuts the lines first (``_cut``), so the work is under way
-    before the in-process scans step has run (without it, a depth replay did every frame's
-    work in this process: 5.6x real time on 2 cores).
+    When the replay cuts the scan lines from recorded depth, the worker cuts them (the scans
+    task) and goes on with the tasks on ``lpc/scans`` on the same frame, so they are under way
+    before the in-process scans step has numbered the lines (without it, a depth replay did
+    every frame's work in this process: 5.2x real time on 2 cores).
     """
 
     def __init__(self, jobs: int, batch: int = 8) -> None:
@@ -556,15 +564,12 @@ class _Workers:
             max_workers=jobs, mp_context=context, initializer=die_with_parent
         )
         self.tasks: dict[str, _Task] = {}
-        self.cut: Callable[[Any], Any] | None = None
         self.started: dict[tuple[str, int], tuple[Future[Any], int, bool]] = {}
 
     def wrap(self, nodes: Iterable[Node], method: str) -> tuple[Node, ...]:
         """The nodes, each task's route finishing with the workers' results."""
         nodes = tuple(nodes)
         self.tasks = _tasks(nodes, method)
-        scans = next((n for n in nodes if n.name == "scans"), None)
-        self.cut = None if scans is None else functools.partial(_cut, scans.init())
 
         def pooled(name: str, task: _Task, step: Any) -> Any:
             def step_(state: Any, message: Any, now_ns: int) -> Any:
@@ -600,7 +605,7 @@ class _Workers:
         # Each task's route, and the gates its frame passes on the way: its own, and where the
         # replay cuts the scans from recorded depth, the scans node's too.
         scans = next((n for n in replay.plan.nodes if n.name == "scans"), None)
-        cut = self.cut is not None and scans is not None and DEPTH in replay.inputs
+        cut = scans is not None and "scans" in self.tasks and DEPTH in replay.inputs
         routes = []
         for node in replay.plan.nodes:
             task = self.tasks.get(node.name)
@@ -648,7 +653,7 @@ class _Workers:
         if batch:
             computes = {name: (task.key, task.compute) for name, task in self.tasks.items()}
             work = [(key, payload, names) for _, key, payload, names in batch]
-            future = self.pool.submit(_work, computes, self.cut, work)
+            future = self.pool.submit(_work, computes, work)
             for index, (frame, key, _, names) in enumerate(batch):
                 for name in names:
                     from_depth = key != self.tasks[name].key
@@ -661,33 +666,37 @@ class _Workers:
 
 def _work(
     computes: dict[str, tuple[str, Callable[[Any], Any]]],
-    cut: Callable[[Any], Any] | None,
     batch: list[tuple[str, bytes, tuple[str, ...]]],
 ) -> list[dict[str, Any]]:
     """A worker's batch: per frame, each named node's result, or the ``ValueError`` it raised
-    (the replay raises it in that node's step, which counts it). A node whose task is on
-    another topic than the frame's gets the scan lines ``cut`` from it (a depth frame)."""
+    (the replay raises it in that node's step, which counts it). A task on the scan lines of a
+    depth frame gets those the scans task cut from it."""
     results: list[dict[str, Any]] = []
     for key, payload, names in batch:
-        done: dict[str, Any] = {}
         try:
             message = decode(key, payload)
-            scans = None
-            for name in names:
-                task_key, compute = computes[name]
-                try:
-                    if task_key == key:
-                        done[name] = compute(message)
-                    else:
-                        assert cut is not None
-                        scans = cut(message) if scans is None else scans
-                        done[name] = compute(scans)
-                except ValueError as exc:
-                    done[name] = exc
-        except ValueError as exc:  # undecodable (BadMessage)
-            done = dict.fromkeys(names, exc)
+        except BadMessage as exc:
+            results.append(dict.fromkeys(names, exc))
+            continue
+        done: dict[str, Any] = {}
+        for name in names:
+            task_key, compute = computes[name]
+            if task_key == key:
+                done[name] = _attempt(compute, message)
+                continue
+            if "scans" not in done:
+                done["scans"] = _attempt(computes["scans"][1], message)
+            scans = done["scans"]
+            done[name] = scans if isinstance(scans, ValueError) else _attempt(compute, scans)
         results.append(done)
     return results
+
+
+def _attempt(compute: Callable[[Any], Any], message: Any) -> Any:
+    try:
+        return compute(message)
+    except ValueError as exc:
+        return exc
 
 
 class _FrameOf(msgspec.Struct):
