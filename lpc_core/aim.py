@@ -343,10 +343,8 @@ def guide(
     ``tactor_angles_rad`` (default ``params.tactor_angles_rad``) are the tactors' image
     directions now; ``seed`` seeds the search for the supporting plane (the frame's seq)."""
     objects = object_points(points, params, seed)
-    if objects is None:
-        return Guidance("nothing")
     return _cue(
-        objects,
+        None if objects is None else objects_in_view(objects, params),
         params,
         was_on_target=was_on_target,
         chosen_xy=chosen_xy,
@@ -356,33 +354,31 @@ def guide(
 
 def object_points(points: np.ndarray, params: AimParams, seed: int = 0) -> np.ndarray | None:
     """The capture-volume ``points`` that may belong to objects: without the supporting plane
-    (``remove_support``); ``None`` when there are too few to look at (``min_points``). It
-    depends on the frame alone, so a replay computes it in its worker processes."""
+    (``remove_support``); ``None`` when there are too few to look at (``min_points``)."""
     if len(points) < params.min_points:
         return None
     return without_support(points, params, seed) if params.remove_support else points
 
 
-def frame_object_points(scans: ScanLines, params: AimParams) -> np.ndarray | None:
-    """``object_points`` of one ``lpc/scans`` message (seeded by its frame); ``ValueError`` if
-    a scan line is malformed."""
-    points = capture_points([from_wire(line.points) for line in scans.lines], params)
-    return object_points(points, params, scans.frame_seq)
+@dataclass(frozen=True)
+class InView:
+    """The objects in view of one frame, one row each, in the image plane (xOy): the signed
+    distance from the optical axis to the object's hull (negative inside), the hull's point
+    nearest the axis, and the object's centroid."""
+
+    signed_m: np.ndarray  # (K,)
+    nearest_xy: np.ndarray  # (K, 2)
+    centroids_xy: np.ndarray  # (K, 2)
 
 
-def _cue(
-    points: np.ndarray,
-    params: AimParams,
-    *,
-    was_on_target: bool,
-    chosen_xy: tuple[float, float] | None,
-    tactor_angles_rad: tuple[float, ...] | None,
-) -> Guidance:
+def objects_in_view(points: np.ndarray, params: AimParams) -> InView | None:
+    """The objects among ``points`` (N, 3): clusters of at least ``min_cluster_points``;
+    ``None`` when there is none."""
     labels = cluster_points(points, params.cluster_gap_m)
     counts = np.bincount(labels)
     kept = np.flatnonzero(counts >= params.min_cluster_points)
     if len(kept) == 0:
-        return Guidance("nothing")
+        return None
     xy = points[:, :2]
     signed = np.empty(len(kept))
     nearest = np.empty((len(kept), 2))
@@ -391,6 +387,29 @@ def _cue(
         members = xy[labels == label]
         signed[j], nearest[j] = hull_distance(convex_hull(members))
         centroids[j] = members.mean(axis=0)
+    return InView(signed, nearest, centroids)
+
+
+def frame_objects(scans: ScanLines, params: AimParams) -> InView | None:
+    """The objects in view of one ``lpc/scans`` message (the supporting plane's search seeded
+    by its frame); ``ValueError`` if a scan line is malformed. It depends on the frame alone,
+    so a replay finds them in its worker processes."""
+    points = capture_points([from_wire(line.points) for line in scans.lines], params)
+    objects = object_points(points, params, scans.frame_seq)
+    return None if objects is None else objects_in_view(objects, params)
+
+
+def _cue(
+    view: InView | None,
+    params: AimParams,
+    *,
+    was_on_target: bool,
+    chosen_xy: tuple[float, float] | None,
+    tactor_angles_rad: tuple[float, ...] | None,
+) -> Guidance:
+    if view is None:
+        return Guidance("nothing")
+    signed, nearest, centroids = view.signed_m, view.nearest_xy, view.centroids_xy
     pick = int(np.argmin(signed))
     if chosen_xy is not None:
         offsets = np.hypot(*(centroids - np.asarray(chosen_xy)).T)
@@ -404,13 +423,13 @@ def _cue(
     on_target = s <= (params.hysteresis_m if was_on_target else 0.0)
     if on_target:
         amplitude = (params.on_target_amplitude,) * N_TACTORS
-        return Guidance("on_target", 0.0, 0.0, amplitude, len(kept), s, centroid)
+        return Guidance("on_target", 0.0, 0.0, amplitude, len(signed), s, centroid)
     rho = min(s / params.width_m, 1.0)
     theta = float(math.atan2(nearest[pick, 1], nearest[pick, 0]))
     angles = params.tactor_angles_rad if tactor_angles_rad is None else tactor_angles_rad
     shares = (1.0 - rho) * tactor_shares(theta, angles)
     amplitudes = tuple(float(a) for a in np.clip(shares, 0.0, 1.0))
-    return Guidance("guiding", rho, theta, amplitudes, len(kept), s, centroid)
+    return Guidance("guiding", rho, theta, amplitudes, len(signed), s, centroid)
 
 
 @dataclass(frozen=True)
@@ -464,25 +483,21 @@ def aim_step(
             "message must be ScanLines, GraspTarget, ControllerState or ProsthesisState, "
             f"got {type(message)}"
         )
-    return cue_step(state, message, frame_object_points(message, state.params))
+    return cue_step(state, message, frame_objects(message, state.params))
 
 
 def cue_step(
-    state: AimState, message: ScanLines, objects: np.ndarray | None
+    state: AimState, message: ScanLines, view: InView | None
 ) -> tuple[AimState, list[AimCue | TactorCommand]]:
-    """The scan-lines half of ``aim_step``, on the frame's ``frame_object_points`` (found here
-    or by a replay's worker process)."""
+    """The scan-lines half of ``aim_step``, on the frame's ``frame_objects`` (found here or by
+    a replay's worker process)."""
     params = state.params
-    tracked = (
-        Guidance("nothing")
-        if objects is None
-        else _cue(
-            objects,
-            params,
-            was_on_target=state.on_target,
-            chosen_xy=state.chosen_xy,
-            tactor_angles_rad=state.tactor_angles_rad,
-        )
+    tracked = _cue(
+        view,
+        params,
+        was_on_target=state.on_target,
+        chosen_xy=state.chosen_xy,
+        tactor_angles_rad=state.tactor_angles_rad,
     )
     # Stopped: the geometry is still tracked, so the cue resumes where it would have been.
     g = Guidance("nothing", objects=tracked.objects) if state.cues_off else tracked
