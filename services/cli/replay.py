@@ -6,17 +6,19 @@ order, and handed to the same step functions the services run, with the recorded
 ``lpc/reconstruction`` names it: ``laser`` on the scans, ``cloud`` on the depth frames
 (``--method`` overrides). ``--out`` writes the inputs and the new outputs to an MCAP file (itself
 replayable: replaying it reproduces it byte for byte). ``--check`` compares the new outputs
-with the recorded ones, topic by topic, prints the first differences and exits 1 if any.
+with the recorded ones, topic by topic, prints the first differences and exits 1 if any;
+floats within ``--rel-tol`` of each other are equal (another CPU's BLAS rounds differently).
 
 The file is read once: recorded outputs are indexed ``--horizon`` seconds of log time ahead
 of the inputs handed to the step functions, which is how the replay knows which frames the
 live services handled and when their outputs arrived.
 
 As live, the reconstructions run in worker processes (``--jobs``), and so does the aim step's
-search for the objects in view (the supporting plane set aside): each starts as soon as its
-input is read, a few frames ahead of the replay, and the node's step finishes with the result,
-in frame order. The workers run the in-process steps' own functions, so the outputs are the
-same bytes with any number of workers.
+search for the objects in view (the supporting plane set aside, the objects clustered and
+measured): each starts as soon as its input is read, a few frames ahead of the replay, and the
+node's step finishes with the result, in frame order. From recorded depth, the scan lines are
+cut as each frame is read and only they go to the workers. The workers run the in-process
+steps' own functions, so the outputs are the same bytes with any number of workers.
 
 Exit status: 0 when the replay ran (and the check passed); 1 when the check found differences;
 2 when the file cannot be replayed. A file cut short is replayed up to its last good chunk and
