@@ -607,29 +607,24 @@ class _Workers:
         return tuple(wrapped(n) for n in nodes)
 
     def ahead(self, inputs: Iterator[Recorded], replay: Replay) -> Iterator[Recorded]:
-        # Each task's topic and the gates its frame passes: its own route's, and for a task on
-        # scan lines cut here from recorded depth, the scans node's too.
-        scans = next((n for n in replay.plan.nodes if n.name == "scans"), None)
-        cut = scans is not None and "scans" in self.tasks and DEPTH in replay.inputs
-        routes: list[tuple[str, str, tuple[tuple[Node, Any], ...]]] = []
-        for node in replay.plan.nodes:
-            task = self.tasks.get(node.name)
-            for route in node.routes if task is not None else ():
-                if route.key != task.key:  # type: ignore[union-attr]
-                    continue
-                if route.key in replay.inputs:
-                    routes.append((node.name, route.key, ((node, route),)))
-                elif cut and route.key == SCANS:
-                    assert scans is not None
-                    gates = tuple((scans, r) for r in scans.routes if r.key == DEPTH)
-                    routes.append((node.name, SCANS, ((node, route), *gates)))
+        # Each task's topic and route. A task on scan lines cut here from recorded depth is
+        # looked at only once the scans node has taken the frame (its gate passed).
+        cut = "scans" in self.tasks and DEPTH in replay.inputs
+        routes: list[tuple[str, str, Node, Any]] = [
+            (node.name, route.key, node, route)
+            for node in replay.plan.nodes
+            if (task := self.tasks.get(node.name)) is not None
+            for route in node.routes
+            if route.key == task.key
+            and (route.key in replay.inputs or (cut and route.key == SCANS))
+        ]
 
         def names(key: str, message: Any, frame: int) -> list[str]:
             return [
                 name
-                for name, key_, gates in routes
+                for name, key_, node, route in routes
                 if key_ == key
-                and not any(replay.skips(node, route, message) for node, route in gates)
+                and not replay.skips(node, route, message)
                 and (name, frame) not in self.started
             ]
 
