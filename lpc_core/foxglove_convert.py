@@ -319,7 +319,7 @@ def model_curve(
 ) -> tuple[np.ndarray, bool] | None:
     """A fitted 2-D model as 3-D points ``(M, 3)`` in its scan plane, and whether it is closed.
 
-    ``params`` are ``lpc_core.fit``'s, in the plane's coordinates ``(s, z)`` with
+    ``params`` are ``lpc_core.perception.fit``'s, in the plane's coordinates ``(s, z)`` with
     ``s = x cos(phi) + y sin(phi)``: line ``(s0, z0, ds, dz)``, circle ``(cs, cz, r)``, ellipse
     ``(cs, cz, a, b, theta)``. A line is cut to the capture volume; ``None`` when there is
     nothing to draw (no model, wrong parameter count, a line that misses the volume).

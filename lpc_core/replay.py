@@ -491,7 +491,8 @@ def default_nodes(
     ``controller``), as its service built it from its flags; the others start from their
     defaults (the aim's tactors follow the wrist when the controller's camera is on the hand).
     """
-    from lpc_core import aim, controller, pipeline, reconstructor
+    from lpc_core.control import aim, controller
+    from lpc_core.perception import pipeline, reconstructor
 
     params = controller_params or controller.ControllerParams()
     given = dict(states or {})
@@ -501,6 +502,7 @@ def default_nodes(
             return default
         state = given[name]  # frozen: one instance serves every replay of the nodes
         return lambda: state
+
     if reconstructor_method == "laser":
         reconstruct = Route("lpc/scans", reconstructor.reconstruct_step, gated=True)
         # Live, compute_ms is the worker's measured time; seq follows the scans'.

@@ -11,11 +11,11 @@ Each 10 ms tick of simulated time, in this order (the order ``lpc replay`` repro
 0. the controller's 100 Hz timer tick;
 1. reconstructions due now leave the reconstructor and pass the 10-frame window; the grasp
    target goes to the aim step and the controller;
-2. the virtual user (``lpc_core.virtual_user``) perceives the tactors, the hand and the
+2. the virtual user (``lpc_core.sim.virtual_user``) perceives the tactors, the hand and the
    object, and moves the arm (the camera) and its muscles (an EMG sample);
-3. the controller takes the EMG sample, the simulated hand (``lpc_core.hand``) moves under the
+3. the controller takes the EMG sample, the simulated hand (``lpc_core.sim.hand``) moves under the
    last command and reports its state, and the controller answers it with a command;
-4. on a camera tick, the scene is rendered from the camera pose (``lpc_core.scene``), cut into
+4. on a camera tick, the scene is rendered from the camera pose (``lpc_core.sim.scene``), cut into
    scan lines (``pipeline.scans_step``), turned into an aim cue and a tactor command
    (``aim.aim_step``) for the controller and the user, and offered to the reconstructor.
 
@@ -27,7 +27,7 @@ Simulated rates, and why
     The camera runs at ``camera_hz`` (default 20 Hz, not the D435's 90 Hz): the aim cue the
     person follows is then at most 50 ms old, well under a tactile reaction time (>= 150 ms),
     and rendering costs a fifth. The reconstructor behaves as the live service does (one
-    worker, the newest waiting frame kept, ``lpc_core.reconstructor``'s bookkeeping), but a
+    worker, the newest waiting frame kept, ``reconstructor``'s bookkeeping), but a
     reconstruction takes the paper's measured mean time, ``recon_period_s`` (138 ms for the
     four-line method, 75 ms for the full-cloud benchmark), rather than this machine's: the
     prototype's 10-frame window fills in about 1.4 s, the benchmark's in 0.75 s, as in the
@@ -61,18 +61,16 @@ from typing import Any, Literal
 
 import numpy as np
 
-from lpc_core import scene as sc
-from lpc_core.aim import AimParams, AimState, aim_step
-from lpc_core.cloud import CloudParams, reconstruct_cloud
-from lpc_core.controller import ControllerCore, ControllerParams, controller_step
-from lpc_core.controller import Tick as ControllerTick
-from lpc_core.emg import EmgProfile, calibrate
-from lpc_core.emg_sim import PERIOD_NS, MuscleParams, MuscleState, simulate_emg
-from lpc_core.hand import HandCommand, HandParams, HandState, hand_step
-from lpc_core.intrinsics import D435_424X240, Intrinsics
-from lpc_core.laser import LaserParams
-from lpc_core.pipeline import ScansState, intrinsics_to_message, scans_step
-from lpc_core.reconstructor import (
+from lpc_core.control.aim import AimParams, AimState, aim_step
+from lpc_core.control.controller import ControllerCore, ControllerParams, controller_step
+from lpc_core.control.controller import Tick as ControllerTick
+from lpc_core.control.emg import EmgProfile, calibrate
+from lpc_core.devices.hand import HandCommand
+from lpc_core.perception.cloud import CloudParams, reconstruct_cloud
+from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
+from lpc_core.perception.laser import LaserParams
+from lpc_core.perception.pipeline import ScansState, intrinsics_to_message, scans_step
+from lpc_core.perception.reconstructor import (
     PoolParams,
     PoolState,
     Release,
@@ -83,10 +81,14 @@ from lpc_core.reconstructor import (
     reconstruction_message,
     window_message,
 )
+from lpc_core.perception.scans import ScanParams
+from lpc_core.perception.window import WindowParams, WindowState
 from lpc_core.replay import KEY_OF_TYPE
-from lpc_core.scans import ScanParams
-from lpc_core.timeline import DEFAULT_ORDER
-from lpc_core.virtual_user import (
+from lpc_core.sim import scene as sc
+from lpc_core.sim.emg_sim import PERIOD_NS, MuscleParams, MuscleState, simulate_emg
+from lpc_core.sim.hand import HandParams, HandState, hand_step
+from lpc_core.sim.timeline import DEFAULT_ORDER
+from lpc_core.sim.virtual_user import (
     Percept,
     UserParams,
     UserState,
@@ -96,7 +98,6 @@ from lpc_core.virtual_user import (
     new_trial,
     user_step,
 )
-from lpc_core.window import WindowParams, WindowState
 from schemas import (
     AimCue,
     ControllerState,
@@ -121,7 +122,7 @@ PAPER_PERIOD_S: dict[str, float] = {"laser": 0.138, "cloud": 0.075}
 PAPER_SEQUENCE: tuple[tuple[str, float, float], ...] = DEFAULT_ORDER
 """(object, azimuth_deg, elevation_deg): the ten functional objects in a fixed order that
 alternates shapes and orientations, as the paper's sequence does (its Fig. 5B is not in the
-text; this is ``lpc_core.timeline``'s rendition)."""
+text; this is ``lpc_core.sim.timeline``'s rendition)."""
 
 PAPER_TAT_S: dict[str, tuple[tuple[float, float], ...]] = {
     # Block 1 and block 5 as reported: median {IQR}, seconds (Results).

@@ -89,7 +89,7 @@ class ScanLines(Message, frozen=True, kw_only=True, tag="scans"):
 
 
 class LineModel(Struct, frozen=True, kw_only=True):
-    """The 2-D model kept on one scan line, with ``lpc_core.fit``'s ``params``."""
+    """The 2-D model kept on one scan line, with ``lpc_core.perception.fit``'s ``params``."""
 
     angle_deg: float
     model: Literal["line", "circle", "ellipse", "none"]

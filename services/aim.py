@@ -9,7 +9,7 @@ import argparse
 import asyncio
 import sys
 
-from lpc_core.aim import AimParams, AimState, aim_step, tactor_placement
+from lpc_core.control.aim import AimParams, AimState, aim_step, tactor_placement
 from schemas import AimCue, TactorCommand
 from services.drivers.tactors import load_profile
 from services.runtime import Bus, service_main, service_parser

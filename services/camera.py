@@ -10,7 +10,7 @@ import argparse
 import asyncio
 import sys
 
-from lpc_core.pipeline import intrinsics_to_message
+from lpc_core.perception.pipeline import intrinsics_to_message
 from schemas import DepthFrame, to_wire
 from services.drivers.depth import (
     DepthReading,

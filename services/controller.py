@@ -10,7 +10,7 @@ import asyncio
 import sys
 from types import MappingProxyType
 
-from lpc_core.controller import (
+from lpc_core.control.controller import (
     EMG,
     HAND,
     TARGET,
@@ -19,9 +19,9 @@ from lpc_core.controller import (
     Tick,
     TransitionError,
     controller_step,
-    sim_user_params,
 )
-from lpc_core.emg import EmgProfile
+from lpc_core.control.emg import EmgProfile
+from lpc_core.sim.emg_sim import sim_user_params
 from schemas import ControllerState
 from services.drivers.emg import load_emg_profile
 from services.runtime import Bus, service_main, service_parser
@@ -37,7 +37,7 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--sim-user",
         action="store_true",
-        help="calibration of the simulated user (lpc_core.emg_sim defaults) instead of a profile",
+        help="calibration of the simulated user (emg_sim defaults) instead of a profile",
     )
     parser.add_argument("--stale-emg-ms", type=float, default=250.0)
     parser.add_argument("--stale-hand-ms", type=float, default=200.0)

@@ -9,7 +9,7 @@ import asyncio
 import sys
 import threading
 
-from lpc_core.emg_sim import PERIOD_NS, Tick, UserParams, UserState, user_step
+from lpc_core.sim.emg_sim import PERIOD_NS, Tick, UserParams, UserState, user_step
 from schemas import EmgSample
 from services.drivers.emg import HandEmg, SerialEmg
 from services.drivers.errors import DriverError

@@ -46,7 +46,7 @@ COMPRESSIONS: dict[str, CompressionType] = {
     "lz4": CompressionType.LZ4,
     "zstd": CompressionType.ZSTD,
 }
-# Chosen by measurement (``python -m services.cli.bench_recorder write``): see services/recorder.py.
+# Chosen by measurement (``python -m services.cli.bench.recorder write``): see services/recorder.py.
 DEFAULT_COMPRESSION: Compression = "zstd"
 DEFAULT_CHUNK_BYTES = 1024 * 1024
 REJECTED_PREFIX = "lpc/_rejected/"

@@ -11,7 +11,7 @@ import argparse
 import asyncio
 import sys
 
-from lpc_core.hand import HandCommand, HandStatus
+from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisState
 from services.drivers.hand import BACKENDS, DEFAULT_CHANNEL, HandLink, open_hand
 from services.drivers.hand_sim import SimulatedHand

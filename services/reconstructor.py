@@ -4,7 +4,7 @@
 Frames are reconstructed in a process pool (spawn: forking after the Zenoh session is open
 hangs), one frame per task, and published in ``seq`` order. At most ``--max-pending`` frames
 wait for a worker; when another arrives the oldest waiting frame is dropped and counted
-(``dropped_frames``). The ordering is ``lpc_core.reconstructor``'s pure bookkeeping. Each
+(``dropped_frames``). The ordering is ``lpc_core.perception.reconstructor``'s pure bookkeeping. Each
 worker reconstructs one synthetic frame before the service subscribes, so start-up costs
 (imports, first calls) never count as drops. Depth is a sensor topic: when even the pump falls
 behind, only the newest frame is kept.
@@ -22,9 +22,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import msgspec
 
-from lpc_core.laser import LaserParams
-from lpc_core.pipeline import ScansState, scans_step
-from lpc_core.reconstructor import (
+from lpc_core.perception.laser import LaserParams
+from lpc_core.perception.pipeline import ScansState, scans_step
+from lpc_core.perception.reconstructor import (
     INPUT_TOPICS,
     Dropped,
     PoolParams,
@@ -39,7 +39,7 @@ from lpc_core.reconstructor import (
     warmup_frame,
     window_message,
 )
-from lpc_core.window import WindowState
+from lpc_core.perception.window import WindowState
 from schemas import BadMessage, decode, encode
 from services.children import die_with_parent
 from services.mcap_log import read_header

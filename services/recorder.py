@@ -5,7 +5,7 @@ time, ``publish_time`` the message's ``t_ns``. A payload without a readable head
 rejected and kept raw on ``lpc/_rejected/<key>``. Files rotate past ``--max-mb``; the file is
 finished on SIGINT/SIGTERM, after the messages already received are written.
 
-Default compression, measured with ``python -m services.cli.bench_recorder`` (203 KB simulated
+Default compression, measured with ``python -m services.cli.bench.recorder`` (203 KB simulated
 depth frames, 1 MiB chunks, mcap 1.6, this 2-core machine at load 5): zstd 1.1 ms per frame
 and 4.4x smaller (4.2 MB/s at 90 Hz), LZ4 0.8 ms and 2.7x (6.7 MB/s), none 0.6 ms (18 MB/s).
 zstd is the default: 10% of one core at 90 Hz, half the disk of LZ4, and it releases the GIL

@@ -103,7 +103,7 @@ def zenoh_config(
         conf.insert_json5("timestamping/enabled", "true")
         # The default data queue (2 batches of 64 KB, drop after 1 ms) is smaller than one
         # depth frame: measured, it lost 1-3 sensor messages in 2 of 5 recorder runs; 8 batches
-        # and 20 ms lost none in 5 of 5 (services/cli/bench_recorder.py).
+        # and 20 ms lost none in 5 of 5 (services/cli/bench/recorder.py).
         conf.insert_json5("transport/link/tx/queue/size/data", "8")
         conf.insert_json5(
             "transport/link/tx/queue/congestion_control/drop/wait_before_drop", "20000"

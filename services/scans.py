@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lpc_core.pipeline import ScansState, scans_step
-from lpc_core.scans import ScanParams
+from lpc_core.perception.pipeline import ScansState, scans_step
+from lpc_core.perception.scans import ScanParams
 from services.runtime import Bus, service_main, service_parser
 
 

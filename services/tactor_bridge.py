@@ -13,7 +13,7 @@ import contextlib
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
-from lpc_core.tactor_bridge import (
+from lpc_core.devices.tactor_bridge import (
     PORT_OPENED,
     TICK,
     BridgeParams,

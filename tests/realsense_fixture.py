@@ -7,7 +7,7 @@ refuses any other extension; earlier versions write ROS 1 ``.bag``.
 
     python -m tests.realsense_fixture out.db3 --frames 90
 
-writes 90 frames of the simulated scene (``lpc_core.simcam``) at 90 fps, readable with
+writes 90 frames of the simulated scene (``lpc_core.sim.simcam``) at 90 fps, readable with
 ``lpc camera --source realsense --file out.db3`` or ``RealSenseSource("out.db3")``.
 """
 
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lpc_core.intrinsics import D435_424X240, Intrinsics
-from lpc_core.simcam import SimCamera
+from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
+from lpc_core.sim.simcam import SimCamera
 
 
 def recording_suffix() -> str:

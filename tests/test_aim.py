@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from lpc_core.aim import (
+from lpc_core.control.aim import (
     AimParams,
     AimState,
     aim_step,

@@ -324,7 +324,7 @@ def _finite_floats(lo: float = -1e3, hi: float = 1e3) -> st.SearchStrategy[float
 
 
 # Points reach the fits through float32 on the wire: beyond that range (about 1e154 squared)
-# the fits overflow with OverflowError (reported, lpc_core/fit.py), which the bus cannot send.
+# the fits overflow with OverflowError (reported, perception/fit.py), which the bus cannot send.
 any_floats = st.floats(allow_nan=True, allow_infinity=True, width=32)
 point_sets = st.one_of(
     # Plausible scan-line points, some duplicated, some far away.
@@ -344,7 +344,7 @@ point_sets = st.one_of(
 def test_fits_give_a_fit_or_a_failure_on_any_points(
     points: list[tuple[float, float]], threshold: float, seed: int
 ) -> None:
-    from lpc_core.fit import fit_circle, fit_ellipse, fit_line
+    from lpc_core.perception.fit import fit_circle, fit_ellipse, fit_line
 
     arr = np.array(points, dtype=np.float64).reshape(-1, 2)
     for fit in (fit_line, fit_circle, fit_ellipse):
@@ -364,7 +364,7 @@ def test_fits_give_a_fit_or_a_failure_on_any_points(
     shape=st.lists(st.integers(0, 5), min_size=0, max_size=3), dtype=st.sampled_from(VALID_DTYPES)
 )
 def test_fits_reject_wrong_shapes(shape: list[int], dtype: str) -> None:
-    from lpc_core.fit import fit_circle, fit_ellipse, fit_line
+    from lpc_core.perception.fit import fit_circle, fit_ellipse, fit_line
 
     arr = np.zeros(shape, dtype=np.dtype(dtype))
     if arr.ndim == 2 and arr.shape[1] == 2:
@@ -389,7 +389,7 @@ intrinsics_msgs = st.builds(
 @SETTINGS
 @given(data=st.data())
 def test_scans_step_rejects_frames_of_the_wrong_size(data: st.DataObject) -> None:
-    from lpc_core.pipeline import ScansState, scans_step
+    from lpc_core.perception.pipeline import ScansState, scans_step
 
     intrinsics = data.draw(intrinsics_msgs)
     h, w = intrinsics.height, intrinsics.width
@@ -418,8 +418,8 @@ def test_scans_step_rejects_frames_of_the_wrong_size(data: st.DataObject) -> Non
 
 
 def test_cut_scan_lines_rejects_wrong_frames() -> None:
-    from lpc_core.intrinsics import Intrinsics
-    from lpc_core.scans import cut_scan_lines
+    from lpc_core.perception.intrinsics import Intrinsics
+    from lpc_core.perception.scans import cut_scan_lines
 
     intrinsics = Intrinsics(width=424, height=240, fx=213.0, fy=213.0, ppx=212.0, ppy=120.0)
     for depth in (
@@ -456,7 +456,7 @@ scan_messages = st.builds(
 @SETTINGS
 @given(scans=scan_messages)
 def test_aim_step_on_any_scan_lines(scans: ScanLines) -> None:
-    from lpc_core.aim import AimState, aim_step
+    from lpc_core.control.aim import AimState, aim_step
 
     try:
         _, outputs = aim_step(AimState(), scans, 0)
@@ -468,7 +468,7 @@ def test_aim_step_on_any_scan_lines(scans: ScanLines) -> None:
 @SETTINGS
 @given(scans=scan_messages, seed=st.integers(0, 2**31))
 def test_reconstruct_laser_on_any_scan_lines(scans: ScanLines, seed: int) -> None:
-    from lpc_core.laser import reconstruct_laser
+    from lpc_core.perception.laser import reconstruct_laser
 
     class Lines:
         def __init__(self, message: ScanLines) -> None:
@@ -500,7 +500,7 @@ targets = st.builds(
 @SETTINGS
 @given(target=targets)
 def test_aim_step_on_any_grasp_target(target: GraspTarget) -> None:
-    from lpc_core.aim import AimState, aim_step
+    from lpc_core.control.aim import AimState, aim_step
 
     state, outputs = aim_step(AimState(), target, 0)
     assert outputs == []
@@ -514,7 +514,7 @@ emg_channels = st.lists(any_floats, min_size=0, max_size=4)
 @SETTINGS
 @given(samples=st.lists(st.tuples(emg_channels, st.integers(-(2**40), 2**62)), max_size=40))
 def test_intent_step_on_any_samples(samples: list[tuple[list[float], int]]) -> None:
-    from lpc_core.emg import IntentState, intent_step
+    from lpc_core.control.emg import IntentState, intent_step
 
     state = IntentState()
     for channels, t_ns in samples:
@@ -563,7 +563,7 @@ controller_messages = st.one_of(
     )
 )
 def test_controller_step_on_any_message_sequence(steps: list[tuple[Any, int]]) -> None:
-    from lpc_core.controller import ControllerCore, Tick, TransitionError, controller_step
+    from lpc_core.control.controller import ControllerCore, Tick, TransitionError, controller_step
 
     core, now = ControllerCore(), 1_000_000_000
     for message, dt in steps:
@@ -602,7 +602,7 @@ def test_controller_step_on_any_message_sequence(steps: list[tuple[Any, int]]) -
     )
 )
 def test_tactor_bridge_step_on_any_commands(events: list[tuple[Any, int]]) -> None:
-    from lpc_core.tactor_bridge import TICK, BridgeState, bridge_step
+    from lpc_core.devices.tactor_bridge import TICK, BridgeState, bridge_step
 
     state, now = BridgeState(), 0
     for event, dt in events:
@@ -628,8 +628,8 @@ def test_tactor_bridge_step_on_any_commands(events: list[tuple[Any, int]]) -> No
     )
 )
 def test_window_step_on_any_reconstructions(frames: list[tuple[Any, ...]]) -> None:
-    from lpc_core.reconstruction import Reconstruction as Core
-    from lpc_core.window import WindowState, window_step
+    from lpc_core.perception.reconstruction import Reconstruction as Core
+    from lpc_core.perception.window import WindowState, window_step
 
     state, seq, t_ns = WindowState(), 0, 0
     for shape, width, angle, dseq, dt in frames:

@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from services.cli import bench_accuracy
+from services.cli.bench import accuracy as bench_accuracy
 
 
 def _run(argv: list[str]) -> int:

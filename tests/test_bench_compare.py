@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import re
 
-from services.cli import bench_compare
+from services.cli.bench import compare as bench_compare
 
 
 def _args(*argv: str) -> argparse.Namespace:

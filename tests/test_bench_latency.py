@@ -6,8 +6,8 @@ import argparse
 
 import pytest
 
-from lpc_core.tactor_protocol import Command
-from services.cli import bench_latency
+from lpc_core.devices.tactor_protocol import Command
+from services.cli.bench import latency as bench_latency
 from services.drivers.tactor_sim import SimEvent
 
 MS = 1_000_000

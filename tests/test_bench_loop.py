@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lpc_core.controller import ControllerCore, ControllerParams, controller_step
-from lpc_core.controller import Tick as ControllerTick
-from lpc_core.emg import EmgProfile
-from lpc_core.emg_sim import MuscleParams, Tick, UserState, user_step
-from lpc_core.hand import HandCommand, HandState, hand_step
+from lpc_core.control.controller import ControllerCore, ControllerParams, controller_step
+from lpc_core.control.controller import Tick as ControllerTick
+from lpc_core.control.emg import EmgProfile
+from lpc_core.devices.hand import HandCommand
+from lpc_core.sim.emg_sim import MuscleParams, Tick, UserState, user_step
+from lpc_core.sim.hand import HandState, hand_step
 from schemas import AimCue, ControllerState, GraspTarget, ProsthesisCommand, ProsthesisState
-from services.cli.bench_loop import analyse
+from services.cli.bench.loop import analyse
 from services.mcap_log import LogWriter
 
 KEYS = {

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.cli.bench_soak import memory_slope
+from services.cli.bench.soak import memory_slope
 from tests.conftest import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -29,7 +29,7 @@ def test_soak_smoke_reports_every_process(tmp_path: Path) -> None:
     out = tmp_path / "soak.json"
     result = subprocess.run(
         [
-            sys.executable, "-m", "services.cli.bench_soak", "--minutes", "0.08",
+            sys.executable, "-m", "services.cli.bench.soak", "--minutes", "0.08",
             "--sample-every", "0.5", "--warmup", "1", "--port", str(free_port()),
             "--services", "camera", "scans", "--json", str(out),
         ],

@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from services.cli import bench_speed
+from services.cli.bench import speed as bench_speed
 
 
 def test_bench_speed_quick_prints_stages_and_profile(capsys: pytest.CaptureFixture[str]) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from lpc_core.can_protocol import (
+from lpc_core.devices.can_protocol import (
     COMMAND_ID,
     EMG_IDS,
     STATUS_ID,
@@ -23,7 +23,7 @@ from lpc_core.can_protocol import (
     encode_status,
     robolimb_velocity,
 )
-from lpc_core.hand import HandCommand, HandStatus
+from lpc_core.devices.hand import HandCommand, HandStatus
 
 
 def test_command_layout_is_big_endian_int16_counter_and_enable() -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from lpc_core.emg_sim import MuscleParams
+from lpc_core.sim.emg_sim import MuscleParams
 from services.cli import main
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from lpc_core.intrinsics import Intrinsics
+from lpc_core.perception.intrinsics import Intrinsics
 from services.cli import reconstruct
 
 INTR = Intrinsics()
@@ -141,7 +141,7 @@ def test_reconstruct_method_table_maps_laser() -> None:
 def test_reconstruct_reads_depth_frames_from_mcap(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from lpc_core.pipeline import intrinsics_to_message
+    from lpc_core.perception.pipeline import intrinsics_to_message
     from schemas import DepthFrame, to_wire
     from services.mcap_log import LogWriter
 

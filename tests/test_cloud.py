@@ -1,7 +1,7 @@
-"""Tests of lpc_core.cloud, the full-point-cloud benchmark method.
+"""Tests of lpc_core.perception.cloud, the full-point-cloud benchmark method.
 
 Frames come from a small ray caster below (primitives seen by the 424x240 D435 stand-in, range
-noise 0.3 mm RMS, 1 mm quantisation), so these tests do not depend on lpc_core.scene.
+noise 0.3 mm RMS, 1 mm quantisation), so these tests do not depend on lpc_core.sim.scene.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lpc_core.cloud import (
+from lpc_core.perception.cloud import (
     CloudParams,
     CylinderModel,
     PlaneModel,
@@ -26,7 +26,7 @@ from lpc_core.cloud import (
     smallest_eigenvectors,
     voxel_downsample,
 )
-from lpc_core.intrinsics import Intrinsics
+from lpc_core.perception.intrinsics import Intrinsics
 
 INTR = Intrinsics()
 PARAMS = CloudParams()
@@ -349,7 +349,11 @@ def test_reconstruct_cloud_is_reproducible_for_a_seed():
 
 def test_reconstruct_cloud_from_a_depth_frame_message():
     # What the reconstructor service does with --method cloud: decode, then call.
-    from lpc_core.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
+    from lpc_core.perception.pipeline import (
+        depth_image,
+        intrinsics_from_message,
+        intrinsics_to_message,
+    )
     from schemas import DepthFrame, decode, encode, to_wire
 
     depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.025), _hit_plane((0, 0, 1), (0, 0, 0.225)))

@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from lpc_core.controller import (
+from lpc_core.control.controller import (
     EMG,
     HAND,
     TARGET,
@@ -21,8 +21,9 @@ from lpc_core.controller import (
     controller_step,
     transition,
 )
-from lpc_core.emg import EmgProfile
-from lpc_core.hand import HandCommand, HandState, hand_step
+from lpc_core.control.emg import EmgProfile
+from lpc_core.devices.hand import HandCommand
+from lpc_core.sim.hand import HandState, hand_step
 from schemas import (
     AimCue,
     ControllerState,

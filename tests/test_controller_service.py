@@ -10,8 +10,8 @@ import time
 import numpy as np
 import zenoh
 
-from lpc_core.emg import EmgProfile, Gesture, detect
-from lpc_core.emg_sim import MuscleParams
+from lpc_core.control.emg import EmgProfile, Gesture, detect
+from lpc_core.sim.emg_sim import MuscleParams
 from schemas import (
     AimCue,
     ControllerState,

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import zenoh
 
-from lpc_core.intrinsics import D435_424X240, Intrinsics
-from lpc_core.pipeline import depth_image, intrinsics_from_message
+from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
+from lpc_core.perception.pipeline import depth_image, intrinsics_from_message
 from schemas import decode
 from services.drivers.depth import EndOfStream, RealSenseSource, SourceUnavailable
 from services.drivers.errors import DeviceUnavailable, OperationError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lpc_core.emg import (
+from lpc_core.control.emg import (
     EmgProfile,
     Gesture,
     IntentState,
@@ -16,7 +16,7 @@ from lpc_core.emg import (
     proportional_velocity,
     smooth,
 )
-from lpc_core.emg_sim import (
+from lpc_core.sim.emg_sim import (
     MuscleParams,
     MuscleState,
     co_contraction,

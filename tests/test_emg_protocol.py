@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from lpc_core.emg_protocol import FrameParser, crc16, encode_frame
+from lpc_core.devices.emg_protocol import FrameParser, crc16, encode_frame
 from services.drivers.emg import SerialEmg
 from services.drivers.errors import DeviceUnavailable, OperationError
 

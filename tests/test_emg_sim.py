@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lpc_core.controller import ControllerCore, ControllerParams, State, controller_step
-from lpc_core.controller import Tick as ControllerTick
-from lpc_core.emg import EmgProfile
-from lpc_core.emg_sim import (
+from lpc_core.control.controller import ControllerCore, ControllerParams, State, controller_step
+from lpc_core.control.controller import Tick as ControllerTick
+from lpc_core.control.emg import EmgProfile
+from lpc_core.devices.hand import HandCommand
+from lpc_core.sim.emg_sim import (
     MuscleParams,
     MuscleState,
     Segment,
@@ -19,7 +20,7 @@ from lpc_core.emg_sim import (
     simulate_emg,
     user_step,
 )
-from lpc_core.hand import HandCommand, HandState, hand_step
+from lpc_core.sim.hand import HandState, hand_step
 from schemas import AimCue, ControllerState, GraspTarget, ProsthesisCommand, ProsthesisState
 
 PARAMS = MuscleParams()

@@ -34,8 +34,8 @@ import psutil
 import pytest
 import zenoh
 
-from lpc_core import can_protocol as cp
-from lpc_core.intrinsics import D435_424X240
+from lpc_core.devices import can_protocol as cp
+from lpc_core.perception.intrinsics import D435_424X240
 from schemas import BadMessage, DepthFrame, Health, TactorCommand, decode, encode, to_wire
 from services import camera, prosthesis_bridge
 from services.cli.up import SERVICES

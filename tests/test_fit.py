@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from lpc_core.fit import (
+from lpc_core.perception.fit import (
     CircleFit,
     CircleModel,
     EllipseFit,

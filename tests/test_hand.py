@@ -6,7 +6,8 @@ import math
 
 import pytest
 
-from lpc_core.hand import HandCommand, HandParams, HandState, HandStatus, hand_step
+from lpc_core.devices.hand import HandCommand, HandStatus
+from lpc_core.sim.hand import HandParams, HandState, hand_step
 
 MS = 1_000_000
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from lpc_core.laser import (
+from lpc_core.perception.laser import (
     LaserParams,
     analyse_lines,
     principal_direction,
@@ -22,7 +22,7 @@ from lpc_core.laser import (
     sort_around,
     sphere_from_circles,
 )
-from lpc_core.reconstruction import wrap_half_turn
+from lpc_core.perception.reconstruction import wrap_half_turn
 
 Hit = Callable[[np.ndarray], np.ndarray]  # (n, 3) ray directions with z = 1 -> (n,) depth
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)

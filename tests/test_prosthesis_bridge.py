@@ -11,8 +11,8 @@ import can
 import pytest
 import zenoh
 
-from lpc_core import can_protocol as cp
-from lpc_core.hand import HandCommand, HandStatus
+from lpc_core.devices import can_protocol as cp
+from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisCommand, decode, encode
 from services.drivers.errors import DeviceUnavailable, DriverError, OperationError
 from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand

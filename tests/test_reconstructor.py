@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from lpc_core.cloud import reconstruct_cloud
-from lpc_core.intrinsics import Intrinsics
-from lpc_core.pipeline import ScansState, intrinsics_to_message, scans_step
-from lpc_core.reconstructor import (
+from lpc_core.perception.cloud import reconstruct_cloud
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.pipeline import ScansState, intrinsics_to_message, scans_step
+from lpc_core.perception.reconstructor import (
     Dropped,
     PoolParams,
     PoolState,
@@ -29,7 +29,7 @@ from lpc_core.reconstructor import (
     scan_lines_from_message,
     warmup_frame,
 )
-from lpc_core.scene import Plane, Scene, cylinder_object, render_depth, sphere_object
+from lpc_core.sim.scene import Plane, Scene, cylinder_object, render_depth, sphere_object
 from schemas import (
     DepthFrame,
     GraspTarget,

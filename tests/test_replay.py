@@ -13,11 +13,11 @@ import msgspec
 import numpy as np
 import pytest
 
-from lpc_core import scene as sc
-from lpc_core.cloud import CloudParams
-from lpc_core.intrinsics import Intrinsics
-from lpc_core.pipeline import ScansState, intrinsics_to_message, scans_step
-from lpc_core.reconstructor import ReconstructState, reconstruct_cloud_step
+from lpc_core.perception.cloud import CloudParams
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.pipeline import ScansState, intrinsics_to_message, scans_step
+from lpc_core.perception.reconstructor import ReconstructState, reconstruct_cloud_step
+from lpc_core.perception.scans import ScanParams
 from lpc_core.replay import (
     TICK,
     Node,
@@ -30,7 +30,7 @@ from lpc_core.replay import (
     first_difference,
     plan,
 )
-from lpc_core.scans import ScanParams
+from lpc_core.sim import scene as sc
 from schemas import (
     AimCue,
     DepthFrame,
@@ -524,7 +524,8 @@ def test_replay_cli_workers_start_from_recorded_depth(
     """Where the replay cuts the scans from recorded depth, the workers cut them and go on
     with every frame's reconstruction and object search: none is left to this process, and
     the bytes are those of the in-process replay."""
-    from lpc_core import aim, pipeline, reconstructor
+    from lpc_core.control import aim
+    from lpc_core.perception import pipeline, reconstructor
 
     record_session(tmp_path / "rec.mcap", depth_images, n_frames=30)
     in_process: Counter[str] = Counter()
@@ -679,7 +680,7 @@ def test_recording_catches_a_changed_algorithm(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     def blind_aim(controller_params: Any = None, **kwargs: Any) -> tuple[Node, ...]:
-        from lpc_core.aim import AimParams, AimState
+        from lpc_core.control.aim import AimParams, AimState
 
         nodes = default_nodes(controller_params, **kwargs)
         aim = next(n for n in nodes if n.name == "aim")

@@ -1,4 +1,5 @@
-"""Tests for lpc_core.scans: the capture-volume crop and the four scan lines, on analytic scenes."""
+"""Tests for lpc_core.perception.scans: the capture-volume crop and the four scan lines,
+on analytic scenes."""
 
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from lpc_core.intrinsics import D435_424X240, Intrinsics
-from lpc_core.scans import ScanLines, ScanParams, capture_points, cut_scan_lines
-from lpc_core.scene import NoiseModel, Plane, Scene, render_depth, sphere_object
+from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
+from lpc_core.perception.scans import ScanLines, ScanParams, capture_points, cut_scan_lines
+from lpc_core.sim.scene import NoiseModel, Plane, Scene, render_depth, sphere_object
 
 INTR = D435_424X240
 PARAMS = ScanParams()
@@ -151,6 +152,7 @@ def test_cut_capture_count_is_the_capture_points(limits: tuple[float, float]) ->
     depth[:, ::7] = 65535
     count = cut_scan_lines(depth, INTR, params).capture_count
     assert count == len(capture_points(depth, INTR, params)) > 100
+
 
 def test_cut_invalid_input_raises_value_error_naming_depth() -> None:
     good = np.zeros((240, 424), np.uint16)

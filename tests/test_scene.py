@@ -1,12 +1,12 @@
-"""Tests for lpc_core.scene: analytic primitives, the renderer's geometry and its noise model."""
+"""Tests for lpc_core.sim.scene: analytic primitives, the renderer's geometry, its noise."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lpc_core.intrinsics import D435_424X240, Intrinsics
-from lpc_core.scene import (
+from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
+from lpc_core.sim.scene import (
     BumpyEllipsoid,
     Cone,
     ConvexPolyhedron,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lpc_core.solids import (
+from lpc_core.perception.solids import (
     CylinderSolid,
     PlaneSolid,
     SphereSolid,

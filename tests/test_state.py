@@ -6,7 +6,7 @@ from dataclasses import FrozenInstanceError, dataclass, field
 
 import pytest
 
-from lpc_core.state import evolve
+from lpc_core.control.state import evolve
 
 
 @dataclass(frozen=True)

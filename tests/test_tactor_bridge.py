@@ -8,7 +8,7 @@ import time
 import pytest
 import zenoh
 
-from lpc_core.tactor_bridge import (
+from lpc_core.devices.tactor_bridge import (
     PORT_OPENED,
     TICK,
     BridgeParams,
@@ -16,7 +16,7 @@ from lpc_core.tactor_bridge import (
     TactorProfile,
     bridge_step,
 )
-from lpc_core.tactor_protocol import OFF, TactorOutput
+from lpc_core.devices.tactor_protocol import OFF, TactorOutput
 from schemas import TactorCommand, encode
 from services.drivers.tactor_sim import TactorSim
 from services.drivers.tactors import SimDriver, TactorLink

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from lpc_core import tactor_protocol as tp
-from lpc_core.tactor_protocol import (
+from lpc_core.devices import tactor_protocol as tp
+from lpc_core.devices.tactor_protocol import (
     OFF,
     EaiCommand,
     EaiParser,

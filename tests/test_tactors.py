@@ -8,7 +8,7 @@ import tty
 
 import pytest
 
-from lpc_core.tactor_protocol import OFF, TactorOutput
+from lpc_core.devices.tactor_protocol import OFF, TactorOutput
 from services.drivers import tactors
 from services.drivers.errors import DeviceUnavailable, InitialisationError, OperationError
 from services.drivers.tactor_sim import TactorSim
@@ -68,6 +68,7 @@ def test_driver_simulator_keeps_a_bounded_history(
         assert d.sim.wait_for(lambda s: s.levels[3] > 0.75, 2.0)
         assert len(d.sim.events) == 20
         assert d.sim.events[-1].levels[3] > 0.75
+
 
 def test_driver_nak_is_received_as_a_reply() -> None:
     with open_driver("sim") as d:

@@ -1,14 +1,14 @@
-"""Tests for lpc_core.timeline: the scripted demo session as a pure function of time."""
+"""Tests for lpc_core.sim.timeline: the scripted demo session as a pure function of time."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lpc_core.intrinsics import D435_424X240
-from lpc_core.scans import cut_scan_lines
-from lpc_core.scene import NoiseModel, Scene, functional_objects, render_depth
-from lpc_core.timeline import SimTimeline, TimelineStop, default_timeline
+from lpc_core.perception.intrinsics import D435_424X240
+from lpc_core.perception.scans import cut_scan_lines
+from lpc_core.sim.scene import NoiseModel, Scene, functional_objects, render_depth
+from lpc_core.sim.timeline import SimTimeline, TimelineStop, default_timeline
 
 INTR = D435_424X240
 

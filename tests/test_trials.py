@@ -10,9 +10,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from lpc_core import scene as sc
-from lpc_core.cloud import CloudParams, crop_points
-from lpc_core.scans import cut_scan_lines
+from lpc_core.perception.cloud import CloudParams, crop_points
+from lpc_core.perception.scans import cut_scan_lines
+from lpc_core.sim import scene as sc
 from lpc_core.trials import (
     PAPER_SEQUENCE,
     TrialConfig,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from lpc_core.emg import EmgProfile
+from lpc_core.control.emg import EmgProfile
 from services.cli import up
 from services.drivers.emg import save_emg_profile
 

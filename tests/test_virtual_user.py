@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from lpc_core.aim import AimParams, tactor_shares
-from lpc_core.emg import EmgProfile, Gesture, detect
-from lpc_core.emg_sim import MuscleParams
-from lpc_core.virtual_user import (
+from lpc_core.control.aim import AimParams, tactor_shares
+from lpc_core.control.emg import EmgProfile, Gesture, detect
+from lpc_core.sim.emg_sim import MuscleParams
+from lpc_core.sim.virtual_user import (
     Learned,
     Percept,
     UserParams,

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from lpc_core.reconstruction import Reconstruction
-from lpc_core.window import WindowParams, WindowState, axial_median, window_step
+from lpc_core.perception.reconstruction import Reconstruction
+from lpc_core.perception.window import WindowParams, WindowState, axial_median, window_step
 
 FRAME_NS = 11_111_111  # 90 fps
 

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lpc_core import scene
-from lpc_core.intrinsics import Intrinsics
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.sim import scene
 
 SUITES = ("rotation", "functional", "irregular", "clutter")
 ROTATION_ANGLES_DEG = (0, 30, 60, 90, 120, 150)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lpc_core.emg import EmgProfile, calibrate
-from lpc_core.emg_sim import RATE_HZ, MuscleParams, MuscleState, simulate_emg
+from lpc_core.control.emg import EmgProfile, calibrate
+from lpc_core.sim.emg_sim import RATE_HZ, MuscleParams, MuscleState, simulate_emg
 from services.drivers.emg import (
     DEFAULT_PROFILE,
     HandEmg,

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lpc_core.intrinsics import Intrinsics
-from lpc_core.reconstruction import Reconstruction
-from lpc_core.window import WindowResult, WindowState, window_step
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.reconstruction import Reconstruction
+from lpc_core.perception.window import WindowResult, WindowState, window_step
 
 FRAME_PERIOD_NS = 11_111_111  # PNG frames carry no time: take them as 90 fps
 DEPTH_TOPIC = "lpc/camera/depth"
@@ -36,29 +36,29 @@ Method = Callable[[np.ndarray, Intrinsics, int], Reconstruction]
 
 
 def _laser(depth: np.ndarray, intrinsics: Intrinsics, seed: int) -> Reconstruction:
-    from lpc_core.laser import reconstruct_laser
-    from lpc_core.scans import cut_scan_lines
+    from lpc_core.perception.laser import reconstruct_laser
+    from lpc_core.perception.scans import cut_scan_lines
 
     return reconstruct_laser(cut_scan_lines(depth, intrinsics), seed=seed)
 
 
 def _paper(depth: np.ndarray, intrinsics: Intrinsics, seed: int) -> Reconstruction:
-    from lpc_core.laser import LaserParams, reconstruct_laser
-    from lpc_core.scans import cut_scan_lines
+    from lpc_core.perception.laser import LaserParams, reconstruct_laser
+    from lpc_core.perception.scans import cut_scan_lines
 
     return reconstruct_laser(cut_scan_lines(depth, intrinsics), LaserParams(variant="paper"), seed)
 
 
 def _cloud(depth: np.ndarray, intrinsics: Intrinsics, seed: int) -> Reconstruction:
-    from lpc_core.cloud import reconstruct_cloud
+    from lpc_core.perception.cloud import reconstruct_cloud
 
     return reconstruct_cloud(depth, intrinsics, seed=seed)
 
 
 METHODS: dict[str, Method] = {
-    "laser": _laser,  # the four-line method with lpc's 3-D solids (lpc_core.laser)
+    "laser": _laser,  # the four-line method with lpc's 3-D solids (lpc_core.perception.laser)
     "paper": _paper,  # the four-line method as the paper describes it
-    "cloud": _cloud,  # the full-point-cloud benchmark (lpc_core.cloud)
+    "cloud": _cloud,  # the full-point-cloud benchmark (lpc_core.perception.cloud)
 }
 
 
@@ -149,7 +149,7 @@ def png_frames(paths: list[str], intrinsics: Intrinsics) -> Iterator[Frame]:
 
 
 def mcap_frames(path: str, intrinsics: Intrinsics | None) -> Iterator[Frame]:
-    from lpc_core.pipeline import depth_image, intrinsics_from_message
+    from lpc_core.perception.pipeline import depth_image, intrinsics_from_message
     from services.mcap_log import McapLog, McapLogError
 
     try:

@@ -47,9 +47,9 @@ from typing import Any
 
 import msgspec
 
-from lpc_core import aim
-from lpc_core.pipeline import ScansState, scans_step
-from lpc_core.reconstructor import INPUT_TOPICS, reconstruct, release_step
+from lpc_core.control import aim
+from lpc_core.perception.pipeline import ScansState, scans_step
+from lpc_core.perception.reconstructor import INPUT_TOPICS, reconstruct, release_step
 from lpc_core.replay import (
     Node,
     Recorded,
@@ -287,8 +287,9 @@ def _states_from_flags(
 def _controller_params(args: argparse.Namespace, log: McapLog) -> tuple[Any, str]:
     """The controller's parameters as its service had them live, and how they were chosen,
     when its flags were not recorded."""
-    from lpc_core.controller import ControllerParams, sim_user_params
-    from lpc_core.emg import EmgProfile
+    from lpc_core.control.controller import ControllerParams
+    from lpc_core.control.emg import EmgProfile
+    from lpc_core.sim.emg_sim import sim_user_params
     from services.drivers.emg import load_emg_profile
 
     first = next(log.messages(["lpc/emg"], decode=True, ordered=False), None)

@@ -13,8 +13,8 @@ import math
 import sys
 import time
 
-from lpc_core.aim import tactor_placement
-from lpc_core.tactor_protocol import N_TACTORS, TactorOutput
+from lpc_core.control.aim import tactor_placement
+from lpc_core.devices.tactor_protocol import N_TACTORS, TactorOutput
 from services.drivers.errors import DriverError
 from services.drivers.tactors import (
     DEFAULT_PROFILE,

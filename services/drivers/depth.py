@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lpc_core.intrinsics import Intrinsics
+from lpc_core.perception.intrinsics import Intrinsics
 from schemas import ObjectTruth
 from services.drivers.errors import DeviceUnavailable, OperationError
 
@@ -37,13 +37,13 @@ class DepthReading:
 
 
 class SimSource:
-    """The built-in simulated scene (``lpc_core.simcam``): a pure function of time and seed."""
+    """The built-in simulated scene (``lpc_core.sim.simcam``): a pure function of time and seed."""
 
     name = "sim"
     paced = True  # the service's clock paces it
 
     def __init__(self, seed: int = 0) -> None:
-        from lpc_core.simcam import SimCamera
+        from lpc_core.sim.simcam import SimCamera
 
         self._camera = SimCamera(seed=seed)
         self.intrinsics: Intrinsics = self._camera.intrinsics
@@ -220,13 +220,13 @@ class ReplaySource:
         if first is None:
             raise SourceUnavailable(f"{file} holds no lpc/camera/depth messages")
         self._pending = first
-        from lpc_core.pipeline import intrinsics_from_message
+        from lpc_core.perception.pipeline import intrinsics_from_message
 
         self.intrinsics = intrinsics_from_message(first.message.intrinsics)
 
     def next_frame(self) -> tuple[int, DepthReading]:
         """The next frame and its recorded capture time; ``EndOfStream`` at the end."""
-        from lpc_core.pipeline import depth_image
+        from lpc_core.perception.pipeline import depth_image
 
         item = self._pending if self._pending is not None else next(self._messages, None)
         self._pending = None

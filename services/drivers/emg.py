@@ -4,7 +4,7 @@ A source's ``recv(timeout)`` returns the next ``(channels, t_ns)`` — the (flex
 envelopes and the time they were read — or ``None`` on timeout; ``shutdown()`` may be called
 twice. Sources:
 
-- ``SerialEmg``: an amplifier sending ``lpc_core.emg_protocol`` frames over a serial port
+- ``SerialEmg``: an amplifier sending ``lpc_core.devices.emg_protocol`` frames over a serial port
   (pyserial's ``serial_for_url``: ``/dev/ttyUSB0``, or ``loop://`` as the simulated backend);
 - ``HandEmg``: the EMG channels a hand reports in its CAN status (``services.drivers.hand``).
 
@@ -21,8 +21,8 @@ from typing import Any
 
 import serial
 
-from lpc_core.emg import EmgProfile
-from lpc_core.emg_protocol import FrameParser
+from lpc_core.control.emg import EmgProfile
+from lpc_core.devices.emg_protocol import FrameParser
 from services.drivers.errors import DeviceUnavailable, DriverError, OperationError
 from services.drivers.hand import open_hand
 

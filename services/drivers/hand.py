@@ -4,7 +4,7 @@ A driver opens a python-can bus (``interface="virtual"`` by default: no hardware
 ``"socketcan"`` with ``channel="can0"`` or ``"vcan0"`` on Linux), sends velocity commands and
 receives status. Profiles (``BACKENDS``):
 
-- ``"lpc"``: lpc's own layout (``lpc_core.can_protocol``), velocity for grasp and wrist,
+- ``"lpc"``: lpc's own layout (``lpc_core.devices.can_protocol``), velocity for grasp and wrist,
   status with wrist angle, aperture, grip force and EMG;
 - ``"robolimb"``: the Touch Bionics RoboLimb's digit commands; it has no wrist and reports only
   each digit's status and current, so the driver estimates the aperture from the commanded
@@ -26,8 +26,8 @@ from typing import Any, ClassVar
 
 import can
 
-from lpc_core import can_protocol as cp
-from lpc_core.hand import HandCommand, HandStatus
+from lpc_core.devices import can_protocol as cp
+from lpc_core.devices.hand import HandCommand, HandStatus
 from services.drivers.errors import (
     DeviceUnavailable,
     DriverError,

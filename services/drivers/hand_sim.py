@@ -2,7 +2,7 @@
 
 It opens its own python-can bus on the same channel as the driver (python-can's virtual bus
 connects buses of one process; socketcan's ``vcan0`` connects processes), listens for velocity
-commands in the ``lpc`` or ``robolimb`` profile, advances ``lpc_core.hand`` in real time and
+commands in the ``lpc`` or ``robolimb`` profile, advances ``lpc_core.sim.hand`` in real time and
 sends status at 100 Hz. Like real hands it has its own fail-safe: with no command for
 ``hand_watchdog_s`` it stops and flags it (PSYONIC's hand leaves API mode after 300 ms).
 """
@@ -18,8 +18,9 @@ from typing import Any
 
 import can
 
-from lpc_core import can_protocol as cp
-from lpc_core.hand import HandCommand, HandParams, HandState, HandStatus, hand_step
+from lpc_core.devices import can_protocol as cp
+from lpc_core.devices.hand import HandCommand, HandStatus
+from lpc_core.sim.hand import HandParams, HandState, hand_step
 from services.drivers.errors import DeviceUnavailable
 from services.drivers.hand import DEFAULT_CHANNEL
 

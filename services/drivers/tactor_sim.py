@@ -20,8 +20,8 @@ import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from lpc_core import tactor_protocol as tp
-from lpc_core.tactor_protocol import N_TACTORS, Command, EaiCommand, FrameError, NakCode
+from lpc_core.devices import tactor_protocol as tp
+from lpc_core.devices.tactor_protocol import N_TACTORS, Command, EaiCommand, FrameError, NakCode
 
 # Data length each EAI command must carry (firmware version and all off carry none).
 _EAI_LENGTHS = {

@@ -1,6 +1,6 @@
 """Tactor drivers: one interface, three backends chosen by name (python-can's shape).
 
-- ``eai``: the EAI tactor controller's serial framing (``lpc_core.tactor_protocol``), 115200 baud.
+- ``eai``: the EAI tactor controller's serial framing (``tactor_protocol``), 115200 baud.
 - ``line``: the documented line protocol for DIY boards (``T a0 a1 a2 a3`` / ``OK``).
 - ``sim``: a simulated controller on a pseudo-terminal (``services.drivers.tactor_sim``),
   driven through the real ``eai`` (or ``line``) backend; the default when no port is given.
@@ -33,9 +33,9 @@ from typing import Any, ClassVar
 
 import serial
 
-from lpc_core import tactor_protocol as tp
-from lpc_core.tactor_bridge import TactorProfile
-from lpc_core.tactor_protocol import OFF, Reply, TactorOutput
+from lpc_core.devices import tactor_protocol as tp
+from lpc_core.devices.tactor_bridge import TactorProfile
+from lpc_core.devices.tactor_protocol import OFF, Reply, TactorOutput
 from services.drivers.errors import (
     DeviceUnavailable,
     DriverError,

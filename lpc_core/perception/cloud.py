@@ -1,0 +1,1040 @@
+"""The full-point-cloud benchmark: 3-D models fitted to the whole cropped cloud.
+
+This is the controller the paper measures its four-line method against (Castro et al. 2022,
+``castro2022continuous`` in ``reference/paper.tex``): crop the depth frame to a box in front
+of the hand, downsample it on a 2 mm voxel grid, remove the supporting plane, split the rest
+into Euclidean clusters, take the segment nearest the optical axis, fit a sphere, a cylinder
+and a cuboid (up to three mutually perpendicular planes) by RANSAC and keep the model with
+the best inlier fraction. The output follows the laser method's conventions
+(``lpc_core.perception.reconstruction.Reconstruction`` with ``method="cloud"``).
+
+Every RANSAC here is vectorised: a ``(trials, k)`` index array is drawn from the frame's
+generator, every minimal hypothesis is solved at once and all are scored in one broadcast on a
+random subset of the points; only the winner is refined by least squares on all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Protocol, Self
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.reconstruction import Reconstruction, wrap_half_turn
+
+
+@dataclass(frozen=True, kw_only=True)
+class CloudParams:
+    """Every threshold of the cloud method, in SI units.
+
+    The crop box and the 2 mm voxel are the benchmark controller's own settings; the rest were
+    tuned on simulated D435 frames (``lpc bench compare``).
+    """
+
+    crop_xy_m: float = 0.100  # |x|, |y| within this
+    crop_z_min_m: float = 0.115
+    crop_z_max_m: float = 0.315
+    voxel_m: float = 0.002
+    # Supporting plane: the largest plane with (almost) nothing behind it, seen from the camera.
+    support_planes: int = 1
+    support_trials: int = 200  # a table a quarter of the cloud is still found 96% of the time
+    support_threshold_m: float = 0.003
+    support_min_points: int = 150
+    support_max_behind_fraction: float = 0.03
+    # Clusters: connected cells of this size (26-neighbourhood). Points closer than a cell
+    # along every axis always join; gaps wider than 2 sqrt(3) cells (14 mm) always split.
+    cluster_cell_m: float = 0.004
+    # The optical axis "pierces" a segment or a face that comes this close to it.
+    pierce_tolerance_m: float = 0.0045
+    min_segment_points: int = 100
+    # Normals by local PCA over this many neighbours (the point itself included).
+    normal_neighbours: int = 10
+    # Model fitting.
+    fit_threshold_m: float = 0.0015
+    normal_tolerance_rad: float = float(np.radians(30.0))
+    radius_min_m: float = 0.005
+    radius_max_m: float = 0.060
+    sphere_trials: int = 128
+    cylinder_trials: int = 128
+    face_trials: int = 96
+    score_sample: int = 384
+    fit_points: int = 1000  # the models are fitted on at most this many points of the segment
+    refine_iterations: int = 2
+    min_face_fraction: float = 0.05
+    min_inlier_fraction: float = 0.3
+
+    def __post_init__(self) -> None:
+        positive = (
+            "crop_xy_m", "crop_z_min_m", "crop_z_max_m", "voxel_m", "support_threshold_m",
+            "cluster_cell_m", "pierce_tolerance_m", "fit_threshold_m", "normal_tolerance_rad",
+            "radius_min_m", "radius_max_m",
+        )  # fmt: skip
+        for name in positive:
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive finite number, got {value}")
+        counts = (
+            "support_trials", "min_segment_points", "sphere_trials", "cylinder_trials",
+            "face_trials", "score_sample", "support_min_points", "fit_points",
+        )  # fmt: skip
+        for name in counts:
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.normal_neighbours < 3:
+            raise ValueError(f"normal_neighbours must be at least 3, got {self.normal_neighbours}")
+        if self.support_planes < 0 or self.refine_iterations < 0:
+            raise ValueError("support_planes and refine_iterations must not be negative")
+        if self.crop_z_max_m <= self.crop_z_min_m:
+            raise ValueError("crop_z_max_m must be greater than crop_z_min_m")
+        if self.radius_max_m <= self.radius_min_m:
+            raise ValueError("radius_max_m must be greater than radius_min_m")
+        for name in ("support_max_behind_fraction", "min_face_fraction", "min_inlier_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be within [0, 1], got {getattr(self, name)}")
+
+
+# --------------------------------------------------------------------------- fit models
+
+
+@dataclass(frozen=True)
+class FailedFit:
+    """A fit that did not produce a model: falsy, and says why."""
+
+    reason: str
+
+    def __bool__(self) -> bool:
+        return False
+
+
+class FitModel(Protocol):
+    """What RANSAC refinement needs from a 3-D model: estimate from points, then residuals."""
+
+    @classmethod
+    def estimate(
+        cls, points: np.ndarray, normals: np.ndarray | None = None
+    ) -> Self | FailedFit: ...
+
+    def residuals(self, points: np.ndarray) -> np.ndarray: ...
+
+
+def _as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {points.shape}")
+    return points
+
+
+@dataclass(frozen=True)
+class PlaneModel:
+    """Plane ``n . p + d = 0`` with ``|n| = 1``, fitted by total least squares (PCA).
+
+    Minimises the sum of squared point-to-plane distances; needs at least 3 points. The normal
+    is oriented so that the camera (the origin) lies on its negative side (``d < 0``), so a
+    positive residual sign means "behind the plane".
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> uv = rng.uniform(-0.05, 0.05, (200, 2))
+    >>> points = np.column_stack([uv, np.full(200, 0.2)])
+    >>> model = PlaneModel.estimate(points)
+    >>> np.allclose(model.normal, [0, 0, 1]), round(model.offset, 6)
+    (True, -0.2)
+    """
+
+    normal: np.ndarray  # (3,), unit
+    offset: float  # metres
+
+    @property
+    def params(self) -> tuple[float, float, float, float]:
+        return (*map(float, self.normal), float(self.offset))
+
+    @classmethod
+    def estimate(
+        cls, points: np.ndarray, normals: np.ndarray | None = None
+    ) -> PlaneModel | FailedFit:
+        points = _as_points(points)
+        if len(points) < 3:
+            return FailedFit(f"a plane needs 3 points, got {len(points)}")
+        centroid = points.mean(axis=0)
+        _, s, vt = np.linalg.svd(points - centroid, full_matrices=False)
+        if s[1] <= 1e-9 * max(s[0], 1e-12):
+            return FailedFit("points are collinear")
+        normal = vt[2]
+        offset = -float(normal @ centroid)
+        if offset > 0:
+            normal, offset = -normal, -offset
+        return cls(normal, offset)
+
+    def signed_distances(self, points: np.ndarray) -> np.ndarray:
+        return _as_points(points) @ self.normal + self.offset
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        return np.abs(self.signed_distances(points))
+
+
+@dataclass(frozen=True)
+class SphereModel:
+    """Sphere ``|p - c| = r``, fitted algebraically (Kasa's linear form).
+
+    Solves ``|p|^2 + D.p + G = 0`` in the least-squares sense on centred, scaled points, then
+    ``c = -D/2`` and ``r^2 = |c|^2 - G``; needs at least 4 non-coplanar points.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> v = rng.normal(size=(300, 3))
+    >>> points = 0.03 * v / np.linalg.norm(v, axis=1, keepdims=True) + [0.0, 0.01, 0.2]
+    >>> model = SphereModel.estimate(points)
+    >>> np.round(model.center, 6).tolist(), round(model.radius, 6)
+    ([0.0, 0.01, 0.2], 0.03)
+    """
+
+    center: np.ndarray  # (3,) metres
+    radius: float  # metres
+
+    @property
+    def params(self) -> tuple[float, float, float, float]:
+        return (*map(float, self.center), float(self.radius))
+
+    @classmethod
+    def estimate(
+        cls, points: np.ndarray, normals: np.ndarray | None = None
+    ) -> SphereModel | FailedFit:
+        points = _as_points(points)
+        if len(points) < 4:
+            return FailedFit(f"a sphere needs 4 points, got {len(points)}")
+        mean = points.mean(axis=0)
+        scale = max(float(np.abs(points - mean).max()), 1e-9)
+        q = (points - mean) / scale
+        a = np.column_stack([q, np.ones(len(q))])
+        b = -(q * q).sum(axis=1)
+        solution, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+        if rank < 4:
+            return FailedFit("points are coplanar")
+        center = -solution[:3] / 2
+        r2 = float(center @ center - solution[3])
+        if r2 <= 0:
+            return FailedFit("imaginary radius")
+        return cls(center * scale + mean, float(np.sqrt(r2) * scale))
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        return np.abs(np.linalg.norm(_as_points(points) - self.center, axis=1) - self.radius)
+
+
+@dataclass(frozen=True)
+class CylinderModel:
+    """Infinite cylinder: distance from ``p`` to the line ``c + t a`` equals ``r``.
+
+    The axis ``a`` is the direction least represented in the surface normals (the smallest
+    eigenvector of ``sum n n^T``); the centre and radius come from an algebraic circle fit of
+    the points projected on the plane normal to ``a``. Needs at least 3 points with normals.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> phi, t = rng.uniform(0, 2 * np.pi, 300), rng.uniform(-0.05, 0.05, 300)
+    >>> normals = np.column_stack([np.cos(phi), np.zeros(300), np.sin(phi)])
+    >>> points = 0.02 * normals + np.column_stack([np.zeros(300), t, np.full(300, 0.2)])
+    >>> model = CylinderModel.estimate(points, normals)
+    >>> np.round(np.abs(model.axis), 6).tolist(), round(model.radius, 6)
+    ([0.0, 1.0, 0.0], 0.02)
+    """
+
+    center: np.ndarray  # (3,) a point on the axis, metres
+    axis: np.ndarray  # (3,) unit
+    radius: float  # metres
+
+    @property
+    def params(self) -> tuple[float, ...]:
+        return (*map(float, self.center), *map(float, self.axis), float(self.radius))
+
+    @classmethod
+    def estimate(
+        cls, points: np.ndarray, normals: np.ndarray | None = None
+    ) -> CylinderModel | FailedFit:
+        points = _as_points(points)
+        if normals is None:
+            return FailedFit("a cylinder fit needs normals")
+        normals = _as_points(normals, "normals")
+        if len(points) < 3 or len(normals) != len(points):
+            return FailedFit(f"a cylinder needs 3 points with normals, got {len(points)}")
+        eigenvalues, eigenvectors = np.linalg.eigh(normals.T @ normals)
+        if eigenvalues[1] <= 1e-6 * eigenvalues[2]:
+            return FailedFit("normals are all parallel")
+        axis = eigenvectors[:, 0]
+        circle = _fit_circle_across(points, axis)
+        if isinstance(circle, FailedFit):
+            return circle
+        center, radius = circle
+        return cls(center, axis, radius)
+
+    def distances_to_axis(self, points: np.ndarray) -> np.ndarray:
+        v = _as_points(points) - self.center
+        along = v @ self.axis
+        return np.sqrt(np.maximum((v * v).sum(axis=1) - along * along, 0.0))
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        return np.abs(self.distances_to_axis(points) - self.radius)
+
+
+def _orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(axis, e1)
+
+
+def _fit_circle_across(
+    points: np.ndarray, axis: np.ndarray
+) -> tuple[np.ndarray, float] | FailedFit:
+    """Algebraic circle fit (Kasa) of the points projected across ``axis``."""
+    e1, e2 = _orthonormal_basis(axis)
+    uv = np.column_stack([points @ e1, points @ e2])
+    mean = uv.mean(axis=0)
+    scale = max(float(np.abs(uv - mean).max()), 1e-9)
+    q = (uv - mean) / scale
+    a = np.column_stack([q, np.ones(len(q))])
+    b = -(q * q).sum(axis=1)
+    solution, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+    if rank < 3:
+        return FailedFit("projected points are collinear")
+    c2 = -solution[:2] / 2
+    r2 = float(c2 @ c2 - solution[2])
+    if r2 <= 0:
+        return FailedFit("imaginary radius")
+    c2 = c2 * scale + mean
+    center = c2[0] * e1 + c2[1] * e2 + float(np.mean(points @ axis)) * axis
+    return center, float(np.sqrt(r2) * scale)
+
+
+# --------------------------------------------------------------------------- cloud steps
+
+
+@lru_cache(maxsize=8)
+def _rays(intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    rx, ry = intrinsics.pixel_rays()
+    return np.ascontiguousarray(rx).ravel(), np.ascontiguousarray(ry).ravel()
+
+
+def _check_depth(depth: np.ndarray, intrinsics: Intrinsics) -> None:
+    if not isinstance(depth, np.ndarray) or depth.dtype != np.uint16:
+        raise ValueError(
+            f"depth must be a uint16 ndarray, got {getattr(depth, 'dtype', type(depth))}"
+        )
+    expected = (intrinsics.height, intrinsics.width)
+    if depth.shape != expected:
+        raise ValueError(f"depth must have shape {expected} (intrinsics), got {depth.shape}")
+
+
+def crop_points(depth: np.ndarray, intrinsics: Intrinsics, params: CloudParams) -> np.ndarray:
+    """Deproject the depth pixels that fall in the crop box: ``(N, 3)`` metres, camera frame."""
+    _check_depth(depth, intrinsics)
+    flat = depth.ravel()
+    lo = int(np.ceil(params.crop_z_min_m / intrinsics.depth_scale))
+    hi = int(np.floor(params.crop_z_max_m / intrinsics.depth_scale))
+    index = np.flatnonzero((flat >= lo) & (flat <= hi))
+    rx, ry = _rays(intrinsics)
+    z = flat[index] * intrinsics.depth_scale
+    x = rx[index] * z
+    y = ry[index] * z
+    keep = (np.abs(x) <= params.crop_xy_m) & (np.abs(y) <= params.crop_xy_m)
+    return np.column_stack([x[keep], y[keep], z[keep]])
+
+
+def voxel_downsample(
+    points: np.ndarray, voxel_m: float, origin: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids of the points in each occupied voxel, and how many points each holds.
+
+    The grid is anchored at ``origin`` (default: the origin of the camera frame), so the same
+    point always falls in the same voxel. Returns ``(M, 3)`` centroids in voxel-key order and
+    ``(M,)`` counts.
+    """
+    points = _as_points(points)
+    if not np.isfinite(voxel_m) or voxel_m <= 0:
+        raise ValueError(f"voxel_m must be a positive finite number, got {voxel_m}")
+    if len(points) == 0:
+        return np.empty((0, 3)), np.empty(0, dtype=np.int64)
+    base = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
+    # Row-wise on the transpose: reductions along contiguous rows are several times faster.
+    columns = np.ascontiguousarray(points.T)
+    cells = np.floor((columns - base[:, None]) / voxel_m).astype(np.int64)
+    cells -= cells.min(axis=1)[:, None]
+    span = cells.max(axis=1) + 1
+    keys = (cells[0] * span[1] + cells[1]) * span[2] + cells[2]
+    # One sort and a segmented sum: cheaper than np.unique's inverse plus three bincounts.
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_keys[1:] != sorted_keys[:-1]]))
+    counts = np.diff(np.append(starts, len(keys)))
+    sums = np.add.reduceat(columns[:, order], starts, axis=1)
+    return np.ascontiguousarray((sums / counts).T), counts
+
+
+def _sample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
+    return np.arange(n) if n <= size else rng.choice(n, size, replace=False)
+
+
+def _plane_hypotheses(
+    p0: np.ndarray, p1: np.ndarray, p2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Planes through point triples ``(T, 3)`` each: unit normals facing away from the camera."""
+    a, b = p1 - p0, p2 - p0
+    # np.cross spelled out: its axis handling cost more than the products on small batches.
+    normals = np.column_stack(
+        (
+            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+        )
+    )
+    norms = np.linalg.norm(normals, axis=1)
+    valid = norms > 1e-10
+    normals = normals / np.where(valid, norms, 1.0)[:, None]
+    offsets = -(normals * p0).sum(axis=1)
+    flip = offsets > 0
+    normals[flip] *= -1
+    offsets[flip] *= -1
+    return normals, offsets, valid
+
+
+def find_support_plane(
+    points: np.ndarray, params: CloudParams, rng: np.random.Generator
+) -> np.ndarray | None:
+    """Mask of the supporting plane's points, or ``None`` when there is no such plane.
+
+    The supporting plane is the largest plane that has (almost) no point behind it as seen from
+    the camera: the table under an object qualifies; the front face of a box standing on it
+    does not, because the table and the box's sides lie behind that face.
+    """
+    n = len(points)
+    if n < max(3, params.support_min_points):
+        return None
+    trials = params.support_trials
+    picks = rng.integers(0, n, size=(trials, 3))
+    normals, offsets, valid = _plane_hypotheses(*(points[picks[:, i]] for i in range(3)))
+    sub = points[_sample(n, params.score_sample, rng)]
+    signed = sub @ normals.T + offsets  # (S, T)
+    inliers = (np.abs(signed) <= params.support_threshold_m).sum(axis=0)
+    behind = (signed > params.support_threshold_m).sum(axis=0)
+    ok = valid & (behind <= params.support_max_behind_fraction * len(sub))
+    if not ok.any():
+        return None
+    best = int(np.argmax(np.where(ok, inliers, -1)))
+    signed_all = points @ normals[best] + offsets[best]
+    mask = np.abs(signed_all) <= params.support_threshold_m
+    model = PlaneModel.estimate(points[mask])
+    if model:
+        signed_all = model.signed_distances(points)
+        mask = np.abs(signed_all) <= params.support_threshold_m
+    behind_all = int((signed_all > params.support_threshold_m).sum())
+    if mask.sum() < params.support_min_points or behind_all > (
+        params.support_max_behind_fraction * n
+    ):
+        return None
+    return mask
+
+
+def grid_clusters(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """Label of each point's cluster: connected components of the occupied cells of a grid.
+
+    Two points whose coordinates differ by at most ``cell_m`` along every axis fall in the same
+    or touching cells and so share a cluster; points more than ``2 sqrt(3) cell_m`` apart with
+    nothing between them never do. Labelling the occupancy grid (``scipy.ndimage.label``,
+    26-neighbourhood) costs a fraction of a k-d tree's pair search on the same cloud.
+    """
+    points = _as_points(points)
+    if not np.isfinite(cell_m) or cell_m <= 0:
+        raise ValueError(f"cell_m must be a positive finite number, got {cell_m}")
+    if len(points) == 0:
+        return np.empty(0, dtype=np.int64)
+    columns = np.ascontiguousarray(points.T)
+    cells = np.floor(columns / cell_m).astype(np.int64)
+    cells -= cells.min(axis=1)[:, None]
+    occupied = np.zeros(tuple(cells.max(axis=1) + 1), dtype=bool)
+    occupied[cells[0], cells[1], cells[2]] = True
+    grid, _ = ndimage.label(occupied, structure=np.ones((3, 3, 3), dtype=bool))
+    return grid[cells[0], cells[1], cells[2]].astype(np.int64) - 1
+
+
+def nearest_segment(
+    points: np.ndarray, labels: np.ndarray, min_points: int, tolerance_m: float
+) -> np.ndarray | None:
+    """Mask of the segment nearest the optical axis with at least ``min_points`` points.
+
+    Distance to the axis is the segment's closest point's; when the axis pierces several
+    segments (closest points within ``tolerance_m`` of it), the one nearest the camera wins.
+    """
+    if len(points) == 0:
+        return None
+    counts = np.bincount(labels)
+    order = np.argsort(labels, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    radial = np.hypot(points[order, 0], points[order, 1])
+    closest = np.minimum.reduceat(radial, starts)
+    nearest_z = np.minimum.reduceat(points[order, 2], starts)
+    big = counts >= min_points
+    if not big.any():
+        return None
+    pierced = big & (closest <= tolerance_m)
+    if pierced.any():
+        best = int(np.argmin(np.where(pierced, nearest_z, np.inf)))
+    else:
+        best = int(np.argmin(np.where(big, closest, np.inf)))
+    return labels == best
+
+
+def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
+    """Unit eigenvector of the smallest eigenvalue of each symmetric 3x3 matrix, ``(N, 3)``.
+
+    Closed form (Smith 1961, trigonometric eigenvalues), then the longest cross product of two
+    rows of ``A - lambda I``; about twice as fast as a batched ``eigh`` on small matrices.
+    """
+    q = (cov[:, 0, 0] + cov[:, 1, 1] + cov[:, 2, 2]) / 3
+    a00, a11, a22 = cov[:, 0, 0] - q, cov[:, 1, 1] - q, cov[:, 2, 2] - q
+    a01, a02, a12 = cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]
+    p = np.sqrt((a00**2 + a11**2 + a22**2 + 2 * (a01**2 + a02**2 + a12**2)) / 6)
+    safe = np.where(p > 0, p, 1.0)
+    det = a00 * (a11 * a22 - a12**2) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+    phi = np.arccos(np.clip(det / (2 * safe**3), -1.0, 1.0)) / 3
+    shift = 2 * p * np.cos(phi + 2 * np.pi / 3)  # the smallest eigenvalue, minus q
+    rows = np.stack(
+        [
+            np.column_stack([a00 - shift, a01, a02]),
+            np.column_stack([a01, a11 - shift, a12]),
+            np.column_stack([a02, a12, a22 - shift]),
+        ],
+        axis=1,
+    )
+    crosses = np.stack(
+        [
+            np.cross(rows[:, 0], rows[:, 1]),
+            np.cross(rows[:, 0], rows[:, 2]),
+            np.cross(rows[:, 1], rows[:, 2]),
+        ],
+        axis=1,
+    )
+    lengths = (crosses * crosses).sum(axis=2)
+    pick = np.argmax(lengths, axis=1)
+    take = np.arange(len(cov))
+    vectors = crosses[take, pick]
+    norms = np.sqrt(lengths[take, pick])
+    # A rank-0 or rank-1 deviation leaves no usable cross product: any unit vector will do.
+    degenerate = norms <= 1e-30
+    vectors[degenerate] = (0.0, 0.0, 1.0)
+    norms[degenerate] = 1.0
+    return vectors / norms[:, None]
+
+
+def estimate_normals(
+    points: np.ndarray, neighbours: int, at: np.ndarray | None = None
+) -> np.ndarray:
+    """Unit normals by PCA over nearest neighbours among ``points``, facing the camera.
+
+    Normals are computed at ``at`` (default: at every point of ``points``).
+    """
+    query = points if at is None else at
+    k = min(neighbours, len(points))
+    _, index = cKDTree(points).query(query, k=k)
+    local = points[index]  # (N, k, 3)
+    local = local - local.mean(axis=1, keepdims=True)
+    normals = smallest_eigenvectors(local.transpose(0, 2, 1) @ local)
+    flip = (normals * query).sum(axis=1) > 0
+    normals[flip] *= -1
+    return normals
+
+
+# --------------------------------------------------------------------------- model RANSAC
+
+
+@dataclass(frozen=True)
+class _Fit:
+    model: SphereModel | CylinderModel | PlaneModel
+    inliers: np.ndarray  # bool mask over the segment
+
+
+def _best(counts: np.ndarray, valid: np.ndarray) -> int | None:
+    scored = np.where(valid, counts, -1)
+    best = int(np.argmax(scored))
+    return None if scored[best] <= 0 else best
+
+
+def _score_round(
+    points: np.ndarray,
+    normals: np.ndarray,
+    centers: np.ndarray,
+    radii: np.ndarray,
+    axes: np.ndarray | None,
+    params: CloudParams,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Inlier counts of ``T`` spheres (``axes=None``) or cylinders on a random subset.
+
+    Distances are expanded into dot products (``|p - c|^2 = |p|^2 - 2 p.c + |c|^2``) so the
+    ``(S, T)`` tables come from matrix products instead of an ``(S, T, 3)`` broadcast.
+    """
+    sub = _sample(len(points), params.score_sample, rng)
+    origin = points.mean(axis=0)  # centred, so the expansion loses no precision
+    p, nrm, c = points[sub] - origin, normals[sub], centers - origin
+    dist2 = (p * p).sum(axis=1)[:, None] - 2 * (p @ c.T) + (c * c).sum(axis=1)
+    towards = (nrm * p).sum(axis=1)[:, None] - nrm @ c.T  # (p - c) . n
+    if axes is not None:
+        along = p @ axes.T - (c * axes).sum(axis=1)  # (p - c) . a
+        dist2 -= along * along
+        towards -= along * (nrm @ axes.T)  # the radial part's . n
+    dist = np.sqrt(np.maximum(dist2, 0.0))
+    close = np.abs(dist - radii) <= params.fit_threshold_m
+    facing = np.abs(towards) >= np.cos(params.normal_tolerance_rad) * dist
+    return (close & facing).sum(axis=0)
+
+
+def _sphere_inliers(
+    points: np.ndarray, normals: np.ndarray, model: SphereModel, params: CloudParams
+) -> np.ndarray:
+    v = points - model.center
+    dist = np.linalg.norm(v, axis=1)
+    facing = np.abs((v * normals).sum(axis=1)) >= np.cos(params.normal_tolerance_rad) * dist
+    return (np.abs(dist - model.radius) <= params.fit_threshold_m) & facing
+
+
+def fit_sphere(
+    points: np.ndarray, normals: np.ndarray, params: CloudParams, rng: np.random.Generator
+) -> _Fit | FailedFit:
+    """RANSAC sphere: 4-point hypotheses solved as one batch of 4x4 systems."""
+    n = len(points)
+    if n < 4:
+        return FailedFit("fewer than 4 points")
+    mean = points.mean(axis=0)
+    scale = 0.05
+    q = (points - mean) / scale
+    picks = rng.integers(0, n, size=(params.sphere_trials, 4))
+    qs = q[picks]  # (T, 4, 3)
+    a = np.concatenate([qs, np.ones((*qs.shape[:2], 1))], axis=2)
+    b = -(qs * qs).sum(axis=2)
+    det = np.linalg.det(a)
+    valid = np.abs(det) > 1e-9
+    a[~valid] = np.eye(4)
+    solution = np.linalg.solve(a, b[..., None])[..., 0]
+    centers = -solution[:, :3] / 2
+    r2 = (centers * centers).sum(axis=1) - solution[:, 3]
+    radii = np.sqrt(np.maximum(r2, 0.0)) * scale
+    centers = centers * scale + mean
+    valid &= (r2 > 0) & (radii >= params.radius_min_m) & (radii <= params.radius_max_m)
+    counts = _score_round(points, normals, centers, radii, None, params, rng)
+    best = _best(counts, valid)
+    if best is None:
+        return FailedFit("no sphere hypothesis")
+    model: SphereModel | FailedFit = SphereModel(centers[best], float(radii[best]))
+    inliers = _sphere_inliers(points, normals, model, params)
+    for _ in range(params.refine_iterations):
+        refined = SphereModel.estimate(points[inliers])
+        if not refined or not params.radius_min_m <= refined.radius <= params.radius_max_m:
+            break
+        refined_inliers = _sphere_inliers(points, normals, refined, params)
+        if refined_inliers.sum() < inliers.sum():
+            break
+        model, inliers = refined, refined_inliers
+    # A sphere seen from outside has its centre beyond the surface the camera sees.
+    if model.center[2] <= points[inliers, 2].min():
+        return FailedFit("sphere centre in front of its surface")
+    return _Fit(model, inliers)
+
+
+def _cylinder_inliers(
+    points: np.ndarray, normals: np.ndarray, model: CylinderModel, params: CloudParams
+) -> np.ndarray:
+    v = points - model.center
+    radial = v - np.outer(v @ model.axis, model.axis)
+    dist = np.linalg.norm(radial, axis=1)
+    facing = np.abs((radial * normals).sum(axis=1)) >= np.cos(params.normal_tolerance_rad) * dist
+    return (np.abs(dist - model.radius) <= params.fit_threshold_m) & facing
+
+
+def fit_cylinder(
+    points: np.ndarray, normals: np.ndarray, params: CloudParams, rng: np.random.Generator
+) -> _Fit | FailedFit:
+    """RANSAC cylinder from two points with normals: axis ``n1 x n2``, centre where the two
+    normal lines meet across the axis.
+
+    The inliers also take in the end cap when one is in view (points on a plane across the
+    axis, within the radius, with normals along the axis): a can seen from above shows its lid,
+    and leaving it out would hand the lid to the cuboid's planes.
+    """
+    n = len(points)
+    if n < 3:
+        return FailedFit("fewer than 3 points")
+    picks = rng.integers(0, n, size=(params.cylinder_trials, 2))
+    p1, p2 = points[picks[:, 0]], points[picks[:, 1]]
+    n1, n2 = normals[picks[:, 0]], normals[picks[:, 1]]
+    axes = np.cross(n1, n2)
+    norms = np.linalg.norm(axes, axis=1)
+    valid = norms > np.sin(np.radians(3.0))
+    axes = axes / np.where(valid, norms, 1.0)[:, None]
+    # Closest points of the lines p1 + t n1 and p2 + s n2; both normals are already across the
+    # axis, so in the cross-section the lines meet. Normals face the camera: t, s < 0.
+    w = p1 - p2
+    cos12 = (n1 * n2).sum(axis=1)
+    d, e = (n1 * w).sum(axis=1), (n2 * w).sum(axis=1)
+    denom = np.where(valid, 1.0 - cos12**2, 1.0)
+    t = (cos12 * e - d) / denom
+    s = (e - cos12 * d) / denom
+    radii = -(t + s) / 2
+    centers = p1 + t[:, None] * n1
+    valid &= (t < 0) & (s < 0) & (radii >= params.radius_min_m) & (radii <= params.radius_max_m)
+    counts = _score_round(points, normals, centers, radii, axes, params, rng)
+    best = _best(counts, valid)
+    if best is None:
+        return FailedFit("no cylinder hypothesis")
+    model = CylinderModel(centers[best], axes[best], float(radii[best]))
+    inliers = _cylinder_inliers(points, normals, model, params)
+    for _ in range(params.refine_iterations):
+        refined = CylinderModel.estimate(points[inliers], normals[inliers])
+        if not refined or not params.radius_min_m <= refined.radius <= params.radius_max_m:
+            break
+        refined_inliers = _cylinder_inliers(points, normals, refined, params)
+        if refined_inliers.sum() < inliers.sum():
+            break
+        model, inliers = refined, refined_inliers
+    return _Fit(model, inliers | _cap_inliers(points, normals, model, inliers, params))
+
+
+def _cap_inliers(
+    points: np.ndarray,
+    normals: np.ndarray,
+    model: CylinderModel,
+    side: np.ndarray,
+    params: CloudParams,
+) -> np.ndarray:
+    along = (points - model.center) @ model.axis
+    candidates = (
+        ~side
+        & (np.abs(normals @ model.axis) >= np.cos(params.normal_tolerance_rad))
+        & (model.distances_to_axis(points) <= model.radius + params.fit_threshold_m)
+    )
+    if candidates.sum() < max(3, params.min_face_fraction * len(points)):
+        return np.zeros(len(points), dtype=bool)
+    # Only one end faces the camera, so the candidates' median finds its plane.
+    level = float(np.median(along[candidates]))
+    return candidates & (np.abs(along - level) <= params.fit_threshold_m)
+
+
+def _plane_inliers(
+    points: np.ndarray, normals: np.ndarray, normal: np.ndarray, offset: float, params: CloudParams
+) -> np.ndarray:
+    close = np.abs(points @ normal + offset) <= params.fit_threshold_m
+    return close & (np.abs(normals @ normal) >= np.cos(params.normal_tolerance_rad))
+
+
+def _best_face(
+    points: np.ndarray,
+    normals: np.ndarray,
+    hyp_normals: np.ndarray,
+    hyp_offsets: np.ndarray,
+    valid: np.ndarray,
+    params: CloudParams,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, float] | None:
+    sub = _sample(len(points), params.score_sample, rng)
+    close = np.abs(points[sub] @ hyp_normals.T + hyp_offsets) <= params.fit_threshold_m
+    aligned = np.abs(normals[sub] @ hyp_normals.T) >= np.cos(params.normal_tolerance_rad)
+    best = _best((close & aligned).sum(axis=0), valid)
+    if best is None:
+        return None
+    return hyp_normals[best], float(hyp_offsets[best])
+
+
+def _refine_face(
+    points: np.ndarray,
+    normals: np.ndarray,
+    normal: np.ndarray,
+    offset: float,
+    params: CloudParams,
+    fixed_normal: bool,
+) -> tuple[PlaneModel, np.ndarray]:
+    inliers = _plane_inliers(points, normals, normal, offset, params)
+    if inliers.sum() >= 3:
+        if fixed_normal:
+            offset = -float(np.mean(points[inliers] @ normal))
+        else:
+            refined = PlaneModel.estimate(points[inliers])
+            if refined:
+                normal, offset = refined.normal, refined.offset
+        inliers = _plane_inliers(points, normals, normal, offset, params)
+    return PlaneModel(normal, offset), inliers
+
+
+@dataclass(frozen=True)
+class _CuboidFit:
+    faces: tuple[PlaneModel, ...]
+    face_inliers: tuple[np.ndarray, ...]
+
+    @property
+    def inliers(self) -> np.ndarray:
+        return np.logical_or.reduce(self.face_inliers)
+
+
+def fit_cuboid(
+    points: np.ndarray, normals: np.ndarray, params: CloudParams, rng: np.random.Generator
+) -> _CuboidFit | FailedFit:
+    """Up to three mutually perpendicular planes, found one after another on the points the
+    earlier faces left. The second face's hypotheses are built perpendicular to the first
+    (two points and the first normal); the third face's normal is fixed by the first two."""
+    n = len(points)
+    if n < 3:
+        return FailedFit("fewer than 3 points")
+    trials = params.face_trials
+    picks = rng.integers(0, n, size=(trials, 3))
+    hyp_n, hyp_d, valid = _plane_hypotheses(*(points[picks[:, i]] for i in range(3)))
+    first = _best_face(points, normals, hyp_n, hyp_d, valid, params, rng)
+    if first is None:
+        return FailedFit("no plane hypothesis")
+    face, inliers = _refine_face(points, normals, *first, params, fixed_normal=False)
+    if inliers.sum() < 3:
+        return FailedFit("the best plane lost its inliers when refined")
+    faces, face_inliers = [face], [inliers]
+    taken = inliers.copy()
+    min_face = max(3, int(np.ceil(params.min_face_fraction * n)))
+    for _ in range(2):
+        rest = np.flatnonzero(~taken)
+        if len(rest) < min_face:
+            break
+        if len(faces) == 1:
+            a = points[rest[rng.integers(0, len(rest), trials)]]
+            b = points[rest[rng.integers(0, len(rest), trials)]]
+            hyp_n = np.cross(faces[0].normal, b - a)
+            norms = np.linalg.norm(hyp_n, axis=1)
+            valid = norms > 1e-6
+            hyp_n = hyp_n / np.where(valid, norms, 1.0)[:, None]
+        else:
+            a = points[rest[rng.integers(0, len(rest), trials)]]
+            hyp_n = np.broadcast_to(np.cross(faces[0].normal, faces[1].normal), (trials, 3))
+            valid = np.ones(trials, dtype=bool)
+        hyp_d = -(hyp_n * a).sum(axis=1)
+        found = _best_face(points[rest], normals[rest], hyp_n, hyp_d, valid, params, rng)
+        if found is None:
+            break
+        face, inliers = _refine_face(points, normals, *found, params, fixed_normal=True)
+        inliers &= ~taken
+        if inliers.sum() < min_face:
+            break
+        faces.append(face)
+        face_inliers.append(inliers)
+        taken |= inliers
+    return _CuboidFit(tuple(faces), tuple(face_inliers))
+
+
+def _min_area_rectangle(uv: np.ndarray) -> np.ndarray:
+    """Unit direction of one side of the smallest rectangle around 2-D points (rotating
+    calipers over the convex hull's edges)."""
+    try:
+        hull = uv[ConvexHull(uv).vertices]
+    except QhullError:
+        centred = uv - uv.mean(axis=0)
+        return np.linalg.svd(centred, full_matrices=False)[2][0]
+    edges = np.roll(hull, -1, axis=0) - hull
+    edges = edges / np.maximum(np.linalg.norm(edges, axis=1), 1e-12)[:, None]
+    across = np.column_stack([-edges[:, 1], edges[:, 0]])
+    along_extent = np.ptp(hull @ edges.T, axis=0)
+    across_extent = np.ptp(hull @ across.T, axis=0)
+    return edges[int(np.argmin(along_extent * across_extent))]
+
+
+def _cuboid_geometry(
+    points: np.ndarray, whole: np.ndarray, fit: _CuboidFit, params: CloudParams
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Grasp width, principal axis and centre of the face the optical axis pierces.
+
+    The optical axis enters a convex solid through the face whose plane it meets last (as in
+    the slab test), so the pierced face is, of the faces whose plane the axis meets within
+    ``pierce_tolerance_m`` of their own points, the one met furthest; when the axis meets
+    none (the benchmark forgives loose aiming), the face whose points come closest to the
+    axis. Its edges follow the other faces' normals when there are any, else its smallest
+    bounding rectangle; the principal axis runs along its longer side and the grasp width is
+    its shorter side, measured on the whole segment (``whole``), not only on the subset the
+    faces were fitted on, so that the extreme points are not lost to sampling.
+    """
+    tolerance_m = params.pierce_tolerance_m
+    ranking = []
+    for face, inliers in zip(fit.faces, fit.face_inliers, strict=True):
+        face_points = points[inliers]
+        radial = float(np.hypot(face_points[:, 0], face_points[:, 1]).min())
+        missed = True
+        t = 0.0
+        if abs(face.normal[2]) > 1e-6:
+            t = -face.offset / face.normal[2]  # where the optical axis meets the face's plane
+            gap = np.linalg.norm(face_points - (0.0, 0.0, t), axis=1).min()
+            missed = not (t > 0 and gap <= tolerance_m)
+        ranking.append((missed, -t if not missed else radial))
+    index = min(range(len(fit.faces)), key=ranking.__getitem__)
+    face, face_points = fit.faces[index], points[fit.face_inliers[index]]
+    others = [f.normal for i, f in enumerate(fit.faces) if i != index]
+    if others:
+        e1 = others[0] - (others[0] @ face.normal) * face.normal
+        e1 /= np.linalg.norm(e1)
+    else:
+        helper, _ = _orthonormal_basis(face.normal)
+        e2h = np.cross(face.normal, helper)
+        uv = np.column_stack([face_points @ helper, face_points @ e2h])
+        side = _min_area_rectangle(uv)
+        e1 = side[0] * helper + side[1] * e2h
+    e2 = np.cross(face.normal, e1)
+    s1, s2 = face_points @ e1, face_points @ e2
+    # The whole segment's points on the face, within two voxels of the subset's rectangle.
+    margin = 2 * params.voxel_m
+    w1, w2 = whole @ e1, whole @ e2
+    on_face = (
+        (np.abs(face.signed_distances(whole)) <= params.fit_threshold_m)
+        & (w1 >= s1.min() - margin)
+        & (w1 <= s1.max() + margin)
+        & (w2 >= s2.min() - margin)
+        & (w2 <= s2.max() + margin)
+    )
+    s1, s2 = w1[on_face], w2[on_face]
+    extent1, extent2 = float(np.ptp(s1)), float(np.ptp(s2))
+    center = (
+        (s1.min() + s1.max()) / 2 * e1 + (s2.min() + s2.max()) / 2 * e2 - face.offset * face.normal
+    )
+    if extent1 >= extent2:
+        return extent2, e1, center
+    return extent1, e2, center
+
+
+def _canonical_axis(axis: np.ndarray) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    i = int(np.argmax(np.abs(axis)))
+    return -axis if axis[i] < 0 else axis
+
+
+def _axis_angle(axis: np.ndarray) -> float:
+    return wrap_half_turn(float(np.arctan2(axis[1], axis[0])))
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def _none(reason: str, points: int, extra: dict[str, float]) -> Reconstruction:
+    return Reconstruction(shape="none", method="cloud", reason=reason, points=points, extra=extra)
+
+
+def reconstruct_cloud(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    params: CloudParams = CloudParams(),
+    seed: int = 0,
+) -> Reconstruction:
+    """Reconstruct the object nearest the optical axis from one full depth frame.
+
+    Parameters
+    ----------
+    depth : (H, W) uint16 ndarray
+        The depth frame in ``intrinsics.depth_scale`` units, 0 meaning no depth.
+    intrinsics : Intrinsics
+        Must match the frame's size.
+    params : CloudParams
+    seed : int
+        Seeds every RANSAC draw (use the frame's ``seq``).
+
+    Returns a ``Reconstruction`` with ``method="cloud"``; ``points`` counts the points after the
+    crop and the voxel grid, and ``extra`` holds ``raw_points`` (cropped, before the grid),
+    ``support_points``, ``segments``, ``segment_points`` and each model's inlier fraction.
+    A frame with nothing to fit gives ``shape="none"`` and a ``reason``.
+    """
+    rng = np.random.default_rng(seed)
+    raw = crop_points(depth, intrinsics, params)
+    extra: dict[str, float] = {"raw_points": float(len(raw))}
+    if len(raw) == 0:
+        return _none("no points in the crop box", 0, extra)
+    cloud, _ = voxel_downsample(raw, params.voxel_m)
+    used = len(cloud)
+
+    keep = np.ones(used, dtype=bool)
+    removed: list[np.ndarray] = []
+    for _ in range(params.support_planes):
+        left = np.flatnonzero(keep)
+        mask = find_support_plane(cloud[left], params, rng)
+        if mask is None:
+            break
+        removed.append(left[mask])
+        keep[left[mask]] = False
+    # If removing the plane left nothing to grasp, the plane was the object: put it back.
+    while True:
+        rest = cloud[keep]
+        labels = grid_clusters(rest, params.cluster_cell_m)
+        found = nearest_segment(rest, labels, params.min_segment_points, params.pierce_tolerance_m)
+        if found is not None or not removed:
+            break
+        keep[removed.pop()] = True
+    extra["support_points"] = float(used - keep.sum())
+    extra["segments"] = float(labels.max() + 1) if len(labels) else 0.0
+    if found is None:
+        return _none(f"no segment with at least {params.min_segment_points} points", used, extra)
+    whole = rest[found]
+    extra["segment_points"] = float(len(whole))
+    # A random subset keeps the fits' cost flat; normals still use the whole segment.
+    segment = whole[np.sort(_sample(len(whole), params.fit_points, rng))]
+    extra["fit_points"] = float(len(segment))
+    normals = estimate_normals(whole, params.normal_neighbours, at=segment)
+
+    fits = {
+        "sphere": fit_sphere(segment, normals, params, rng),
+        "cylinder": fit_cylinder(segment, normals, params, rng),
+        "cuboid": fit_cuboid(segment, normals, params, rng),
+    }
+    fractions = {name: float(fit.inliers.mean()) if fit else 0.0 for name, fit in fits.items()}
+    for name, fraction in fractions.items():
+        extra[f"{name}_fraction"] = fraction
+    shape = max(fractions, key=fractions.__getitem__)
+    confidence = fractions[shape]
+    if confidence < params.min_inlier_fraction:
+        return _none(f"best model ({shape}) explains {confidence:.0%} of the segment", used, extra)
+    fit = fits[shape]
+    if isinstance(fit, _Fit) and isinstance(fit.model, SphereModel):
+        return Reconstruction(
+            shape="sphere", method="cloud", grasp_width_m=2 * fit.model.radius,
+            center_m=tuple(map(float, fit.model.center)), confidence=confidence,
+            points=used, extra=extra,
+        )  # fmt: skip
+    if isinstance(fit, _Fit) and isinstance(fit.model, CylinderModel):
+        axis = _canonical_axis(fit.model.axis)
+        on_axis = segment[fit.inliers] - fit.model.center
+        middle = fit.model.center + float(np.median(on_axis @ axis)) * axis
+        return Reconstruction(
+            shape="cylinder", method="cloud", grasp_width_m=2 * fit.model.radius,
+            wrist_angle_rad=_axis_angle(axis), center_m=tuple(map(float, middle)),
+            axis=tuple(map(float, axis)), confidence=confidence, points=used, extra=extra,
+        )  # fmt: skip
+    assert isinstance(fit, _CuboidFit)
+    width, axis, center = _cuboid_geometry(segment, whole, fit, params)
+    axis = _canonical_axis(axis)
+    extra["cuboid_faces"] = float(len(fit.faces))
+    return Reconstruction(
+        shape="cuboid", method="cloud", grasp_width_m=width, wrist_angle_rad=_axis_angle(axis),
+        center_m=tuple(map(float, center)), axis=tuple(map(float, axis)),
+        confidence=confidence, points=used, extra=extra,
+    )  # fmt: skip
+
+
+__all__ = [
+    "CloudParams",
+    "CylinderModel",
+    "FailedFit",
+    "FitModel",
+    "PlaneModel",
+    "SphereModel",
+    "crop_points",
+    "estimate_normals",
+    "find_support_plane",
+    "fit_cuboid",
+    "fit_cylinder",
+    "fit_sphere",
+    "grid_clusters",
+    "nearest_segment",
+    "reconstruct_cloud",
+    "smallest_eigenvectors",
+    "voxel_downsample",
+]

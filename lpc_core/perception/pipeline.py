@@ -1,0 +1,84 @@
+"""Message-level step functions: decoded message in, messages out, no I/O and no clock.
+
+Services call these live; ``lpc replay`` calls the same functions in-process on a recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.scans import ScanParams, cut_scan_lines
+from schemas import CameraIntrinsics, DepthFrame, ScanLine, ScanLines, from_wire, to_wire
+
+
+def intrinsics_from_message(message: CameraIntrinsics) -> Intrinsics:
+    return Intrinsics(
+        width=message.width,
+        height=message.height,
+        fx=message.fx,
+        fy=message.fy,
+        ppx=message.ppx,
+        ppy=message.ppy,
+        model=message.model,
+        coeffs=tuple(message.coeffs),
+        depth_scale=message.depth_scale,
+    )
+
+
+def intrinsics_to_message(intrinsics: Intrinsics) -> CameraIntrinsics:
+    return CameraIntrinsics(
+        width=intrinsics.width,
+        height=intrinsics.height,
+        fx=intrinsics.fx,
+        fy=intrinsics.fy,
+        ppx=intrinsics.ppx,
+        ppy=intrinsics.ppy,
+        model=intrinsics.model,
+        coeffs=list(intrinsics.coeffs),
+        depth_scale=intrinsics.depth_scale,
+    )
+
+
+def depth_image(frame: DepthFrame) -> np.ndarray:
+    """The frame's depth as a (height, width) uint16 array; ``ValueError`` if it does not fit."""
+    depth = from_wire(frame.depth)
+    expected = (frame.intrinsics.height, frame.intrinsics.width)
+    if depth.dtype != np.uint16 or depth.shape != expected:
+        raise ValueError(
+            f"depth is {depth.dtype} {depth.shape}, expected uint16 {expected} from the intrinsics"
+        )
+    return depth
+
+
+@dataclass
+class ScansState:
+    """The scans service's state: its parameters and the intrinsics it last saw."""
+
+    params: ScanParams = field(default_factory=ScanParams)
+    seq: int = 0
+
+
+def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[ScansState, ScanLines]:
+    """Cut the four scan lines of one depth frame. ``t_ns`` stays the frame's capture time."""
+    del now_ns  # capture time, not processing time, travels with the scans
+    depth = depth_image(frame)
+    lines = cut_scan_lines(depth, intrinsics_from_message(frame.intrinsics), state.params)
+    state.seq += 1
+    message = ScanLines(
+        seq=state.seq,
+        t_ns=frame.t_ns,
+        frame_seq=frame.seq,
+        lines=[
+            ScanLine(
+                angle_deg=float(np.degrees(angle)),
+                points=to_wire(points.astype(np.float32)),
+            )
+            for angle, points in zip(lines.angles_rad, lines.points, strict=True)
+        ],
+        capture_points=int(getattr(lines, "capture_count", lines.total_points)),
+        truth=frame.truth,
+    )
+    return state, message

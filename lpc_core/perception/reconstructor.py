@@ -1,0 +1,353 @@
+"""The reconstructor's logic: scan lines (or whole depth frames) in, reconstructions and the
+grasp target out.
+
+Two methods: ``laser``, the four-line method on ``lpc/scans``, and ``cloud``, the full-point-
+cloud benchmark on ``lpc/camera/depth`` (``cloud``). Two ways to run either, with the
+same results per frame:
+
+- ``reconstruct_step(state, scans, now_ns)`` / ``reconstruct_cloud_step(state, frame, now_ns)``:
+  one frame, in-process (tests, replay). Their ``compute_ms`` is 0: nothing here reads a clock.
+- The service (``services/reconstructor.py``) runs ``reconstruct_message`` or
+  ``reconstruct_cloud_message`` in a process pool
+  and keeps order with ``frame_arrived`` / ``frame_done``: frames go to free workers in
+  arrival order; at most ``max_pending`` more wait, and when another arrives the oldest
+  waiting frame is dropped and counted; results are released in ``seq`` order, each then going
+  through the 10-frame window (``release``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from lpc_core.perception.cloud import CloudParams, reconstruct_cloud
+from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.laser import LaserParams, reconstruct_laser
+from lpc_core.perception.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
+from lpc_core.perception.reconstruction import Reconstruction as CoreReconstruction
+from lpc_core.perception.scans import ScanLines as CoreScanLines
+from lpc_core.perception.window import WindowParams, WindowResult, WindowState, window_step
+from schemas import (
+    DepthFrame,
+    GraspTarget,
+    LineModel,
+    Reconstruction,
+    ScanLines,
+    from_wire,
+    to_wire,
+)
+
+# The topic each method reconstructs from.
+INPUT_TOPICS: MappingProxyType[str, str] = MappingProxyType(
+    {"laser": "lpc/scans", "cloud": "lpc/camera/depth"}
+)
+
+Job = TypeVar("Job")
+
+
+def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
+    """The scan lines of a ``lpc/scans`` message; ``ValueError`` if an array is malformed."""
+    points = []
+    for line in message.lines:
+        array = np.asarray(from_wire(line.points), dtype=np.float64)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise ValueError(f"scan line points must be (N, 3), got {array.shape}")
+        points.append(array)
+    angles = np.radians([line.angle_deg for line in message.lines])
+    empty = tuple(np.empty(0, dtype=np.int64) for _ in points)
+    return CoreScanLines(angles_rad=angles, points=tuple(points), pixels=empty)
+
+
+def _finite(value: float | None) -> float | None:
+    return value if value is None or math.isfinite(value) else None
+
+
+def reconstruction_message(
+    result: CoreReconstruction, source: ScanLines | DepthFrame, compute_ms: float = 0.0
+) -> Reconstruction:
+    """The ``lpc/reconstruction`` message of one frame.
+
+    ``seq``, ``t_ns`` and ``truth`` are those of ``source``, the message reconstructed: the
+    scans (whose ``frame_seq`` names the depth frame) or the depth frame itself.
+    """
+    frame_seq = source.frame_seq if isinstance(source, ScanLines) else source.seq
+    lines = [
+        LineModel(
+            angle_deg=ln.angle_deg,
+            model=ln.model,  # type: ignore[arg-type]
+            params=[float(v) for v in ln.params if math.isfinite(v)],
+            inlier_fraction=min(max(ln.inlier_fraction, 0.0), 1.0),
+            n_points=ln.n_points,
+        )
+        for ln in result.lines
+    ]
+    return Reconstruction(
+        seq=source.seq,
+        t_ns=source.t_ns,
+        frame_seq=frame_seq,
+        method=result.method,  # type: ignore[arg-type]
+        shape=result.shape,
+        grasp_width_mm=_finite(result.grasp_width_mm),
+        wrist_angle_deg=_finite(result.wrist_angle_deg),
+        center_m=None if result.center_m is None else list(result.center_m),
+        axis=None if result.axis is None else list(result.axis),
+        lines=lines,
+        confidence=min(max(result.confidence, 0.0), 1.0),
+        reason=result.reason,
+        points=result.points,
+        compute_ms=max(compute_ms, 0.0),
+        truth=source.truth,
+    )
+
+
+_DEFAULT = LaserParams()
+_CLOUD = CloudParams()
+
+
+def reconstruct_message(
+    scans: ScanLines, params: LaserParams = _DEFAULT, compute_ms: float = 0.0
+) -> Reconstruction:
+    """Reconstruct one ``lpc/scans`` message; RANSAC is seeded by the depth frame's ``seq``."""
+    result = reconstruct_laser(scan_lines_from_message(scans), params, seed=scans.frame_seq)
+    return reconstruction_message(result, scans, compute_ms)
+
+
+def reconstruct_cloud_message(
+    frame: DepthFrame, params: CloudParams = _CLOUD, compute_ms: float = 0.0
+) -> Reconstruction:
+    """Reconstruct one ``lpc/camera/depth`` frame by the cloud method, seeded by its ``seq``.
+
+    ``ValueError`` if the depth array does not match the frame's intrinsics.
+    """
+    intrinsics = intrinsics_from_message(frame.intrinsics)
+    result = reconstruct_cloud(depth_image(frame), intrinsics, params, seed=frame.seq)
+    return reconstruction_message(result, frame, compute_ms)
+
+
+def warmup_frame(intrinsics: Intrinsics | None = None) -> DepthFrame:
+    """A 50 mm ball 200 mm ahead of a wall at 240 mm, noise-free.
+
+    The service's workers reconstruct it once at start, so that the first real frame does not
+    pay for the imports and first calls (about 0.5-0.8 s) and get the frames behind it dropped.
+    """
+    intr = intrinsics or Intrinsics()
+    rx, ry = intr.pixel_rays()
+    # Ray (rx, ry, 1) t meets the sphere |p - c| = r where t^2 |d|^2 - 2 t d.c + |c|^2 - r^2 = 0.
+    center_z, radius, wall_z = 0.2, 0.025, 0.24
+    a = rx * rx + ry * ry + 1.0
+    disc = center_z**2 - a * (center_z**2 - radius**2)
+    with np.errstate(invalid="ignore"):
+        z = np.where(disc >= 0, (center_z - np.sqrt(disc)) / a, wall_z)
+    depth = np.round(z / intr.depth_scale).astype(np.uint16)
+    return DepthFrame(seq=0, t_ns=0, intrinsics=intrinsics_to_message(intr), depth=to_wire(depth))
+
+
+# --------------------------------------------------------------------------- the window
+
+
+def _core(message: Reconstruction) -> CoreReconstruction:
+    return CoreReconstruction(
+        shape=message.shape,
+        grasp_width_m=None if message.grasp_width_mm is None else message.grasp_width_mm / 1000,
+        wrist_angle_rad=(
+            None if message.wrist_angle_deg is None else math.radians(message.wrist_angle_deg)
+        ),
+    )
+
+
+def grasp_target_message(window: WindowResult, message: Reconstruction) -> GraspTarget:
+    return GraspTarget(
+        seq=message.seq,
+        t_ns=message.t_ns,
+        frame_seq=message.frame_seq,
+        shape=window.shape,
+        grasp_width_mm=window.grasp_width_mm,
+        wrist_angle_deg=window.wrist_angle_deg,
+        reconstructed=window.reconstructed,
+        frames=window.frames,
+        agreement=window.agreement,
+    )
+
+
+def window_message(state: WindowState, message: Reconstruction) -> tuple[WindowState, GraspTarget]:
+    """Pass one reconstruction through the 10-frame window."""
+    state, window = window_step(state, _core(message), message.seq, message.t_ns)
+    return state, grasp_target_message(window, message)
+
+
+# --------------------------------------------------------------------------- in-process step
+
+
+@dataclass(frozen=True)
+class ReconstructState:
+    """Either method's in-process state: its parameters and the 10-frame window."""
+
+    params: LaserParams = field(default_factory=LaserParams)
+    window: WindowState = field(default_factory=WindowState)
+    cloud: CloudParams = field(default_factory=CloudParams)
+
+
+def reconstruct_step(
+    state: ReconstructState, scans: ScanLines, now_ns: int
+) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
+    """One frame in-process: its reconstruction, then the window's grasp target."""
+    del now_ns  # outputs carry the capture time of their frame
+    return release_step(state, reconstruct_message(scans, state.params))
+
+
+def reconstruct_cloud_step(
+    state: ReconstructState, frame: DepthFrame, now_ns: int
+) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
+    """One depth frame in-process by the cloud method: its reconstruction, then the window's."""
+    del now_ns  # outputs carry the capture time of their frame
+    return release_step(state, reconstruct_cloud_message(frame, state.cloud))
+
+
+def release_step(
+    state: ReconstructState, message: Reconstruction
+) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
+    """A frame's reconstruction, made here or by a worker process, through the window."""
+    window, target = window_message(state.window, message)
+    return replace(state, window=window), [message, target]
+
+
+def reconstruct(state: ReconstructState, message: ScanLines | DepthFrame) -> Reconstruction:
+    """One frame's reconstruction with the parameters of ``state``: scan lines by the laser
+    method, a depth frame by the cloud method, as the in-process steps do. It depends on the
+    frame alone, so a replay runs it in worker processes, as the service does."""
+    if isinstance(message, ScanLines):
+        return reconstruct_message(message, state.params)
+    if isinstance(message, DepthFrame):
+        return reconstruct_cloud_message(message, state.cloud)
+    raise ValueError(f"message must be ScanLines or DepthFrame, got {type(message).__name__}")
+
+
+# --------------------------------------------------------------------------- pool bookkeeping
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoolParams:
+    """``workers`` frames run at once; ``max_pending`` more may wait for a worker."""
+
+    workers: int = 1
+    max_pending: int = 1
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if self.max_pending < 0:
+            raise ValueError(f"max_pending must be >= 0, got {self.max_pending}")
+
+
+@dataclass(frozen=True)
+class Submit(Generic[Job]):
+    """Start this frame's job on a worker."""
+
+    seq: int
+    job: Job
+
+
+@dataclass(frozen=True)
+class Release:
+    """This frame's result is next in ``seq`` order: publish it."""
+
+    seq: int
+    result: Any
+
+
+@dataclass(frozen=True)
+class Dropped:
+    """This frame was dropped: it waited while a newer one arrived, or it came out of order."""
+
+    seq: int
+    reason: str
+
+
+@dataclass(frozen=True)
+class PoolState:
+    params: PoolParams = field(default_factory=PoolParams)
+    running: frozenset[int] = frozenset()
+    pending: tuple[tuple[int, Any], ...] = ()
+    waiting: tuple[int, ...] = ()  # frames not yet released, in seq order
+    done: MappingProxyType[int, Any] = field(default_factory=lambda: MappingProxyType({}))
+    last_seq: int = -1
+    dropped: int = 0
+
+
+Output = Submit[Any] | Release | Dropped
+
+
+def frame_arrived(state: PoolState, seq: int, job: Any) -> tuple[PoolState, list[Output]]:
+    """A frame arrives: run it, let it wait, or drop the oldest waiting frame for it."""
+    if seq <= state.last_seq:
+        return replace(state, dropped=state.dropped + 1), [Dropped(seq, "out of order")]
+    outputs: list[Output] = []
+    running, pending, waiting = state.running, state.pending, (*state.waiting, seq)
+    dropped = state.dropped
+    if len(running) < state.params.workers:
+        running = running | {seq}
+        outputs.append(Submit(seq, job))
+    else:
+        pending = (*pending, (seq, job))
+        if len(pending) > state.params.max_pending:
+            (old, _), pending = pending[0], pending[1:]
+            waiting = tuple(s for s in waiting if s != old)
+            dropped += 1
+            outputs.append(Dropped(old, "the pool fell behind"))
+    state = replace(
+        state, running=running, pending=pending, waiting=waiting, last_seq=seq, dropped=dropped
+    )
+    # Dropping a waiting frame may unblock results that were held behind it.
+    return _release(state, outputs)
+
+
+def frame_done(state: PoolState, seq: int, result: Any) -> tuple[PoolState, list[Output]]:
+    """A worker finished ``seq``: release what is now in order, start a waiting frame."""
+    if seq not in state.running:
+        return state, []
+    running = state.running - {seq}
+    done = MappingProxyType({**state.done, seq: result})
+    outputs: list[Output] = []
+    pending = state.pending
+    if pending and len(running) < state.params.workers:
+        (next_seq, job), pending = pending[0], pending[1:]
+        running = running | {next_seq}
+        outputs.append(Submit(next_seq, job))
+    return _release(replace(state, running=running, pending=pending, done=done), outputs)
+
+
+def _release(state: PoolState, outputs: list[Output]) -> tuple[PoolState, list[Output]]:
+    waiting, done = state.waiting, dict(state.done)
+    while waiting and waiting[0] in done:
+        seq, waiting = waiting[0], waiting[1:]
+        outputs.append(Release(seq, done.pop(seq)))
+    return replace(state, waiting=waiting, done=MappingProxyType(done)), outputs
+
+
+__all__ = [
+    "INPUT_TOPICS",
+    "Dropped",
+    "PoolParams",
+    "PoolState",
+    "ReconstructState",
+    "Release",
+    "Submit",
+    "WindowParams",
+    "frame_arrived",
+    "frame_done",
+    "grasp_target_message",
+    "reconstruct",
+    "reconstruct_cloud_message",
+    "reconstruct_cloud_step",
+    "reconstruct_message",
+    "reconstruct_step",
+    "reconstruction_message",
+    "release_step",
+    "scan_lines_from_message",
+    "warmup_frame",
+    "window_message",
+]

@@ -1,0 +1,284 @@
+"""Crop a depth frame to the capture volume and cut the four laser-like scan lines.
+
+The scan planes all contain the optical z-axis; the plane at angle phi contains the direction
+(cos phi, sin phi, 0), so its normal is n = (-sin phi, cos phi, 0). A point belongs to a scan
+line when |n . p| <= band. In-plane coordinates of a point: s = x cos phi + y sin phi, and z.
+
+Only pixels that can ever meet a scan line inside the capture volume are deprojected: with
+p = z (u', v', 1), |n . p| = z |g(u', v')|, so a pixel qualifies only if
+|g| <= band / z_near. Those pixels form a thin strip (about 1.4 px wide at the defaults)
+along each image line through the principal point; their indices are computed once per
+(intrinsics, params).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from lpc_core.perception.intrinsics import Intrinsics
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScanParams:
+    """Scan line geometry and the capture volume (camera frame, metres).
+
+    Defaults are the paper's: four planes 45 degrees apart, ±0.5 mm band, a 100 mm cube
+    150 mm in front of the sensor, at least 10 points per line for a usable fit.
+    """
+
+    angles_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0)
+    band_m: float = 0.0005
+    x_limits_m: tuple[float, float] = (-0.05, 0.05)
+    y_limits_m: tuple[float, float] = (-0.05, 0.05)
+    z_limits_m: tuple[float, float] = (0.15, 0.25)
+    min_points: int = 10
+
+    def __post_init__(self) -> None:
+        # math.isfinite, not np.isfinite: a ScanParams is built per frame, and numpy's
+        # scalar calls cost most of its construction.
+        if not self.angles_deg or not all(math.isfinite(a) for a in self.angles_deg):
+            raise ValueError(f"angles_deg must be finite and non-empty, got {self.angles_deg}")
+        if not math.isfinite(self.band_m) or self.band_m <= 0:
+            raise ValueError(f"band_m must be positive, got {self.band_m}")
+        for name in ("x_limits_m", "y_limits_m", "z_limits_m"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise ValueError(f"{name} must be finite with lo < hi, got {(lo, hi)}")
+        if self.z_limits_m[0] <= 0:
+            raise ValueError(f"z_limits_m must be in front of the camera, got {self.z_limits_m}")
+        if self.min_points < 0:
+            raise ValueError(f"min_points must be >= 0, got {self.min_points}")
+
+    @property
+    def angles_rad(self) -> np.ndarray:
+        return np.radians(np.asarray(self.angles_deg, dtype=np.float64))
+
+
+@dataclass(frozen=True, eq=False)
+class ScanLines:
+    """The points of each scan line, camera frame, metres, each sorted by s.
+
+    ``points[i]`` is (N_i, 3) for the plane at ``angles_rad[i]``; ``pixels[i]`` holds the flat
+    pixel index (row * width + column) of each point, for overlays. A line with fewer than
+    ``min_points`` points keeps them (aim guidance uses every point) but is not ``line_ok``.
+    ``capture_count`` is the number of valid points in the whole capture volume (what the
+    full-cloud method would see), or -1 when not counted.
+    """
+
+    angles_rad: np.ndarray
+    points: tuple[np.ndarray, ...]
+    pixels: tuple[np.ndarray, ...]
+    min_points: int = 10
+    capture_count: int = -1
+
+    def plane_coords(self, i: int) -> np.ndarray:
+        """(N_i, 2) in-plane coordinates (s, z) of line ``i``."""
+        phi = float(self.angles_rad[i])
+        p = self.points[i]
+        return np.column_stack([p[:, 0] * np.cos(phi) + p[:, 1] * np.sin(phi), p[:, 2]])
+
+    @property
+    def counts(self) -> np.ndarray:
+        return np.array([len(p) for p in self.points], dtype=np.int64)
+
+    @property
+    def total_points(self) -> int:
+        return int(sum(len(p) for p in self.points))
+
+    @property
+    def line_ok(self) -> np.ndarray:
+        """Per line: has at least ``min_points`` points."""
+        return self.counts >= self.min_points
+
+    @property
+    def ok(self) -> bool:
+        """Every line has at least ``min_points`` points."""
+        return bool(np.all(self.line_ok))
+
+    def all_points(self) -> np.ndarray:
+        """(N, 3) every line's points, line after line (a point near the centre may repeat)."""
+        return np.concatenate(self.points) if self.points else np.empty((0, 3))
+
+
+def _slope_limits(lo: float, hi: float, z_near: float, z_far: float) -> tuple[float, float]:
+    """Range of x/z for which x = z * (x/z) can fall in [lo, hi] with z in [z_near, z_far]."""
+    return min(lo / z_near, lo / z_far), max(hi / z_near, hi / z_far)
+
+
+def _depth_bounds(
+    slope_x: np.ndarray,
+    slope_y: np.ndarray,
+    z_max_extra: np.ndarray | None,
+    params: ScanParams,
+    depth_scale: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the depth-unit interval [lo, hi] whose points lie in the capture volume.
+
+    x = z * slope_x in [x0, x1] is an interval of z for each pixel (and likewise for y, and
+    for the band: z * off <= band); intersecting them with [z0, z1] turns the whole crop into
+    two integer comparisons per pixel. Boundaries get 1e-9 m of slack against rounding.
+    """
+    lo = np.full(np.broadcast(slope_x, slope_y).shape, params.z_limits_m[0])
+    hi = np.full(lo.shape, params.z_limits_m[1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for slope, (a, b) in ((slope_x, params.x_limits_m), (slope_y, params.y_limits_m)):
+            za, zb = a / slope, b / slope
+            z_from = np.where(
+                slope > 0, za, np.where(slope < 0, zb, np.where(a <= 0 <= b, 0, np.inf))
+            )
+            z_to = np.where(
+                slope > 0, zb, np.where(slope < 0, za, np.where(a <= 0 <= b, np.inf, 0))
+            )
+            lo = np.maximum(lo, z_from)
+            hi = np.minimum(hi, z_to)
+    if z_max_extra is not None:
+        hi = np.minimum(hi, z_max_extra)
+    lo_units = np.ceil((lo - 1e-9) / depth_scale)
+    hi_units = np.floor((hi + 1e-9) / depth_scale)
+    # An empty interval becomes (1, 0); depth 0 (no data) is never inside.
+    lo_units = np.clip(lo_units, 1, 65536).astype(np.int32)
+    hi_units = np.clip(hi_units, 0, 65535).astype(np.int32)
+    return lo_units, hi_units
+
+
+@dataclass(frozen=True, eq=False)
+class _ScanTable:
+    """Candidate pixels of every line, concatenated line after line."""
+
+    flat_index: np.ndarray  # (M,) int64 row * width + column
+    line: np.ndarray  # (M,) int64 line number
+    slope_x: np.ndarray  # (M,) x/z of the pixel ray
+    slope_y: np.ndarray  # (M,) y/z
+    along: np.ndarray  # (M,) s / z
+    lo_units: np.ndarray  # (M,) int32 smallest depth (units) in the volume and the band
+    hi_units: np.ndarray  # (M,) int32 largest
+
+
+@lru_cache(maxsize=16)
+def _scan_table(intrinsics: Intrinsics, params: ScanParams) -> _ScanTable:
+    xs, ys = intrinsics.pixel_rays()
+    z_near, z_far = params.z_limits_m
+    ux = _slope_limits(*params.x_limits_m, z_near, z_far)
+    vy = _slope_limits(*params.y_limits_m, z_near, z_far)
+    in_box = (xs >= ux[0]) & (xs <= ux[1]) & (ys >= vy[0]) & (ys <= vy[1])
+    parts: list[tuple[np.ndarray, ...]] = []
+    for i, phi in enumerate(params.angles_rad):
+        off = np.abs(-np.sin(phi) * xs + np.cos(phi) * ys)
+        # Slack so that pixels exactly at the band edge at z_near are not lost to rounding.
+        flat = np.flatnonzero(in_box & (off <= params.band_m / z_near * (1.0 + 1e-9)))
+        sx, sy, of = xs.reshape(-1)[flat], ys.reshape(-1)[flat], off.reshape(-1)[flat]
+        with np.errstate(divide="ignore"):
+            band_z = params.band_m / of
+        lo, hi = _depth_bounds(sx, sy, band_z, params, intrinsics.depth_scale)
+        line = np.full(flat.size, i, dtype=np.int64)
+        parts.append((flat, line, sx, sy, np.cos(phi) * sx + np.sin(phi) * sy, lo, hi))
+    columns = [np.ascontiguousarray(np.concatenate(col)) for col in zip(*parts, strict=True)]
+    for col in columns:
+        col.setflags(write=False)
+    return _ScanTable(*columns)
+
+
+@dataclass(frozen=True, eq=False)
+class _VolumeWindow:
+    rows: slice
+    cols: slice
+    slope_x: np.ndarray  # (1, w)
+    slope_y: np.ndarray  # (h, 1)
+    lo_units: np.ndarray  # (h, w) int32
+    hi_units: np.ndarray  # (h, w) int32
+    # When every pixel's interval is non-empty: lo and hi - lo as uint16, so that a depth d
+    # is inside when (d - lo) mod 2^16 <= hi - lo, one comparison with no cast (below lo, d
+    # wraps past hi).
+    lo_u16: np.ndarray | None
+    span_u16: np.ndarray | None
+
+
+@lru_cache(maxsize=16)
+def _volume_window(intrinsics: Intrinsics, params: ScanParams) -> _VolumeWindow:
+    xs, ys = intrinsics.pixel_rays()
+    z_near, z_far = params.z_limits_m
+    ux = _slope_limits(*params.x_limits_m, z_near, z_far)
+    vy = _slope_limits(*params.y_limits_m, z_near, z_far)
+    cols = np.flatnonzero((xs[0] >= ux[0]) & (xs[0] <= ux[1]))
+    rows = np.flatnonzero((ys[:, 0] >= vy[0]) & (ys[:, 0] <= vy[1]))
+    if cols.size == 0 or rows.size == 0:
+        cols = rows = np.zeros(0, dtype=np.int64)
+        rs = cs = slice(0, 0)
+    else:
+        rs, cs = slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+    sx, sy = xs[:1, cs].copy(), ys[rs, :1].copy()
+    lo, hi = _depth_bounds(sx, sy, None, params, intrinsics.depth_scale)
+    lo_u16 = span_u16 = None
+    if (lo <= hi).all():
+        lo_u16, span_u16 = lo.astype(np.uint16), (hi - lo).astype(np.uint16)
+    return _VolumeWindow(rs, cs, sx, sy, lo, hi, lo_u16, span_u16)
+
+
+def _check_depth(depth: object, intrinsics: Intrinsics) -> np.ndarray:
+    if not isinstance(depth, np.ndarray):
+        raise ValueError(f"depth must be a numpy array, got {type(depth).__name__}")
+    if depth.dtype != np.uint16:
+        raise ValueError(f"depth must have dtype uint16, got {depth.dtype}")
+    shape = (intrinsics.height, intrinsics.width)
+    if depth.shape != shape:
+        raise ValueError(f"depth must have shape {shape}, got {depth.shape}")
+    return depth
+
+
+def cut_scan_lines(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    params: ScanParams = ScanParams(),
+    count_capture: bool = True,
+) -> ScanLines:
+    """The points of each scan line inside the capture volume (invalid depth 0 is skipped).
+
+    ``depth``: (H, W) uint16 in the intrinsics' depth units. ``count_capture`` also counts
+    every point of the capture volume into ``capture_count``.
+    """
+    depth = _check_depth(depth, intrinsics)
+    tab = _scan_table(intrinsics, params)
+    units = depth.reshape(-1)[tab.flat_index]
+    keep = np.flatnonzero((units >= tab.lo_units) & (units <= tab.hi_units))
+    z = units[keep] * intrinsics.depth_scale
+    line = tab.line[keep]
+    order = np.lexsort((z * tab.along[keep], line))
+    keep, z = keep[order], z[order]
+    pts = np.column_stack([z * tab.slope_x[keep], z * tab.slope_y[keep], z])
+    pts.setflags(write=False)
+    # Each line's rows as slices (np.split costs more than the cut's arithmetic).
+    counts = np.bincount(line, minlength=len(params.angles_deg)).tolist()
+    bounds = [0, *itertools.accumulate(counts)]
+    pixels = tab.flat_index[keep]
+    capture_count = -1
+    if count_capture:
+        win = _volume_window(intrinsics, params)
+        d = depth[win.rows, win.cols]
+        if win.lo_u16 is not None:
+            capture_count = int(np.count_nonzero(np.subtract(d, win.lo_u16) <= win.span_u16))
+        else:
+            capture_count = int(np.count_nonzero((d >= win.lo_units) & (d <= win.hi_units)))
+    return ScanLines(
+        angles_rad=params.angles_rad,
+        points=tuple(pts[a:b] for a, b in itertools.pairwise(bounds)),
+        pixels=tuple(pixels[a:b] for a, b in itertools.pairwise(bounds)),
+        min_points=params.min_points,
+        capture_count=capture_count,
+    )
+
+
+def capture_points(
+    depth: np.ndarray, intrinsics: Intrinsics, params: ScanParams = ScanParams()
+) -> np.ndarray:
+    """(N, 3) every valid point inside the capture volume, camera frame, metres, row-major."""
+    depth = _check_depth(depth, intrinsics)
+    win = _volume_window(intrinsics, params)
+    d = depth[win.rows, win.cols]
+    rows, cols = np.nonzero((d >= win.lo_units) & (d <= win.hi_units))
+    z = d[rows, cols] * intrinsics.depth_scale
+    return np.column_stack([z * win.slope_x[0, cols], z * win.slope_y[rows, 0], z])

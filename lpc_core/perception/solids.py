@@ -1,0 +1,433 @@
+"""Least-squares 3-D solids for the four-line method: sphere, cylinder and plane.
+
+The laser method (``laser``) first fits 2-D models on each scan line, as the paper
+does; the solids here then refine the 3-D object from the inliers of all four lines at once,
+which is where the accuracy of the grasp width and wrist angle comes from. Each solid has the
+same small surface as ``lpc_core.perception.fit``'s models: a classmethod ``estimate`` and
+``residuals(points) -> (N,)`` (orthogonal distances, metres). A degenerate estimate returns a
+falsy ``FailedSolid`` carrying the reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol, Self
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FailedSolid:
+    """A degenerate estimate: falsy, with the reason."""
+
+    reason: str
+
+    def __bool__(self) -> bool:
+        return False
+
+
+class Solid(Protocol):
+    def residuals(self, points: np.ndarray) -> np.ndarray: ...
+
+
+def _as_points(points: np.ndarray, minimum: int) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+    if len(points) < minimum:
+        raise ValueError(f"points must hold at least {minimum} rows, got {len(points)}")
+    return points
+
+
+def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing the unit vector ``axis`` to a right-handed basis."""
+    e1, e2 = _basis(*(float(v) for v in axis))
+    return np.array(e1), np.array(e2)
+
+
+_Vec3 = tuple[float, float, float]
+
+
+def _basis(ax: float, ay: float, az: float) -> tuple[_Vec3, _Vec3]:
+    """:func:`orthonormal_basis` in Python floats."""
+    hx, hy = (1.0, 0.0) if abs(ax) < 0.9 else (0.0, 1.0)
+    dot = hx * ax + hy * ay
+    e = (hx - dot * ax, hy - dot * ay, -dot * az)
+    k = 1.0 / math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    e1 = (e[0] * k, e[1] * k, e[2] * k)
+    return e1, (ay * e1[2] - az * e1[1], az * e1[0] - ax * e1[2], ax * e1[1] - ay * e1[0])
+
+
+def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Algebraic (Kasa) circle through (N, 2) points: centre and radius, ``None`` if singular.
+
+    Minimises sum((u - a)^2 + (v - b)^2 - r^2)^2, linear in (a, b, r^2 - a^2 - b^2); the
+    points are centred and scaled first so the normal equations stay well conditioned.
+    """
+    n = len(uv)
+    # (u, v, u^2 + v^2) about the mean as contiguous rows (3, N).
+    rows = np.ascontiguousarray(uv.T)
+    mean = rows.sum(axis=1) / n
+    d = np.empty((3, n))
+    np.subtract(rows, mean[:, None], out=d[:2])
+    np.add(d[0] * d[0], d[1] * d[1], out=d[2])
+    scale2 = float(d[2].sum()) / n
+    if not (math.isfinite(scale2) and scale2 > 0):
+        return None
+    # The normal equations of [2u, 2v, 1] . sol = u^2 + v^2 on the points scaled to unit RMS,
+    # from the moments of (u, v, u^2 + v^2) in one product (scaled afterwards, in floats).
+    (guu, guv, guz), (_, gvv, gvz), (_, _, _) = (d @ d.T).tolist()
+    su, sv, sz = d.sum(axis=1).tolist()
+    k1, k2 = 1.0 / math.sqrt(scale2), 1.0 / scale2
+    guu, guv, gvv, su, sv = guu * k2, guv * k2, gvv * k2, su * k1, sv * k1
+    guz, gvz, sz = guz * k1 * k2, gvz * k1 * k2, sz * k2
+    ata = ((4 * guu, 4 * guv, 2 * su), (4 * guv, 4 * gvv, 2 * sv), (2 * su, 2 * sv, float(n)))
+    # Points centred and scaled to unit RMS: a tiny determinant means they are collinear.
+    sol = _solve3(ata, (2 * guz, 2 * gvz, sz), 1e-9 * n**3)
+    if sol is None:
+        return None
+    r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
+    if not r2 > 0:
+        return None
+    scale = math.sqrt(scale2)
+    return mean + scale * np.array(sol[:2]), scale * math.sqrt(r2)
+
+
+_Row3 = tuple[float, float, float]
+
+
+def _solve3(
+    m: tuple[_Row3, _Row3, _Row3], b: _Row3, min_det: float
+) -> tuple[float, float, float] | None:
+    """``m x = b`` for a 3x3 system by Cramer's rule, in Python floats (a tenth of what
+    ``numpy.linalg.solve`` costs at this size); None when ``|det m| < min_det``."""
+    (a11, a12, a13), (a21, a22, a23), (a31, a32, a33) = m
+    c11, c12, c13 = a22 * a33 - a23 * a32, a23 * a31 - a21 * a33, a21 * a32 - a22 * a31
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    if not abs(det) >= min_det:
+        return None
+    b1, b2, b3 = b
+    x1 = b1 * c11 + a12 * (a23 * b3 - b2 * a33) + a13 * (b2 * a32 - a22 * b3)
+    x2 = a11 * (b2 * a33 - a23 * b3) + b1 * c12 + a13 * (a21 * b3 - b2 * a31)
+    x3 = a11 * (a22 * b3 - b2 * a32) + a12 * (b2 * a31 - a21 * b3) + b1 * c13
+    return x1 / det, x2 / det, x3 / det
+
+
+def _smallest_eigenvector(m: list[list[float]]) -> list[float] | None:
+    """Unit eigenvector of the smallest eigenvalue of a symmetric positive semi-definite 3x3
+    matrix, in closed form (Python floats: a tenth of ``numpy.linalg.eigh`` at this size);
+    None when the middle eigenvalue is below 1e-12 of the largest (rank one or zero).
+
+    Eigenvalues by Smith's trigonometric formula (1961); the eigenvector is orthogonal to
+    the rows of M - lambda I: the largest cross product of two of them.
+    """
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = m
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = math.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1) / 6.0)
+    if not p > 0.0:
+        return None if not q > 0.0 else [1.0, 0.0, 0.0]  # zero, or a multiple of I
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+           + a02 * (a01 * a12 - b11 * a02)) / (p * p * p)  # fmt: skip
+    phi = math.acos(max(-1.0, min(1.0, 0.5 * det))) / 3.0
+    largest = q + 2.0 * p * math.cos(phi)
+    smallest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    middle = 3.0 * q - largest - smallest
+    if middle <= 1e-12 * max(largest, 1e-30):
+        return None
+    r0 = (a00 - smallest, a01, a02)
+    r1 = (a01, a11 - smallest, a12)
+    r2 = (a02, a12, a22 - smallest)
+    best, best_norm = (0.0, 0.0, 0.0), 0.0
+    for u, w in ((r0, r1), (r0, r2), (r1, r2)):
+        c = (u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0])
+        norm = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+        if norm > best_norm:
+            best, best_norm = c, norm
+    if not best_norm > 0.0:
+        return None
+    k = 1.0 / math.sqrt(best_norm)
+    return [best[0] * k, best[1] * k, best[2] * k]
+
+
+# --------------------------------------------------------------------------- plane
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlaneSolid:
+    """Plane n . (p - point) = 0 with unit ``normal`` facing the camera (n_z <= 0 side).
+
+    Total least squares (smallest principal axis of the points); at least 3 points.
+    """
+
+    point: np.ndarray
+    normal: np.ndarray
+
+    @classmethod
+    def estimate(cls, points: np.ndarray) -> Self | FailedSolid:
+        points = _as_points(points, 3)
+        point = points.sum(axis=0) / len(points)
+        d = points - point
+        found = _smallest_eigenvector((d.T @ d).tolist())
+        if found is None:
+            return FailedSolid("points are collinear")
+        normal = np.array(found)
+        # Face the camera at the origin: the normal points from the plane toward the sensor.
+        if normal @ point > 0:
+            normal = -normal
+        return cls(point=point, normal=normal)
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        return np.abs((np.asarray(points, dtype=np.float64) - self.point) @ self.normal)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Orthogonal projection of (N, 3) points onto the plane."""
+        d = (points - self.point) @ self.normal
+        return points - d[:, None] * self.normal
+
+
+# --------------------------------------------------------------------------- sphere
+
+
+@dataclass(frozen=True, kw_only=True)
+class SphereSolid:
+    """Sphere |p - center| = radius.
+
+    ``estimate`` minimises sum(|p - c| - r)^2 by Gauss-Newton from the algebraic solution of
+    |p|^2 = 2 c . p + (r^2 - |c|^2) (or from ``init``); at least 4 points.
+    """
+
+    center: np.ndarray
+    radius: float
+
+    @classmethod
+    def estimate(
+        cls,
+        points: np.ndarray,
+        *,
+        init: tuple[np.ndarray, float] | None = None,
+        iterations: int = 4,
+    ) -> Self | FailedSolid:
+        points = _as_points(points, 4)
+        if init is None:
+            mean = points.mean(axis=0)
+            d = points - mean
+            scale = float(np.sqrt((d * d).sum(axis=1).mean()))
+            if scale <= 0:
+                return FailedSolid("points coincide")
+            d /= scale
+            a = np.column_stack([2 * d, np.ones(len(d))])
+            ata = a.T @ a
+            if np.linalg.cond(ata) > 1e12:
+                return FailedSolid("points are coplanar")
+            sol = np.linalg.solve(ata, a.T @ (d * d).sum(axis=1))
+            r2 = sol[3] + sol[:3] @ sol[:3]
+            if r2 <= 0:
+                return FailedSolid("no real sphere through the points")
+            center, radius = mean + scale * sol[:3], float(scale * np.sqrt(r2))
+        else:
+            center, radius = np.asarray(init[0], dtype=np.float64), float(init[1])
+        # [J | -r] as rows (5, N): J'J and -J'r from one product, on contiguous rows (a
+        # third of the cost of the columns of an (N, 5) array).
+        rows = np.ascontiguousarray(points.T)
+        aug = np.empty((5, len(points)))
+        aug[3] = -1.0
+        for _ in range(iterations):
+            w = rows - center[:, None]
+            rho = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+            if not rho.min() > 0:
+                return FailedSolid("a point sits on the centre")
+            np.divide(w, -rho, out=aug[:3])
+            np.subtract(radius, rho, out=aug[4])
+            normal = aug @ aug.T
+            try:
+                step = np.linalg.solve(normal[:4, :4], normal[:4, 4])
+            except np.linalg.LinAlgError:
+                return FailedSolid("points do not fix a sphere")
+            center = center + step[:3]
+            radius += float(step[3])
+            if np.abs(step).max() < 1e-7:
+                break
+        if not np.isfinite(radius) or radius <= 0:
+            return FailedSolid("radius did not converge")
+        return cls(center=center, radius=radius)
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        w = np.asarray(points, dtype=np.float64) - self.center
+        return np.abs(np.sqrt((w * w).sum(axis=1)) - self.radius)
+
+
+# --------------------------------------------------------------------------- cylinder
+
+
+@dataclass(frozen=True, kw_only=True)
+class CylinderSolid:
+    """Cylinder |(p - point) - ((p - point) . axis) axis| = radius, ``axis`` a unit vector.
+
+    ``estimate`` minimises the sum of squared orthogonal distances over the axis direction
+    (2 parameters), the axis position (2) and the radius (1) by Levenberg-Marquardt, from an
+    axis direction guess; the start circle comes from the points projected along that guess.
+    At least 5 points.
+    """
+
+    point: np.ndarray
+    axis: np.ndarray
+    radius: float
+    cost: float = 0.0
+
+    @classmethod
+    def estimate(
+        cls, points: np.ndarray, axis: np.ndarray, *, iterations: int = 6
+    ) -> Self | FailedSolid:
+        points = _as_points(points, 5)
+        d = [float(v) for v in np.asarray(axis, dtype=np.float64).reshape(-1)]
+        norm = math.sqrt(sum(v * v for v in d)) if len(d) == 3 else math.nan
+        if not math.isfinite(norm) or norm == 0:
+            raise ValueError("axis must be a non-zero finite vector")
+        d = [v / norm for v in d]
+        e1, e2 = _basis(*d)
+        # Coordinates as rows (3, N): each pass of the normal equations then works on
+        # contiguous rows, a third cheaper than on the columns of (N, 3).
+        rows = np.ascontiguousarray(points.T)
+        start = fit_circle_2d((np.array([e1, e2]) @ rows).T)
+        if start is None:
+            return FailedSolid("points are collinear across the axis")
+        u, v = start[0].tolist()
+        # The state (centre, axis, basis across it, radius) is kept in Python floats: each
+        # Levenberg-Marquardt step is a handful of 3-vectors besides the normal equations.
+        state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
+        cost, jtj, jtr = _cylinder_normal_equations(rows, *state)
+        damping = 1e-4
+        for _ in range(iterations):
+            h = jtj.copy()
+            h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
+            try:
+                s0, s1, s2, s3, s4 = np.linalg.solve(h, -jtr).tolist()
+            except np.linalg.LinAlgError:
+                break
+            c, d, e1, e2, radius = state
+            dn = [d[i] + e1[i] * s2 + e2[i] * s3 for i in range(3)]
+            k = 1.0 / math.sqrt(dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2])
+            dn = [v * k for v in dn]
+            # Re-orthonormalise the previous basis against the new axis (continuous, no branch).
+            dot = e1[0] * dn[0] + e1[1] * dn[1] + e1[2] * dn[2]
+            f1 = [e1[i] - dot * dn[i] for i in range(3)]
+            k = 1.0 / math.sqrt(f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
+            f1 = [v * k for v in f1]
+            f2 = [dn[1] * f1[2] - dn[2] * f1[1], dn[2] * f1[0] - dn[0] * f1[2],
+                  dn[0] * f1[1] - dn[1] * f1[0]]  # fmt: skip
+            cn = [c[i] + e1[i] * s0 + e2[i] * s1 for i in range(3)]
+            new_state = (cn, dn, f1, f2, radius + s4)
+            new_cost, new_jtj, new_jtr = _cylinder_normal_equations(rows, *new_state)
+            if new_cost < cost:
+                state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
+                damping = max(damping / 4, 1e-9)
+                if max(abs(s0), abs(s1), abs(s2), abs(s3), abs(s4)) < 1e-6:
+                    break
+            else:
+                damping *= 16
+        c, d, _, _, radius = state
+        if not math.isfinite(radius) or radius <= 0:
+            return FailedSolid("radius did not converge")
+        # Keep the axis point nearest the points' centroid along the axis: a readable centre.
+        mean = (points.sum(axis=0) / len(points)).tolist()
+        along = sum((mean[i] - c[i]) * d[i] for i in range(3))
+        point = np.array([c[i] + along * d[i] for i in range(3)])
+        return cls(point=point, axis=np.array(d), radius=float(radius), cost=cost)
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        w = np.asarray(points, dtype=np.float64) - self.point
+        q = w - (w @ self.axis)[:, None] * self.axis
+        return np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - self.radius)
+
+
+def _cylinder_normal_equations(
+    rows: np.ndarray, c: list[float], d: list[float], e1: _Vec3, e2: _Vec3, radius: float
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Cost, J^T J and J^T r of the orthogonal residuals |q| - r of the points ``rows``
+    (3, N).
+
+    For c += e1 u + e2 v and d += e1 a + e2 b (e1, e2 span the plane across d), the Jacobian
+    rows are (-n.e1, -n.e2, -t n.e1, -t n.e2, -1), with n the unit radial direction and t the
+    position along the axis.
+    """
+    # (t, w . e1, w . e2) for every point in one product, as rows.
+    m = np.array([d, e1, e2])
+    proj = m @ rows
+    proj -= (m @ np.array(c))[:, None]
+    t, qb = proj[0], proj[1:]
+    rho = np.sqrt(qb[0] * qb[0] + qb[1] * qb[1])
+    # [J | r] as rows: J'J, J'r and r'r from one product.
+    aug = np.empty((6, rows.shape[1]))
+    np.divide(qb, -np.maximum(rho, 1e-12), out=aug[:2])
+    np.multiply(aug[:2], t, out=aug[2:4])
+    aug[4] = -1.0
+    np.subtract(rho, radius, out=aug[5])
+    normal = aug @ aug.T
+    return float(normal[5, 5]), normal[:5, :5], normal[:5, 5]
+
+
+def best_cylinder_axis(
+    points: np.ndarray, directions: np.ndarray, threshold: float
+) -> tuple[np.ndarray, int]:
+    """Among unit ``directions`` (K, 3), the one whose projected points fit a circle best.
+
+    For every direction at once: project the points on the plane across it, fit an algebraic
+    circle, count points within ``threshold`` of it. Returns the direction and its count. Used
+    to seed ``CylinderSolid.estimate`` when the seed points give no principal direction.
+    """
+    points = _as_points(points, 5)
+    directions = np.asarray(directions, dtype=np.float64)
+    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = helper - (helper * directions).sum(axis=1, keepdims=True) * directions
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(directions, e1)
+    centred = points - points.mean(axis=0)
+    scale = float(np.sqrt((centred * centred).sum(axis=1).mean())) or 1.0
+    centred = centred / scale
+    u = centred @ e1.T  # (N, K)
+    v = centred @ e2.T
+    z = u * u + v * v
+    n = len(points)
+    # Normal equations of the Kasa fit, one 3x3 system per direction.
+    suu, svv, suv = (u * u).sum(0), (v * v).sum(0), (u * v).sum(0)
+    su, sv = u.sum(0), v.sum(0)
+    ata = np.empty((len(directions), 3, 3))
+    ata[:, 0, 0], ata[:, 0, 1], ata[:, 0, 2] = 4 * suu, 4 * suv, 2 * su
+    ata[:, 1, 0], ata[:, 1, 1], ata[:, 1, 2] = 4 * suv, 4 * svv, 2 * sv
+    ata[:, 2, 0], ata[:, 2, 1], ata[:, 2, 2] = 2 * su, 2 * sv, n
+    atb = np.stack([2 * (u * z).sum(0), 2 * (v * z).sum(0), z.sum(0)], axis=1)
+    ata += np.eye(3) * 1e-12
+    sol = np.linalg.solve(ata, atb[:, :, None])[:, :, 0]
+    r2 = sol[:, 2] + sol[:, 0] ** 2 + sol[:, 1] ** 2
+    r = np.sqrt(np.maximum(r2, 0.0))
+    rho = np.sqrt((u - sol[:, 0]) ** 2 + (v - sol[:, 1]) ** 2)
+    counts = (np.abs(rho - r) <= threshold / scale).sum(axis=0)
+    best = int(np.argmax(counts))
+    return directions[best], int(counts[best])
+
+
+def hemisphere_directions(count: int) -> np.ndarray:
+    """About ``count`` unit vectors spread evenly over the half-sphere z >= 0 (Fibonacci)."""
+    if count < 1:
+        raise ValueError(f"count must be positive, got {count}")
+    i = np.arange(count) + 0.5
+    z = 1.0 - i / count  # (0, 1]: an axis and its reverse are the same axis
+    r = np.sqrt(1.0 - z * z)
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+__all__ = [
+    "CylinderSolid",
+    "FailedSolid",
+    "PlaneSolid",
+    "Solid",
+    "SphereSolid",
+    "best_cylinder_axis",
+    "fit_circle_2d",
+    "hemisphere_directions",
+    "orthonormal_basis",
+]

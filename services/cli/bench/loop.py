@@ -1,0 +1,168 @@
+"""``lpc bench loop``: the closed loop's figures from a recording (or a fresh ``lpc up`` run).
+
+Reads ``lpc/controller/state``, ``lpc/emg``, ``lpc/prosthesis/command`` and
+``lpc/prosthesis/state`` and prints: the states visited and each transition's count, the
+pre-shapes (time to reach the target, and the error when the controller reported it against
+the hand's own status), the rates of the three 100 Hz topics, the gaps in the command stream,
+and the targets of issue 7 (all four states visited, a pre-shape within tolerance, >= 95 Hz).
+With ``--run S`` it first records ``lpc up --source sim --duration S``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import subprocess
+import sys
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from lpc_core.control.controller import ControllerParams
+from services.mcap_log import read_messages
+
+RATE_TOPICS = ("lpc/emg", "lpc/prosthesis/command", "lpc/prosthesis/state")
+REQUIRED_STATES = ("aiming", "ready", "preshaping", "direct")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", nargs="?", help="an MCAP recording of a session")
+    parser.add_argument("--run", type=float, metavar="S", help="record a sim session of S s first")
+    parser.add_argument("--port", type=int, default=7447, help="rendezvous port for --run")
+    parser.add_argument("--json", action="store_true", help="one JSON object instead of text")
+
+
+def run(args: argparse.Namespace) -> int:
+    path = args.recording
+    if args.run is not None:
+        if not 5 <= args.run <= 3600:
+            print("lpc bench loop: error: --run must be 5..3600 s", file=sys.stderr)
+            return 2
+        path = path or str(Path(tempfile.mkdtemp(prefix="lpc-loop-")) / "session.mcap")
+        cmd = [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "up",
+            "--source",
+            "sim",
+            "--duration",
+            str(args.run),
+            "--record",
+            path,
+            "--port",
+            str(args.port),
+            "--status-every",
+            "1e9",
+        ]
+        code = subprocess.call(cmd, stdout=subprocess.DEVNULL)
+        if code != 0:
+            print(f"lpc bench loop: error: lpc up exited with {code}", file=sys.stderr)
+            return 1
+    if not path or not Path(path).is_file():
+        print("lpc bench loop: error: give a recording or --run S", file=sys.stderr)
+        return 2
+    figures = analyse(path)
+    if args.json:
+        print(json.dumps(figures, sort_keys=True))
+    else:
+        _print(figures)
+    return 0 if figures["targets_met"] else 1
+
+
+def analyse(path: str) -> dict:
+    keys = ("lpc/controller/state", *RATE_TOPICS)
+    messages: dict[str, list] = {k: [] for k in keys}
+    log_times: dict[str, list[int]] = {k: [] for k in keys}
+    for m in read_messages(path, keys):
+        if m.message is not None:
+            messages[m.key].append(m.message)
+            log_times[m.key].append(m.log_time)
+    states = messages["lpc/controller/state"]
+    transitions = [s for s in states if s.event and s.previous != s.state]
+    visited = sorted({s.state for s in transitions})
+    counts = Counter(f"{s.previous} -> {s.state} ({s.event})" for s in transitions)
+
+    p = ControllerParams()
+    hands = messages["lpc/prosthesis/state"]
+    hand_t = [h.t_ns for h in hands]
+    preshapes = []
+    for i, s in enumerate(states):
+        if not (s.event == "auto_preshape" and s.state == "preshaping"):
+            continue
+        reached = next((r for r in states[i:] if r.event == "at_target"), None)
+        left = next((r for r in states[i + 1 :] if r.state != "preshaping"), None)
+        entry: dict = {"t_s": round((s.t_ns - states[0].t_ns) / 1e9, 2), "reached": False}
+        if reached is not None and (left is None or reached.t_ns <= left.t_ns):
+            k = bisect.bisect_left(hand_t, reached.t_ns)
+            hand = hands[min(k, len(hands) - 1)]
+            target_ap = min((s.target_width_mm or 0.0) + p.slack_mm, 110.0)
+            ap_err = hand.aperture_mm - target_ap
+            wr_err = (
+                0.0
+                if reached.target_angle_deg is None
+                else hand.wrist_angle_deg - reached.target_angle_deg
+            )
+            entry.update(
+                reached=abs(ap_err) <= p.aperture_tol_mm + 0.5
+                and abs(wr_err) <= p.wrist_tol_deg + 0.5,
+                time_to_target_ms=round((reached.t_ns - s.t_ns) / 1e6, 1),
+                aperture_error_mm=round(ap_err, 2),
+                wrist_error_deg=round(wr_err, 2),
+            )
+        preshapes.append(entry)
+
+    rates = {}
+    for key in RATE_TOPICS:
+        t = np.asarray(log_times[key], dtype=np.int64)
+        rates[key] = round((len(t) - 1) / ((t[-1] - t[0]) / 1e9), 2) if len(t) > 1 else 0.0
+    cmd_t = np.asarray(log_times["lpc/prosthesis/command"], dtype=np.int64)
+    gaps = np.diff(cmd_t) / 1e6 if len(cmd_t) > 1 else np.zeros(1)
+    figures = {
+        "recording": str(path),
+        "visited": visited,
+        "transitions": dict(counts),
+        "preshapes": preshapes,
+        "rates_hz": rates,
+        "command_gap_ms": {
+            "p50": round(float(np.percentile(gaps, 50)), 2),
+            "p99": round(float(np.percentile(gaps, 99)), 2),
+            "max": round(float(gaps.max()), 2),
+            "over_50ms": int((gaps > 50).sum()),
+        },
+    }
+    figures["targets"] = {
+        "states_visited": all(s in visited for s in REQUIRED_STATES),
+        "preshape_within_tolerance": any(e["reached"] for e in preshapes),
+        "rates_at_least_95_hz": all(r >= 95.0 for r in rates.values()),
+    }
+    figures["targets_met"] = all(figures["targets"].values())
+    return figures
+
+
+def _print(f: dict) -> None:
+    print(f"recording      {f['recording']}")
+    print(f"visited        {', '.join(f['visited'])}")
+    for name, count in sorted(f["transitions"].items()):
+        print(f"  {count:4d}  {name}")
+    for e in f["preshapes"]:
+        if e["reached"] or "time_to_target_ms" in e:
+            print(
+                f"pre-shape at {e['t_s']:7.2f} s: target in {e['time_to_target_ms']:6.1f} ms, "
+                f"aperture error {e['aperture_error_mm']:+.2f} mm, "
+                f"wrist error {e['wrist_error_deg']:+.2f} deg"
+            )
+        else:
+            print(f"pre-shape at {e['t_s']:7.2f} s: left before reaching the target")
+    for key, rate in f["rates_hz"].items():
+        print(f"rate           {key:<24} {rate:7.2f} Hz")
+    g = f["command_gap_ms"]
+    print(
+        f"command gaps   p50 {g['p50']} ms  p99 {g['p99']} ms  max {g['max']} ms  "
+        f"> 50 ms: {g['over_50ms']}"
+    )
+    for name, ok in f["targets"].items():
+        print(f"target         {name:<28} {'met' if ok else 'NOT MET'}")
