@@ -10,7 +10,9 @@ Models follow scikit-image's fit models: one class per shape with a classmethod
 ``(trials, k)`` index array from ``numpy.random.default_rng(seed)``, fits every minimal sample
 at once in closed form (2-point lines, 3-point circumcircles, 5-point conics) and scores all
 hypotheses against all points in one broadcast, then refits the best by least squares on its
-inliers and recomputes the inliers once. Lines and circles are chosen by inlier count (ties:
+inliers and recomputes the inliers once. The model-free part (argument checks, sampling, the
+adaptive trial bound, the batch layout of scan lines, the loop) is :mod:`.ransac`; each model's
+minimal fits, scorer and refit are here. Lines and circles are chosen by inlier count (ties:
 lower residual sum); ellipses by MSAC's truncated quadratic cost, and their direct
 least-squares refit is polished by orthogonal-distance Gauss-Newton (see :func:`fit_ellipse`
 for why). Inlier semantics follow PCL's sample consensus models: a point is an inlier when
@@ -26,13 +28,28 @@ per-hypothesis work is a handful of array expressions over all hypotheses at onc
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple, Protocol, Self, runtime_checkable
 
 import numpy as np
+
+from lpc_core.perception.ransac import (
+    CONFIDENCE,
+    Best,
+    Scorer,
+    Segments,
+    as_points,
+    check_limits,
+    check_threshold,
+    check_trials,
+    checked,
+    draw_samples,
+    on_rows,
+    pick_rows,
+    ransac,
+)
 
 __all__ = [
     "AXIS_LIMITS_M",
@@ -60,12 +77,14 @@ __all__ = [
     "fit_lines",
 ]
 
+# The sampler under its name from before the RANSAC machinery had its own module.
+_draw_samples = draw_samples
+
 RADIUS_LIMITS_M = (0.005, 0.05)
 # Semi-axes of a cylinder's cross-section: the minor one is the radius (5-50 mm); the major
 # one grows as the scan plane leans along the axis, and past ~100 mm the arc seen inside the
 # 100 mm capture volume is indistinguishable from a line.
 AXIS_LIMITS_M = (0.005, 0.10)
-CONFIDENCE = 0.99
 
 # Trial budgets (min_trials, max_trials). A first chunk of min_trials hypotheses is always
 # scored; the standard RANSAC bound at CONFIDENCE then says how many more are needed (up to
@@ -145,15 +164,6 @@ class _FitMixin:
         return self.n_inliers / n if n else 0.0
 
 
-def _as_points(points: np.ndarray, name: str = "points") -> np.ndarray:
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise ValueError(f"{name} must have shape (N, 2), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValueError(f"{name} must be finite")
-    return arr
-
-
 def _coincide(spread2: float, n: int, mx: float, my: float) -> bool:
     """Whether points with squared spread ``spread2`` about their mean ``(mx, my)`` coincide
     up to round-off (the mean itself is only exact to ~1e-16 of the coordinates)."""
@@ -205,12 +215,12 @@ class LineModel:
     @classmethod
     def estimate(cls, points: np.ndarray) -> LineModel | FailedFit:
         """Total least squares line through ``points``, shape ``(N, 2)``, metres."""
-        p = _as_points(points)
+        p = as_points(points)
         return _line_lsq(p[:, 0], p[:, 1])
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         """Orthogonal distances of ``points`` ``(N, 2)`` to the line, shape ``(N,)``, metres."""
-        p = _as_points(points)
+        p = as_points(points)
         return _line_distance(p[:, 0], p[:, 1], *self.params)
 
 
@@ -303,12 +313,12 @@ class CircleModel:
     @classmethod
     def estimate(cls, points: np.ndarray) -> CircleModel | FailedFit:
         """Geometric least-squares circle through ``points``, shape ``(N, 2)``, metres."""
-        p = _as_points(points)
+        p = as_points(points)
         return _circle_lsq(p[:, 0], p[:, 1])
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         """Orthogonal distances ``||p - c| - r|`` of ``points`` ``(N, 2)``, shape ``(N,)``."""
-        p = _as_points(points)
+        p = as_points(points)
         return _circle_distance(p[:, 0], p[:, 1], *self.params)
 
 
@@ -327,19 +337,32 @@ def _circle_distance(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: floa
 _CIRCLE_GN_STEPS = 10
 
 
-def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
+def _normalised(
+    x: np.ndarray, y: np.ndarray, k: int, shape: str
+) -> tuple[np.ndarray, np.ndarray, float, float, float] | FailedFit:
+    """``(xs, ys, mx, my, scale)``: the points centred on their mean ``(mx, my)`` and divided
+    by their RMS radius ``scale``, so that normal equations stay O(1) (skimage's habit); a
+    failure when there are fewer than ``k`` points or they coincide."""
     n = x.shape[0]
-    if n < 3:
-        return FailedFit(f"a circle needs at least 3 points, got {n}")
-    # Centre and scale so the normal equations are O(1) (skimage's habit).
+    if n < k:
+        return FailedFit(f"{'an' if shape[0] in 'aeiou' else 'a'} {shape} needs at least {k} "
+                         f"points, got {n}")  # fmt: skip
     mx, my = float(x.sum()) / n, float(y.sum()) / n
     xs, ys = x - mx, y - my
     spread2 = float(xs @ xs + ys @ ys)
     if _coincide(spread2, n, mx, my):
-        return FailedFit("circle: all points coincide")
+        return FailedFit(f"{shape}: all points coincide")
     scale = math.sqrt(spread2 / n)
     inv = 1.0 / scale
-    xs, ys = xs * inv, ys * inv
+    return xs * inv, ys * inv, mx, my, scale
+
+
+def _circle_lsq(x: np.ndarray, y: np.ndarray) -> CircleModel | FailedFit:
+    found = _normalised(x, y, 3, "circle")
+    if isinstance(found, FailedFit):
+        return found
+    xs, ys, mx, my, scale = found
+    n = x.shape[0]
     # Kasa: x^2 + y^2 = a x + b y + c by linear least squares. On centred data the normal
     # equations split into a 2x2 system for (a, b), and c = mean(x^2 + y^2).
     zz = xs * xs + ys * ys
@@ -408,7 +431,7 @@ def _circle_kasa_batch(
             continue
         centres.append((mx + 0.5 * (cyy * cxz - cxy * cyz) / det,
                         my + 0.5 * (cxx * cyz - cxy * cxz) / det))  # fmt: skip
-    cx, cy = (_column(v) for v in zip(*centres, strict=True))
+    cx, cy = _columns(centres)
     with np.errstate(all="ignore"):
         dx, dy = x - cx, y - cy
         r = np.where(inl, np.sqrt(dx * dx + dy * dy), 0.0).sum(axis=1) / inl.sum(axis=1)
@@ -472,7 +495,7 @@ class EllipseModel:
     @classmethod
     def estimate(cls, points: np.ndarray, *, geometric: bool = False) -> EllipseModel | FailedFit:
         """Direct least-squares ellipse through ``points``, shape ``(N, 2)``, metres."""
-        p = _as_points(points)
+        p = as_points(points)
         found = _ellipse_lsq(p[:, 0], p[:, 1])
         if found and geometric:
             found = _ellipse_geometric(p[:, 0], p[:, 1], found) or found
@@ -480,7 +503,7 @@ class EllipseModel:
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         """Orthogonal distances of ``points`` ``(N, 2)`` to the ellipse, shape ``(N,)``."""
-        p = _as_points(points)
+        p = as_points(points)
         return _ellipse_residuals(p[:, 0], p[:, 1], *self.params)
 
 
@@ -628,18 +651,12 @@ def _eig3(m: list[list[float]]) -> list[tuple[float, list[float]]]:
 
 
 def _ellipse_lsq(x: np.ndarray, y: np.ndarray) -> EllipseModel | FailedFit:
+    # Centred and scaled: the quartic moments in S1 span many orders of magnitude otherwise.
+    found = _normalised(x, y, 5, "ellipse")
+    if isinstance(found, FailedFit):
+        return found
+    xs, ys, mx, my, scale = found
     n = x.shape[0]
-    if n < 5:
-        return FailedFit(f"an ellipse needs at least 5 points, got {n}")
-    # Centre and scale: the quartic moments in S1 span many orders of magnitude otherwise.
-    mx, my = float(x.sum()) / n, float(y.sum()) / n
-    xs, ys = x - mx, y - my
-    spread2 = float(xs @ xs + ys @ ys)
-    if _coincide(spread2, n, mx, my):
-        return FailedFit("ellipse: all points coincide")
-    scale = math.sqrt(spread2 / n)
-    inv = 1.0 / scale
-    xs, ys = xs * inv, ys * inv
     # Halir & Flusser 1998, Sec. 3: split the design matrix D = [D1 | D2] into its quadratic
     # part D1 = [x^2, xy, y^2] and linear part D2 = [x, y, 1], with scatter blocks
     # S1 = D1'D1, S2 = D1'D2, S3 = D2'D2.
@@ -821,226 +838,6 @@ def _ellipse_geometric(
     )
 
 
-# --------------------------------------------------------------------------- RANSAC core
-
-
-def _check_threshold(threshold: float) -> float:
-    t = float(threshold)
-    if not (math.isfinite(t) and t > 0.0):
-        raise ValueError(f"threshold must be a finite positive distance in metres, got {threshold}")
-    return t
-
-
-def _check_limits(limits: tuple[float, float], name: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in limits)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a pair (low, high) in metres, got {limits!r}") from None
-    if not (math.isfinite(lo) and 0.0 <= lo < hi) or math.isnan(hi):
-        raise ValueError(f"{name} must satisfy 0 <= low < high, got {limits!r}")
-    return lo, hi
-
-
-def _check_trials(trials: tuple[int, int], confidence: float, name: str = "trials") -> None:
-    lo, hi = trials
-    if int(hi) != hi or hi < 1:
-        raise ValueError(f"max_trials ({name}) must be a positive integer, got {hi}")
-    if int(lo) != lo or lo < 1:
-        raise ValueError(f"min_trials ({name}) must be a positive integer, got {lo}")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be within (0, 1), got {confidence}")
-
-
-def _draw_batch(rng: np.random.Generator, n: np.ndarray, size: int, k: int) -> np.ndarray:
-    """``(L, size, k)`` indices, row ``l`` into ``range(n[l])``, distinct within each sample.
-
-    Floyd's algorithm, one column at a time for all samples: for j = n-k .. n-1 draw v
-    uniform in [0, j] and take v, or j if v is already in the sample. Every k-subset is equally
-    likely (the order within a sample is not uniform, which no model here cares about); no
-    sorting. The columns are worked on as contiguous ``(k, L, size)`` blocks (strided columns
-    cost a third more) and returned as a view in ``(L, size, k)`` order. With one row it
-    draws exactly what ``_draw_samples`` draws.
-    """
-    # The uniforms are drawn in (L, size, k) order, as ever, and scaled into column blocks.
-    u = rng.random((n.shape[0], size, k)).transpose(2, 0, 1)
-    v = np.multiply(u, n[:, None] + _FLOYD_OFFSETS[k], out=np.empty(u.shape)).astype(np.intp)
-    top = n[:, None] - k
-    for col in range(1, k):
-        current = v[col]
-        # Compare with each earlier column: cheaper than an any() reduction at this size.
-        taken = current == v[0]
-        for c in range(1, col):
-            taken |= current == v[c]
-        np.copyto(current, top + col, where=taken)
-    return v.transpose(1, 2, 0)
-
-
-# Column j of a sample of k draws from [0, n - k + j]: n + (1 - k + j) values.
-_FLOYD_OFFSETS = {k: np.arange(1.0 - k, 1.0)[:, None, None] for k in range(1, 8)}
-
-
-def _draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
-    """``(size, k)`` indices into ``range(n)``, distinct within each row (see ``_draw_batch``)."""
-    return _draw_batch(rng, np.array([n]), size, k)[0]
-
-
-@functools.lru_cache(maxsize=4096)
-def _trials_needed(n_inliers: float, n: int, k: int, confidence: float) -> float:
-    """Standard RANSAC bound: trials for one all-inlier sample at the given confidence."""
-    # Exact probability of an all-inlier sample without replacement (matters for small n).
-    p = 1.0
-    for i in range(k):
-        p *= max(n_inliers - i, 0) / (n - i)
-    if p >= 1.0:
-        return 0.0
-    if p <= 0.0:
-        return math.inf
-    return math.log(1.0 - confidence) / math.log1p(-p)
-
-
-class Segments:
-    """Scan lines side by side, so that one numpy call serves every line of a frame.
-
-    Row ``l`` holds line ``l``'s ``(N_l, 2)`` points, centred on their mean (``x``, ``y``) and
-    as given (``ox``, ``oy``), padded with NaN to a common width plus one NaN column: padded
-    entries fail every inlier test by themselves, and a sample index pointing at the last
-    column reads NaN. With ~100 points per line the fits are bound by numpy's per-call
-    overhead, not by arithmetic, so four lines cost little more than one.
-
-    Parameters
-    ----------
-    points : sequence of (N_l, 2) arrays
-        Each scan line's points in its plane, metres (validated as by ``fit_line``).
-    """
-
-    __slots__ = ("_bases", "count", "mean", "n", "ox", "oy", "points", "valid", "width", "x", "y")
-
-    def __init__(self, points: Sequence[np.ndarray], *, validated: bool = False) -> None:
-        pts = list(points) if validated else [_as_points(p) for p in points]
-        self.points = pts
-        self.n = n = [p.shape[0] for p in pts]
-        self.count = count = len(pts)
-        self.width = width = (max(n) if n else 0) + 1
-        raw = np.zeros((2, count, width))
-        for i, p in enumerate(pts):
-            raw[:, i, : n[i]] = p.T
-        self.valid = valid = np.arange(width) < np.array(n, dtype=np.intp)[:, None]
-        with np.errstate(all="ignore"):
-            mean = raw.sum(axis=2) / np.maximum(np.array(n, dtype=np.float64), 1.0)
-            centred = np.where(valid, raw - mean[:, :, None], np.nan)
-        self.x, self.y = centred
-        self.ox, self.oy = np.where(valid, raw, np.nan)
-        self.mean = mean.T.tolist()
-        self._bases: dict[str, np.ndarray] = {}
-
-    def take(self, rows: Sequence[int]) -> Segments:
-        """The lines ``rows`` only, sharing this batch's centring."""
-        out = object.__new__(Segments)
-        idx = np.asarray(rows, dtype=np.intp)
-        out.points = [self.points[r] for r in rows]
-        out.n = [self.n[r] for r in rows]
-        out.count, out.width = len(out.n), self.width
-        out.valid, out.x, out.y = self.valid[idx], self.x[idx], self.y[idx]
-        out.ox, out.oy = self.ox[idx], self.oy[idx]
-        out.mean = [self.mean[r] for r in rows]
-        out._bases = {k: v[idx] for k, v in self._bases.items() if not k.startswith("offsets")}
-        return out
-
-    def offsets(self, count: int) -> np.ndarray:
-        """Flat offsets of ``count`` rows, to gather ``(L, T, k)`` sample indices at once."""
-        key = f"offsets{count}"
-        found = self._bases.get(key)
-        if found is None:
-            found = self._bases[key] = (np.arange(count) * self.width)[:, None, None]
-        return found
-
-    def basis(self, name: str) -> np.ndarray:
-        """``(L, m, W)`` monomials of the centred points, built once per batch."""
-        found = self._bases.get(name)
-        if found is None:
-            x, y, one = self.x, self.y, np.ones_like(self.x)
-            found = np.stack([x, y, one] if name == "line" else [x, y, x * x + y * y, one], axis=1)
-            self._bases[name] = found
-        return found
-
-
-def _segments(points: Segments | Sequence[np.ndarray]) -> Segments:
-    return points if isinstance(points, Segments) else Segments(points)
-
-
-def _goals(min_inliers: Sequence[float] | None, seg: Segments) -> list[float] | None:
-    if min_inliers is None:
-        return None
-    goals = [float(g) for g in min_inliers]
-    if len(goals) != seg.count or not all(math.isfinite(g) for g in goals):
-        raise ValueError(f"min_inliers must hold one finite count per line, got {min_inliers!r}")
-    return goals
-
-
-# A batch scorer takes (L', T, k) sample indices for the rows (scan lines) ``rows`` (None: every
-# row) and returns each row's best hypothesis as (inlier count, cost, parameters), or None where
-# no sample gave a valid hypothesis. Lines and circles rank by count, ties by cost = residual
-# sum over the inliers; the ellipse ranks by cost alone, MSAC's truncated quadratic (see
-# fit_ellipse). Counts may be on a fixed subsample (the ellipse's): the RANSAC bound then uses
-# that subsample's size.
-_Best = tuple[int, float, tuple[float, ...]]
-_Scorer = Callable[[np.ndarray, np.ndarray | None], list[_Best | None]]
-
-
-def _ransac(
-    n: list[int],
-    rows: list[int],
-    k: int,
-    rng: np.random.Generator,
-    trials: tuple[int, int],
-    confidence: float,
-    score: _Scorer,
-    n_scored: list[int],
-    by_cost: bool = False,
-    goals: Sequence[float] | None = None,
-) -> tuple[list[_Best | None], list[int]]:
-    """RANSAC on the scan lines ``rows`` at once: each line keeps its own best hypothesis and
-    its own adaptive budget; a chunk of samples goes to every line that still needs one.
-
-    ``goals`` (per line, in scored points) is the inlier count a hypothesis must reach to be
-    of any use to the caller: the budget is the standard bound for the larger of it and the
-    best count so far, so a line is not searched further for a model that, if it existed,
-    would already have been drawn at ``confidence``.
-    """
-    min_trials, max_trials = trials
-    best: list[_Best | None] = [None] * len(n)
-    done = [0] * len(n)
-    goal = [0.0] * len(n) if goals is None else [float(g) for g in goals]
-    needed = [
-        float(max_trials) if g <= 0.0 else _trials_needed(g, m, k, confidence)
-        for g, m in zip(goal, n_scored, strict=True)
-    ]
-    size, spent = min(min_trials, max_trials), 0
-    while rows and size > 0:
-        idx = _draw_batch(rng, np.array([n[r] for r in rows]), size, k)
-        found = score(idx, None if len(rows) == len(n) else np.array(rows))
-        spent += size
-        active, remaining = [], 0.0
-        for r, f in zip(rows, found, strict=True):
-            done[r] = spent
-            b = best[r]
-            if f is not None and (
-                b is None
-                or (by_cost and f[1] < b[1])
-                or (not by_cost and (f[0], -f[1]) > (b[0], -b[1]))
-            ):
-                best[r] = f
-                needed[r] = _trials_needed(max(f[0], goal[r]), n_scored[r], k, confidence)
-            left = min(float(max_trials), needed[r]) - spent
-            if left > 0:
-                active.append(r)
-                remaining = max(remaining, left)
-        # Rows still active have all drawn every chunk so far: one size serves them all.
-        rows = active
-        size = min(max(math.ceil(remaining), min_trials), max_trials - spent) if rows else 0
-    return best, done
-
-
 def _none(n: int) -> np.ndarray:
     return _frozen(np.zeros(n, bool))
 
@@ -1070,17 +867,25 @@ def _column(values: list[float]) -> np.ndarray:
     return np.array(values, dtype=np.float64)[:, None]
 
 
+def _columns(rows: Iterable[Sequence[float]]) -> tuple[np.ndarray, ...]:
+    """Per-line parameter tuples as one ``(L, 1)`` column per parameter."""
+    return tuple(_column(v) for v in zip(*rows, strict=True))
+
+
+def _best_columns(best: list[Best | None], width: int) -> tuple[np.ndarray, ...]:
+    """Each line's best sample's parameters as ``(L, 1)`` columns, NaN where it has none."""
+    nan = (math.nan,) * width
+    return _columns(b[2] if b else nan for b in best)
+
+
 # --------------------------------------------------------------------------- fit_line
 
 
-def _line_scorer(seg: Segments, threshold: float) -> _Scorer:
+def _line_scorer(seg: Segments, threshold: float) -> Scorer:
     basis_all = seg.basis("line")  # (L, 3, W): x, y, 1
 
-    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
-        if rows is None:
-            x, y, basis = seg.x, seg.y, basis_all
-        else:
-            x, y, basis = seg.x[rows], seg.y[rows], basis_all[rows]
+    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[Best | None]:
+        x, y, basis = on_rows(rows, seg.x, seg.y, basis_all)
         g = idx + seg.offsets(x.shape[0])
         px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 2)
         x0, y0, x1, y1 = px[:, :, 0], py[:, :, 0], px[:, :, 1], py[:, :, 1]
@@ -1101,7 +906,7 @@ def _line_scorer(seg: Segments, threshold: float) -> _Scorer:
         def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
             return np.where(inl[rl, rt], dist[rl, rt], 0.0).sum(axis=1)
 
-        picks = _pick_rows(inl, residual_sums)
+        picks = pick_rows(inl, residual_sums)
         r, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
         params = coef[r, i].tolist()
         return [
@@ -1110,29 +915,6 @@ def _line_scorer(seg: Segments, threshold: float) -> _Scorer:
         ]
 
     return score
-
-
-def _pick_rows(
-    inl: np.ndarray, residual_sums: Callable[[np.ndarray, np.ndarray], np.ndarray]
-) -> list[tuple[int, int, float]]:
-    """Each line's hypothesis with the most inliers ``inl`` (L, T, W); ties go to the lowest
-    residual sum, then the first. ``(t, count, residual sum)`` per line; the sums are computed
-    for the tied hypotheses only (``residual_sums(lines, hypotheses)``)."""
-    # Counting through uint8 -> uint16 skips numpy's bool -> int64 cast (half the cost here).
-    counts = np.add.reduce(inl.view(np.uint8), axis=2, dtype=np.uint16)
-    top = counts.max(axis=1)
-    tl, tt = np.nonzero(counts == top[:, None])
-    tops = top.tolist()
-    sums = residual_sums(tl, tt).tolist()
-    out: list[tuple[int, int, float]] = [(0, 0, math.inf)] * len(tops)
-    for line, t, total in zip(tl.tolist(), tt.tolist(), sums, strict=True):
-        if total < out[line][2]:
-            out[line] = (t, tops[line], total)
-    # A line whose tied sums are all NaN keeps its first tied hypothesis.
-    return [
-        o if o[2] < math.inf else (int(tt[tl == line][0]), tops[line], math.inf)
-        for line, o in enumerate(out)
-    ]
 
 
 def _fit_lines(
@@ -1145,7 +927,7 @@ def _fit_lines(
 ) -> list[LineFit | FailedFit]:
     out: list[Any] = _too_few(seg.n, 2, "a line")
     rows = [r for r, m in enumerate(seg.n) if m >= 2]
-    best, done = _ransac(seg.n, rows, 2, rng, trials, confidence,
+    best, done = ransac(seg.n, rows, 2, rng, trials, confidence,
                          _line_scorer(seg, threshold), seg.n, goals=goals)  # fmt: skip
     found = [r for r in rows if best[r] is not None]
     for r in rows:
@@ -1153,16 +935,14 @@ def _fit_lines(
             out[r] = FailedFit("line: every sample was degenerate", _none(seg.n[r]), done[r])
     if not found:
         return out
-    nan3 = (math.nan, math.nan, math.nan)
-    nx, ny, c = (_column(v) for v in zip(*(best[r][2] if best[r] else nan3
-                                            for r in range(seg.count)), strict=True))  # fmt: skip
+    nx, ny, c = _best_columns(best, 3)
     x, y = seg.x, seg.y
     inl = np.abs(nx * x + ny * y + c) <= threshold
     # Total least squares on each line's inliers, every line from one product: the moments
     # [x, y, 1] x [x, y, 1] over the inliers (padding is never an inlier).
     d = np.where(inl[:, None, :], seg.basis("line"), 0.0)  # (L, 3, W)
     moments = (d @ d.transpose(0, 2, 1)).tolist()
-    line = [(*nan3, math.nan)] * seg.count
+    line = [(math.nan,) * 4] * seg.count
     for r in found:
         model = _line_from_moments(moments[r])
         if model is not None:
@@ -1171,7 +951,7 @@ def _fit_lines(
             a, b, cc = best[r][2]
             px, py, ux, uy = -cc * a, -cc * b, b, -a
         line[r] = (px + seg.mean[r][0], py + seg.mean[r][1], ux, uy)
-    px, py, ux, uy = (_column(v) for v in zip(*line, strict=True))
+    px, py, ux, uy = _columns(line)
     inliers = _line_distance(seg.ox, seg.oy, px, py, ux, uy) <= threshold
     for r in found:
         p = line[r]
@@ -1223,11 +1003,8 @@ def fit_line(
     >>> round(line.inlier_fraction, 2), round(line.direction[1] / line.direction[0], 2)
     (0.9, 0.1)
     """
-    seg = Segments([points])
-    threshold = _check_threshold(threshold)
-    _check_trials((min_trials, max_trials), confidence)
-    return _fit_lines(seg, threshold, np.random.default_rng(seed), (min_trials, max_trials),
-                      confidence)[0]  # fmt: skip
+    return fit_lines([points], threshold, max_trials=max_trials, min_trials=min_trials,
+                     confidence=confidence, seed=seed)[0]  # fmt: skip
 
 
 def fit_lines(
@@ -1246,30 +1023,25 @@ def fit_lines(
     result depends on which lines share the call (each is as good a RANSAC as alone).
     ``min_inliers`` (one per line, optional) is the inlier count below which the caller has no
     use for a line's model: the adaptive budget then stops once such a model, if it existed,
-    would have been drawn at ``confidence`` (see ``_ransac``).
+    would have been drawn at ``confidence`` (see ``ransac``).
     """
-    seg = _segments(segments)
-    threshold = _check_threshold(threshold)
-    _check_trials((min_trials, max_trials), confidence)
-    return _fit_lines(seg, threshold, np.random.default_rng(seed), (min_trials, max_trials),
-                      confidence, _goals(min_inliers, seg))  # fmt: skip
+    trials = (min_trials, max_trials)
+    seg, threshold, goals = checked(segments, threshold, trials, confidence, min_inliers)
+    return _fit_lines(seg, threshold, np.random.default_rng(seed), trials, confidence, goals)
 
 
 # --------------------------------------------------------------------------- fit_circle
 
 
-def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float]) -> _Scorer:
+def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float]) -> Scorer:
     basis_all = seg.basis("circle")  # (L, 4, W): x, y, x^2 + y^2, 1
     r_lo = limits[0]
     lo2, hi2 = limits[0] ** 2, limits[1] ** 2
     unbounded = math.isinf(hi2)
     t2 = threshold * threshold
 
-    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
-        if rows is None:
-            x, y, basis = seg.x, seg.y, basis_all
-        else:
-            x, y, basis = seg.x[rows], seg.y[rows], basis_all[rows]
+    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[Best | None]:
+        x, y, basis = on_rows(rows, seg.x, seg.y, basis_all)
         g = idx + seg.offsets(x.shape[0])
         px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 3)
         # Circumcentre relative to the first point; b, e the other two points' offsets.
@@ -1313,7 +1085,7 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
                 d = np.abs(np.sqrt(np.maximum(rho2, 0.0)) - r[rl, rt, None])
             return np.where(inl[rl, rt], d, 0.0).sum(axis=1)
 
-        picks = _pick_rows(inl, residual_sums)
+        picks = pick_rows(inl, residual_sums)
         k, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
         params = np.stack([cx[k, i], cy[k, i], r[k, i]], axis=1).tolist()
         return [
@@ -1336,7 +1108,7 @@ def _fit_circles(
 ) -> list[CircleFit | FailedFit]:
     out: list[Any] = _too_few(seg.n, 3, "a circle")
     rows = [r for r, m in enumerate(seg.n) if m >= 3]
-    best, done = _ransac(seg.n, rows, 3, rng, trials, confidence,
+    best, done = ransac(seg.n, rows, 3, rng, trials, confidence,
                          _circle_scorer(seg, threshold, limits), seg.n, goals=goals)  # fmt: skip
     for r in rows:
         if best[r] is None:
@@ -1347,9 +1119,7 @@ def _fit_circles(
     found = [r for r in rows if out[r] is None]
     if not found:
         return out
-    nan3 = (math.nan, math.nan, math.nan)
-    cx, cy, rad = (_column(v) for v in zip(*(best[r][2] if best[r] else nan3
-                                             for r in range(seg.count)), strict=True))  # fmt: skip
+    cx, cy, rad = _best_columns(best, 3)
     x, y = seg.x, seg.y
     inl = _circle_distance(x, y, cx, cy, rad) <= threshold
     if geometric:
@@ -1361,7 +1131,7 @@ def _fit_circles(
             refits.append((*refit.center, refit.radius) if refit else None)
     else:
         refits = _circle_kasa_batch(x, y, seg.basis("circle"), inl)
-    circle = [nan3] * seg.count
+    circle = [(math.nan,) * 3] * seg.count
     for r in found:
         cxr, cyr, rr = best[r][2]
         refit = refits[r]
@@ -1369,7 +1139,7 @@ def _fit_circles(
         if refit is not None and limits[0] <= refit[2] <= limits[1]:
             cxr, cyr, rr = refit
         circle[r] = (cxr + seg.mean[r][0], cyr + seg.mean[r][1], rr)
-    cx, cy, rad = (_column(v) for v in zip(*circle, strict=True))
+    cx, cy, rad = _columns(circle)
     inliers = _circle_distance(seg.ox, seg.oy, cx, cy, rad) <= threshold
     for r in found:
         c = circle[r]
@@ -1400,10 +1170,8 @@ def fit_circle(
 
     Parameters
     ----------
-    points : (N, 2) array
-        The scan line's points in its plane, metres.
-    threshold : float
-        Inlier distance, metres (``distance <= threshold``).
+    points, threshold
+        As for :func:`fit_line`.
     radius_limits : (float, float)
         Accepted radii ``(low, high)``, metres; PCL's 5-50 mm by default.
     max_trials, min_trials, confidence, seed
@@ -1425,12 +1193,9 @@ def fit_circle(
     >>> abs(circle.radius - 0.02) < 5e-4, circle.inlier_fraction > 0.9
     (True, True)
     """
-    seg = Segments([points])
-    threshold = _check_threshold(threshold)
-    limits = _check_limits(radius_limits, "radius_limits")
-    _check_trials((min_trials, max_trials), confidence)
-    return _fit_circles(seg, threshold, limits, np.random.default_rng(seed),
-                        (min_trials, max_trials), confidence, geometric=geometric)[0]  # fmt: skip
+    return fit_circles([points], threshold, radius_limits=radius_limits, max_trials=max_trials,
+                       min_trials=min_trials, confidence=confidence, seed=seed,
+                       geometric=geometric)[0]  # fmt: skip
 
 
 def fit_circles(
@@ -1447,13 +1212,11 @@ def fit_circles(
 ) -> list[CircleFit | FailedFit]:
     """:func:`fit_circle` on several scan lines at once, one result per line (see
     :func:`fit_lines`, also for ``min_inliers``)."""
-    seg = _segments(segments)
-    threshold = _check_threshold(threshold)
-    limits = _check_limits(radius_limits, "radius_limits")
-    _check_trials((min_trials, max_trials), confidence)
-    return _fit_circles(seg, threshold, limits, np.random.default_rng(seed),
-                        (min_trials, max_trials), confidence, _goals(min_inliers, seg),
-                        geometric)  # fmt: skip
+    trials = (min_trials, max_trials)
+    seg, threshold, goals = checked(segments, threshold, trials, confidence, min_inliers)
+    limits = check_limits(radius_limits, "radius_limits")
+    rng = np.random.default_rng(seed)
+    return _fit_circles(seg, threshold, limits, rng, trials, confidence, goals, geometric)
 
 
 # --------------------------------------------------------------------------- fit_ellipse
@@ -1586,18 +1349,18 @@ class _EllipseFrame:
         return np.fmin(ratio, self._ones[shape], out=ratio) @ self._ones[shape][0, 0]
 
 
-def _ellipse_scorer(frame: _EllipseFrame) -> _Scorer:
+def _ellipse_scorer(frame: _EllipseFrame) -> Scorer:
     """Hypotheses scored by MSAC's cost on the subsample; each line's best ``ELLIPSE_TOP``
     are rescored on every point."""
 
-    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[_Best | None]:
+    def score(idx: np.ndarray, rows: np.ndarray | None) -> list[Best | None]:
         f = frame
-        x, y, sub, full = f.x, f.y, f.mono_sub, f.mono_full()
-        lo, hi, pad_sub, pad, stride = f.lo, f.hi, f.pad_sub, f.pad, f.stride_col
-        if rows is not None:
-            x, y, lo, hi = x[rows], y[rows], lo[rows], hi[rows]
+        x, y, lo, hi, pad_sub, pad, stride = on_rows(
+            rows, f.x, f.y, f.lo, f.hi, f.pad_sub, f.pad, f.stride_col
+        )
+        sub, full = f.mono_sub, f.mono_full()
+        if rows is not None:  # the monomials hold the lines on their second axis
             sub, full = sub[:, rows], full[:, rows]
-            pad_sub, pad, stride = pad_sub[rows], pad[rows], stride[rows]
         count, trials = idx.shape[0], idx.shape[1]
         g = (idx + f.seg.offsets(count)).reshape(-1, 5)
         with np.errstate(all="ignore"):
@@ -1657,7 +1420,7 @@ def _fit_ellipses(
     # Goals count scored points, a subsample of each line.
     scored = None if goals is None else [
         goals[r] * m / seg.n[r] for r, m in zip(rows, frame.n_scored, strict=True)]  # fmt: skip
-    best, done = _ransac(sub.n, list(range(sub.count)), 5, rng, trials, confidence,
+    best, done = ransac(sub.n, list(range(sub.count)), 5, rng, trials, confidence,
                          _ellipse_scorer(frame), frame.n_scored, by_cost=True,
                          goals=scored)  # fmt: skip
     # A line whose best sample falls short of its goal gets no refit: the caller has no use
@@ -1715,7 +1478,7 @@ def _fit_ellipses(
     if not found:
         return out
     keep = [k for k, _, _ in found]
-    cx, cy, a, b, _, c, s = (_column(v) for v in zip(*(p for _, _, p in found), strict=True))
+    cx, cy, a, b, _, c, s = _columns(p for _, _, p in found)
     ox, oy = sub.ox[keep], sub.oy[keep]
     dx, dy = ox - cx, oy - cy
     residuals = _ellipse_distance(dx * c + dy * s, dy * c - dx * s, a, b)
@@ -1754,10 +1517,8 @@ def fit_ellipse(
 
     Parameters
     ----------
-    points : (N, 2) array
-        The scan line's points in its plane, metres.
-    threshold : float
-        Inlier distance, metres (``distance <= threshold``).
+    points, threshold
+        As for :func:`fit_line`.
     axis_limits : (float, float)
         Accepted semi-axes ``(low, high)``, metres.
     max_trials, min_trials, confidence, seed
@@ -1783,12 +1544,9 @@ def fit_ellipse(
     >>> [round(1000 * v) for v in ellipse.axis_lengths], ellipse.inlier_fraction > 0.95
     ([35, 20], True)
     """
-    seg = Segments([points])
-    threshold = _check_threshold(threshold)
-    limits = _check_limits(axis_limits, "axis_limits")
-    _check_trials((min_trials, max_trials), confidence)
-    return _fit_ellipses(seg, threshold, limits, np.random.default_rng(seed),
-                         (min_trials, max_trials), confidence, geometric)[0]  # fmt: skip
+    return fit_ellipses([points], threshold, axis_limits=axis_limits, max_trials=max_trials,
+                        min_trials=min_trials, confidence=confidence, seed=seed,
+                        geometric=geometric)[0]  # fmt: skip
 
 
 def fit_ellipses(
@@ -1805,13 +1563,11 @@ def fit_ellipses(
 ) -> list[EllipseFit | FailedFit]:
     """:func:`fit_ellipse` on several scan lines at once, one result per line (see
     :func:`fit_lines`, also for ``min_inliers``)."""
-    seg = _segments(segments)
-    threshold = _check_threshold(threshold)
-    limits = _check_limits(axis_limits, "axis_limits")
-    _check_trials((min_trials, max_trials), confidence)
-    return _fit_ellipses(seg, threshold, limits, np.random.default_rng(seed),
-                         (min_trials, max_trials), confidence, geometric,
-                         _goals(min_inliers, seg))  # fmt: skip
+    trials = (min_trials, max_trials)
+    seg, threshold, goals = checked(segments, threshold, trials, confidence, min_inliers)
+    limits = check_limits(axis_limits, "axis_limits")
+    rng = np.random.default_rng(seed)
+    return _fit_ellipses(seg, threshold, limits, rng, trials, confidence, geometric, goals)
 
 
 # --------------------------------------------------------------------------- fit_all
@@ -1846,17 +1602,14 @@ def fit_all(
     ``fit_ellipse(..., seed=g)`` with the same settings.
     """
     seg = Segments([points])
-    threshold = _check_threshold(threshold)
-    r_limits = _check_limits(radius_limits, "radius_limits")
-    a_limits = _check_limits(axis_limits, "axis_limits")
-    _check_trials(line_trials, confidence, "line_trials")
-    _check_trials(circle_trials, confidence, "circle_trials")
-    _check_trials(ellipse_trials, confidence, "ellipse_trials")
+    threshold = check_threshold(threshold)
+    r_limits = check_limits(radius_limits, "radius_limits")
+    a_limits = check_limits(axis_limits, "axis_limits")
+    check_trials(line_trials, confidence, "line_trials")
+    check_trials(circle_trials, confidence, "circle_trials")
+    check_trials(ellipse_trials, confidence, "ellipse_trials")
     rng = np.random.default_rng(seed)
-    return ScanLineFits(
-        line=_fit_lines(seg, threshold, rng, line_trials, confidence)[0],
-        circle=_fit_circles(seg, threshold, r_limits, rng, circle_trials, confidence)[0],
-        ellipse=_fit_ellipses(seg, threshold, a_limits, rng, ellipse_trials, confidence, geometric)[
-            0
-        ],
-    )
+    line = _fit_lines(seg, threshold, rng, line_trials, confidence)
+    circle = _fit_circles(seg, threshold, r_limits, rng, circle_trials, confidence)
+    ellipse = _fit_ellipses(seg, threshold, a_limits, rng, ellipse_trials, confidence, geometric)
+    return ScanLineFits(line[0], circle[0], ellipse[0])
