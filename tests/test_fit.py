@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 from lpc_core.perception.fit import (
+    AXIS_LIMITS_M,
+    RADIUS_LIMITS_M,
     CircleFit,
     CircleModel,
     EllipseFit,
@@ -282,8 +284,8 @@ def test_fit_ellipse_partial_arc_geometric_removes_algebraic_shrink():
     geo, direct = [], []
     for i in range(40):
         points = scan_ellipse(rng, 0.04, 0.02, 0.3, zc=0.2 + rng.uniform(-0.02, 0.02))
-        g = fit_ellipse(points, THRESHOLD, seed=i)
-        d = fit_ellipse(points, THRESHOLD, seed=i, geometric=False)
+        g = fit_ellipse(points, THRESHOLD, axis_limits=AXIS_LIMITS_M, seed=i)
+        d = fit_ellipse(points, THRESHOLD, axis_limits=AXIS_LIMITS_M, seed=i, geometric=False)
         assert g and d
         geo.append((g.axis_lengths[0] - 0.04, g.axis_lengths[1] - 0.02))
         direct.append((d.axis_lengths[0] - 0.04, d.axis_lengths[1] - 0.02))
@@ -331,9 +333,11 @@ def test_fit_line_with_outliers():
 def test_fit_circle_radius_limits_reject_large_circles():
     t = np.linspace(np.pi + 0.5, 2 * np.pi - 0.5, 60)
     points = np.column_stack([0.08 * np.cos(t), 0.3 + 0.08 * np.sin(t)])  # r = 80 mm
-    assert not fit_circle(points, THRESHOLD)  # default limits 5-50 mm
+    assert not fit_circle(points, THRESHOLD, radius_limits=RADIUS_LIMITS_M)  # 5-50 mm
     fit = fit_circle(points, THRESHOLD, radius_limits=(0.005, 0.1))
     assert fit and fit.radius == pytest.approx(0.08, abs=1e-9)
+    # Unbounded by default, as PCL's models.
+    assert fit_circle(points, THRESHOLD).params == fit.params
 
 
 def test_fit_ellipse_axis_limits_bound_the_result():
@@ -520,7 +524,8 @@ def test_fit_circles_min_inliers_out_of_reach_is_not_refitted():
     s = np.linspace(-0.03, 0.03, 60)
     flat = np.column_stack([s, 0.2 + rng.normal(0.0, 2e-4, s.size)])
     arc = scan_circle(rng, 0.02)
-    found = fit_circles([flat, arc], THRESHOLD, seed=2, min_inliers=[59.0, 0.5 * len(arc)])
+    found = fit_circles([flat, arc], THRESHOLD, radius_limits=RADIUS_LIMITS_M, seed=2,
+                        min_inliers=[59.0, 0.5 * len(arc)])  # fmt: skip
     assert not found[0] and "not refitted" in found[0].reason
     assert found[1] and found[1].inlier_fraction > 0.85
     with pytest.raises(ValueError, match="min_inliers"):

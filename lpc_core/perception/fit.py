@@ -80,6 +80,8 @@ __all__ = [
 # The sampler under its name from before the RANSAC machinery had its own module.
 _draw_samples = draw_samples
 
+# The paper's limits for its scan lines, in metres. The fits are unbounded by default, as PCL's
+# models are until limits are set; the reconstruction passes these.
 RADIUS_LIMITS_M = (0.005, 0.05)
 # Semi-axes of a cylinder's cross-section: the minor one is the radius (5-50 mm); the major
 # one grows as the scan plane leans along the axis, and past ~100 mm the arc seen inside the
@@ -1152,7 +1154,7 @@ def fit_circle(
     points: np.ndarray,
     threshold: float,
     *,
-    radius_limits: tuple[float, float] = RADIUS_LIMITS_M,
+    radius_limits: tuple[float, float] | None = None,
     max_trials: int = CIRCLE_TRIALS[1],
     min_trials: int = CIRCLE_TRIALS[0],
     confidence: float = CONFIDENCE,
@@ -1172,8 +1174,10 @@ def fit_circle(
     ----------
     points, threshold
         As for :func:`fit_line`.
-    radius_limits : (float, float)
-        Accepted radii ``(low, high)``, metres; PCL's 5-50 mm by default.
+    radius_limits : (float, float) or None
+        Accepted radii ``(low, high)``, metres. None (the default) accepts any radius, as PCL's
+        circle model does until limits are set; the paper's scan lines use
+        ``RADIUS_LIMITS_M`` (5-50 mm).
     max_trials, min_trials, confidence, seed
         As for :func:`fit_line`.
     geometric : bool
@@ -1202,7 +1206,7 @@ def fit_circles(
     segments: Segments | Sequence[np.ndarray],
     threshold: float,
     *,
-    radius_limits: tuple[float, float] = RADIUS_LIMITS_M,
+    radius_limits: tuple[float, float] | None = None,
     max_trials: int = CIRCLE_TRIALS[1],
     min_trials: int = CIRCLE_TRIALS[0],
     confidence: float = CONFIDENCE,
@@ -1493,7 +1497,7 @@ def fit_ellipse(
     points: np.ndarray,
     threshold: float,
     *,
-    axis_limits: tuple[float, float] = AXIS_LIMITS_M,
+    axis_limits: tuple[float, float] | None = None,
     max_trials: int = ELLIPSE_TRIALS[1],
     min_trials: int = ELLIPSE_TRIALS[0],
     confidence: float = CONFIDENCE,
@@ -1519,8 +1523,9 @@ def fit_ellipse(
     ----------
     points, threshold
         As for :func:`fit_line`.
-    axis_limits : (float, float)
-        Accepted semi-axes ``(low, high)``, metres.
+    axis_limits : (float, float) or None
+        Accepted semi-axes ``(low, high)``, metres. None (the default) accepts any ellipse, as
+        PCL's ellipse model does; the paper's scan lines use ``AXIS_LIMITS_M`` (5-100 mm).
     max_trials, min_trials, confidence, seed
         As for :func:`fit_line`.
     geometric : bool
@@ -1553,7 +1558,7 @@ def fit_ellipses(
     segments: Segments | Sequence[np.ndarray],
     threshold: float,
     *,
-    axis_limits: tuple[float, float] = AXIS_LIMITS_M,
+    axis_limits: tuple[float, float] | None = AXIS_LIMITS_M,
     max_trials: int = ELLIPSE_TRIALS[1],
     min_trials: int = ELLIPSE_TRIALS[0],
     confidence: float = CONFIDENCE,
@@ -1562,7 +1567,12 @@ def fit_ellipses(
     min_inliers: Sequence[float] | None = None,
 ) -> list[EllipseFit | FailedFit]:
     """:func:`fit_ellipse` on several scan lines at once, one result per line (see
-    :func:`fit_lines`, also for ``min_inliers``)."""
+    :func:`fit_lines`, also for ``min_inliers``).
+
+    Unlike :func:`fit_ellipse`, ``axis_limits`` defaults to the paper's ``AXIS_LIMITS_M``:
+    the laser method (``laser.py``) relies on that default today; once it passes its limits,
+    as it does its radius limits, this default becomes None too.
+    """
     trials = (min_trials, max_trials)
     seg, threshold, goals = checked(segments, threshold, trials, confidence, min_inliers)
     limits = check_limits(axis_limits, "axis_limits")
@@ -1586,8 +1596,8 @@ def fit_all(
     threshold: float,
     *,
     seed: int | np.random.Generator = 0,
-    radius_limits: tuple[float, float] = RADIUS_LIMITS_M,
-    axis_limits: tuple[float, float] = AXIS_LIMITS_M,
+    radius_limits: tuple[float, float] | None = None,
+    axis_limits: tuple[float, float] | None = None,
     confidence: float = CONFIDENCE,
     line_trials: tuple[int, int] = LINE_TRIALS,
     circle_trials: tuple[int, int] = CIRCLE_TRIALS,
@@ -1596,7 +1606,8 @@ def fit_all(
 ) -> ScanLineFits:
     """Line, circle and ellipse on one scan line, sharing validation, centring and the RNG.
 
-    ``*_trials`` are ``(min_trials, max_trials)`` pairs. One generator
+    ``*_trials`` are ``(min_trials, max_trials)`` pairs; the limits, as for
+    :func:`fit_circle` and :func:`fit_ellipse`, are unbounded by default. One generator
     ``g = numpy.random.default_rng(seed)`` serves the three fits in turn, so the result equals
     ``fit_line(points, threshold, seed=g)``, then ``fit_circle(..., seed=g)``, then
     ``fit_ellipse(..., seed=g)`` with the same settings.

@@ -55,7 +55,10 @@ def check_threshold(threshold: float) -> float:
     return t
 
 
-def check_limits(limits: tuple[float, float], name: str) -> tuple[float, float]:
+def check_limits(limits: tuple[float, float] | None, name: str) -> tuple[float, float]:
+    """``(low, high)`` as floats; None is no limit, ``(0, inf)``, as in PCL's models."""
+    if limits is None:
+        return 0.0, math.inf
     try:
         lo, hi = (float(v) for v in limits)
     except (TypeError, ValueError):

@@ -11,6 +11,7 @@ while other processes share the machine) and of wall time.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import time
 
@@ -19,6 +20,10 @@ import numpy as np
 from lpc_core.perception import fit
 
 FX = 213.0
+# fit_all with the paper's limits (the fits' defaults are unbounded, as PCL's).
+fit_all = functools.partial(
+    fit.fit_all, radius_limits=fit.RADIUS_LIMITS_M, axis_limits=fit.AXIS_LIMITS_M
+)
 
 
 def _ray_cast(rng: np.random.Generator, shape: str) -> np.ndarray:
@@ -94,14 +99,16 @@ def run(args: argparse.Namespace) -> int:
     threshold = args.threshold_mm / 1000.0
     scenes = {kind: [_ray_cast(rng, kind) for _ in range(args.lines)]
               for kind in ("circle", "ellipse", "line")}  # fmt: skip
+    # The paper's radius and axis limits, as the reconstructor fits scan lines.
+    r_lim, a_lim = fit.RADIUS_LIMITS_M, fit.AXIS_LIMITS_M
     fits = {
         "line": lambda p, i: fit.fit_line(p, threshold, seed=i),
-        "circle": lambda p, i: fit.fit_circle(p, threshold, seed=i),
-        "ellipse": lambda p, i: fit.fit_ellipse(p, threshold, seed=i),
+        "circle": lambda p, i: fit.fit_circle(p, threshold, radius_limits=r_lim, seed=i),
+        "ellipse": lambda p, i: fit.fit_ellipse(p, threshold, axis_limits=a_lim, seed=i),
         "ellipse (direct only)": lambda p, i: fit.fit_ellipse(
-            p, threshold, seed=i, geometric=False
+            p, threshold, axis_limits=a_lim, seed=i, geometric=False
         ),
-        "fit_all": lambda p, i: fit.fit_all(p, threshold, seed=i),
+        "fit_all": lambda p, i: fit_all(p, threshold, seed=i),
     }
     print(f"lpc bench fit: {args.lines} scan lines per scene, threshold {args.threshold_mm} mm, "
           f"seed {args.seed}")  # fmt: skip
@@ -132,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         for f0 in range(0, len(lines) - 3, 4):
             w0, c0 = time.perf_counter_ns(), time.thread_time_ns()
             for i in range(f0, f0 + 4):
-                fit.fit_all(lines[i], threshold, seed=i)
+                fit_all(lines[i], threshold, seed=i)
             c1, w1 = time.thread_time_ns(), time.perf_counter_ns()
             cpu.append(c1 - c0)
             wall.append(w1 - w0)
@@ -147,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         profile.enable()
         for lines in scenes.values():
             for i, p in enumerate(lines):
-                fit.fit_all(p, threshold, seed=i)
+                fit_all(p, threshold, seed=i)
         profile.disable()
         pstats.Stats(profile).sort_stats("tottime").print_stats(20)
     return 0

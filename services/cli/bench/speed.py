@@ -68,7 +68,7 @@ def _time_fits(models: list[LineModels], params: LaserParams, seq: int) -> dict[
         middle = time.process_time()
         fit.fit_circle(m.sz, thr, radius_limits=params.radius_limits_m, seed=seq)
         end = time.process_time()
-        fit.fit_ellipse(m.sz, thr, seed=seq)
+        fit.fit_ellipse(m.sz, thr, axis_limits=fit.AXIS_LIMITS_M, seed=seq)
         spent["line"] += middle - start
         spent["circle"] += end - middle
         spent["ellipse"] += time.process_time() - end
