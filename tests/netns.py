@@ -1,7 +1,7 @@
 """Hosts in Linux network namespaces for multi-host tests: a wearable, a laptop and an intruder
 on one bridge, with the repository's secure Zenoh configs and a throw-away CA.
 
-Every namespace is named ``lpcmh-<pid>-<host>``; the bridge lives in a fourth one (``-hub``),
+Every namespace is named ``lpcmh-<pid>-<n>-<host>``; the bridge lives in a fourth one (``-hub``),
 and each host's veth pair is created straight inside its two namespaces, so nothing is ever
 added to the namespace the tests run in and deleting the namespaces deletes every link.
 Addresses are 10.213.0.0/24 and exist only inside those namespaces. ``Hosts.close()`` runs
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import itertools
 import json
 import os
 import re
@@ -36,6 +37,7 @@ PREFIX = "lpcmh-"
 SUBNET = "10.213.0"
 ADDRESSES = {"wearable": f"{SUBNET}.1", "laptop": f"{SUBNET}.2", "intruder": f"{SUBNET}.3"}
 PORT = 7447
+_RUNS = itertools.count()
 
 
 def unavailable() -> str | None:
@@ -87,7 +89,7 @@ class Hosts:
 
     def __init__(self, workdir: Path, names: Iterable[str] = tuple(ADDRESSES)) -> None:
         self.workdir = workdir
-        self.tag = f"{PREFIX}{os.getpid()}"
+        self.tag = f"{PREFIX}{os.getpid()}-{next(_RUNS)}"
         self.ns = {host: f"{self.tag}-{host}" for host in names}
         self.hub = f"{self.tag}-hub"
         self.processes: list[subprocess.Popen[str]] = []

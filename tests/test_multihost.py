@@ -302,7 +302,10 @@ def test_multihost_the_laptop_records_every_topic_without_gaps(deployment: Deplo
     t0 = time.time_ns()
     time.sleep(STEADY_S)  # the run being recorded, not a synchronisation
     t1 = time.time_ns()
-    # The file is read as it is written: wait until a message stamped after t1 + 1 s is in it.
+    # The file is read as it is written (up to its last finished chunk): once the recorder's
+    # health reports from well after t1, read it, and again until it holds t1 + 1 s.
+    netns.wait_until(lambda: bool(d.probe.of("lpc/health/recorder", t1 + 1_500_000_000)), 30,
+                     "the recorder's health after the window")  # fmt: skip
     netns.wait_until(
         lambda: any(m.publish_time > t1 + 1e9 for m in d.recorded()), 30, "the recording", 1.0
     )

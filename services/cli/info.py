@@ -122,9 +122,18 @@ def render(path: Path, log: McapLog, summary: Summary, *, validate: bool) -> lis
             f"gaps         {len(summary.gaps)} ({len(silent)} silences), {missing} messages "
             "missing by seq",
         ]
-        lines += [f"  {g.describe(start)}" for g in summary.gaps[:MAX_GAPS_SHOWN]]
-        if len(summary.gaps) > MAX_GAPS_SHOWN:
-            lines.append(f"  ... and {len(summary.gaps) - MAX_GAPS_SHOWN} more")
+        # Silences say where a link or a producer was lost: each on its own line. Short seq
+        # jumps (a dropped message here and there) are summed per topic.
+        lines += [f"  {g.describe(start)}" for g in silent[:MAX_GAPS_SHOWN]]
+        if len(silent) > MAX_GAPS_SHOWN:
+            lines.append(f"  ... and {len(silent) - MAX_GAPS_SHOWN} more silences")
+        jumps: dict[str, list[int]] = {}
+        for g in summary.gaps:
+            if not g.silent:
+                jumps.setdefault(g.key, []).append(g.missing)
+        for key in sorted(jumps):
+            n, lost = len(jumps[key]), sum(jumps[key])
+            lines.append(f"  seq jumps on {key}: {n}, {lost} missing")
     else:
         skipped = ", ".join(sorted(SOURCE_SEQ_KEYS))
         lines += ["", f"gaps         none (seq jumps on {skipped} are skipped frames)"]
