@@ -39,6 +39,8 @@ def _wait_for_signal() -> None:
 
 
 def router(args: argparse.Namespace) -> int:
+    # Warnings on stderr (the harness keeps them): a refused handshake says why.
+    zenoh.init_log_from_env_or("warn")
     with zenoh.open(zenoh.Config.from_file(args.config)):
         print(json.dumps({"ready": True}), flush=True)
         _wait_for_signal()
@@ -77,6 +79,7 @@ def probe(args: argparse.Namespace) -> int:
 
 def intrude(args: argparse.Namespace) -> int:
     report: dict[str, object] = {"as": args.name, "config": args.config}
+    zenoh.init_log_from_env_or("warn")  # the handshake's failure, on stderr
     try:
         session = zenoh.open(zenoh.Config.from_file(args.config))
     except zenoh.ZError as exc:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -205,7 +206,26 @@ def _intrude(d: Deployment, name: str, config: Path, *, edit: dict[str, str] | N
     process = d.hosts.start("intruder", argv, name=f"intrude-{name}", on_line=out.append)
     process.wait(60)
     netns.wait_until(lambda: bool(out), 5, f"intruder {name}'s report")
-    return json.loads(out[-1])
+    result = json.loads(out[-1])
+    # Zenoh's own warning names what failed in the handshake (an alert from the router).
+    log = (d.work / f"intruder-intrude-{name}.log").read_text()
+    reasons = re.findall(r"Unable to connect to \S+! (.*?) at /", _plain(log))
+    result["reason"] = reasons[0] if reasons else result.get("error", "")
+    return result
+
+
+def _plain(text: str) -> str:
+    return re.sub(r"\x1b\[[0-9;]*m", "", text)
+
+
+def _router_refusals(d: Deployment) -> list[str]:
+    """What the routers logged about refused links (their TLS layer's warnings)."""
+    found = []
+    for host in ("wearable", "laptop"):
+        text = _plain((d.work / f"{host}-router.log").read_text())
+        refused = re.findall(r"zenoh_link_tls::unicast: (.*?)\. Hint", text)
+        found += [f"{host}: {m}" for m in refused]
+    return sorted(set(found))
 
 
 def test_multihost_intruders_are_kept_out(deployment: Deployment) -> None:
@@ -256,7 +276,7 @@ def test_multihost_intruders_are_kept_out(deployment: Deployment) -> None:
     for what, (_, _, connects) in attempts.items():
         r = results[what]
         if not r["connected"]:
-            stopped = f"refused: {r['error'][:90]}"
+            stopped = f"refused: {r['reason'][:90]}"
         else:
             stopped = (
                 f"connected; sent {r['commands_sent']} hand commands, the hand saw 0 of them "
@@ -265,6 +285,7 @@ def test_multihost_intruders_are_kept_out(deployment: Deployment) -> None:
             )
         lines.append(f"  {what:<38} {stopped}")
         assert r["connected"] is connects, (what, r)
+    lines.append(f"  the routers logged: {_router_refusals(d)}")
     report(*lines)
     assert forged == [], f"the bridge's side saw forged commands: {forged[:3]}"
     assert sources <= {"controller", "", None} or not forged
@@ -421,49 +442,47 @@ def test_multihost_offloaded_reconstruction_goes_stale_and_resumes(
     down = time.time_ns()
     d.hosts.link("laptop", up=False)
     last_target = max(t["r"] for t in d.probe.of("lpc/grasp/target", moved))
-
-    def stopped_since(t: int) -> list[dict]:
-        return [s for s in d.controller_states(t) if s["state"] == "stopped"]
-
-    netns.wait_until(lambda: bool(stopped_since(down)), 10, "the controller to stop")
-    stop = stopped_since(down)[0]
-    zero = next(
-        c
-        for c in d.probe.of("lpc/prosthesis/command", stop["r"] - 5_000_000)
-        if c["grasp"] == 0.0 and c["wrist"] == 0.0
-    )
-    time.sleep(max(0.0, CUT_S - (time.time_ns() - down) / 1e9))
+    limit_ns = last_target + int(STALE_TARGET_MS * 1e6)
+    # The cut lasts until the controller has had its threshold and a second more to react.
+    netns.wait_until(lambda: time.time_ns() > max(down + CUT_S * 1e9, limit_ns + 1e9), 10, "")
     up_ns = time.time_ns()
     d.hosts.link("laptop", up=True)
-    states_during = [s for s in d.controller_states(stop["r"]) if s["r"] < up_ns]
-    moving = [
-        c
-        for c in d.probe.of("lpc/prosthesis/command", zero["r"])
-        if c["r"] < up_ns and (c["grasp"] or c["wrist"])
+    transitions = [
+        s for s in d.controller_states(down) if s["r"] < up_ns and s["event"] and s["previous"]
     ]
+    commands = [c for c in d.probe.of("lpc/prosthesis/command", down) if c["r"] < up_ns]
+    # Zero velocity from here on, until the link came back: the last moving command's successor.
+    moving = [c for c in commands if c["grasp"] or c["wrist"]]
+    zero_ns = next((c["r"] for c in commands if not moving or c["r"] > moving[-1]["r"]), None)
+    assert zero_ns is not None, f"the hand was still commanded to move at link-up: {moving[-1]}"
+    acting = [
+        s for s in d.controller_states(limit_ns + 100_000_000)
+        if s["r"] < up_ns and s["state"] in ("ready", "preshaping")
+    ]  # fmt: skip
     netns.wait_until(
         lambda: any(s["state"] in ("ready", "preshaping") for s in d.controller_states(up_ns)),
         30,
         "the loop to resume",
     )
     resumed = next(s for s in d.controller_states(up_ns) if s["state"] in ("ready", "preshaping"))
-    recovered = next(s for s in d.controller_states(up_ns) if s["state"] != "stopped")
     first_target = min(t["r"] for t in d.probe.of("lpc/grasp/target", up_ns))
+    left = next((s for s in transitions if s["previous"] == "preshaping"), None)
     report(
         "offloaded reconstruction (cloud method on the laptop), cable cut during a pre-shape",
-        f"  link-down -> controller stopped {(stop['r'] - down) / 1e6:.0f} ms "
-        f"({stop['reason']}); -> hand zero velocity {(zero['r'] - down) / 1e6:.0f} ms; "
-        f"last target -> zero velocity {(zero['r'] - last_target) / 1e6:.0f} ms "
-        f"(threshold {STALE_TARGET_MS:.0f} ms)",
+        f"  link-down -> hand zero velocity (held until link-up) {(zero_ns - down) / 1e6:.0f} ms;"
+        f" last target -> zero velocity {(zero_ns - last_target) / 1e6:.0f} ms (threshold "
+        f"{STALE_TARGET_MS:.0f} ms)",
+        "  controller during the cut: "
+        + "; ".join(
+            f"+{(s['r'] - down) / 1e6:.0f} ms {s['previous']} -> {s['state']} ({s['reason']})"
+            for s in transitions
+        ),
         f"  link-up -> first grasp target {(first_target - up_ns) / 1e6:.0f} ms, -> controller "
-        f"{recovered['state']} ({recovered['event']}) {(recovered['r'] - up_ns) / 1e6:.0f} ms, "
-        f"-> {resumed['state']} {(resumed['r'] - up_ns) / 1e6:.0f} ms; non-zero commands while "
-        f"stopped: {len(moving)}; processes restarted: none",
+        f"{resumed['state']} {(resumed['r'] - up_ns) / 1e6:.0f} ms; processes restarted: none",
     )
-    assert "lpc/grasp/target" in stop["reason"]
-    assert zero["r"] - last_target <= (STALE_TARGET_MS + 100) * 1e6
-    assert moving == []
-    assert all(s["state"] in ("stopped", "idle", "aiming") for s in states_during)
+    assert left is not None, "the controller left pre-shaping"
+    assert zero_ns <= limit_ns + 100_000_000, "zero velocity within the staleness threshold"
+    assert acting == [], f"the controller acted on a stale target: {acting[:2]}"
     assert d.services["laptop/reconstructor"].poll() is None, "no restart was needed"
 
 
