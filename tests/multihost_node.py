@@ -24,7 +24,7 @@ from services.mcap_log import read_header
 # Fields printed with the header, per key; the rest of a message is not needed.
 FIELDS = {
     "lpc/prosthesis/command": ("grasp", "wrist", "source"),
-    "lpc/controller/state": ("state", "event", "reason"),
+    "lpc/controller/state": ("state", "previous", "event", "reason"),
     "lpc/log/recorder": ("level", "text"),
     "lpc/health/recorder": ("counters",),
     "lpc/health/prosthesis_bridge": ("counters",),
@@ -39,7 +39,7 @@ def _wait_for_signal() -> None:
 
 
 def router(args: argparse.Namespace) -> int:
-    # Warnings on stderr (the harness keeps them): a refused handshake says why.
+    # Zenoh's warnings (it logs to stdout): a refused handshake says why.
     zenoh.init_log_from_env_or("warn")
     with zenoh.open(zenoh.Config.from_file(args.config)):
         print(json.dumps({"ready": True}), flush=True)
@@ -79,7 +79,7 @@ def probe(args: argparse.Namespace) -> int:
 
 def intrude(args: argparse.Namespace) -> int:
     report: dict[str, object] = {"as": args.name, "config": args.config}
-    zenoh.init_log_from_env_or("warn")  # the handshake's failure, on stderr
+    zenoh.init_log_from_env_or("warn")  # the handshake's failure, on stdout before the report
     try:
         session = zenoh.open(zenoh.Config.from_file(args.config))
     except zenoh.ZError as exc:
