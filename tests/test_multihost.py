@@ -384,11 +384,18 @@ def test_multihost_a_cut_cable_costs_the_wearable_nothing(deployment: Deployment
     wear_cmds = d.probe.of("lpc/prosthesis/command", down)
     during = [c for c in wear_cmds if c["r"] <= up]
     calm = [c for c in d.probe.of("lpc/prosthesis/command", before) if c["r"] <= down]
-    states = [s for s in d.controller_states(down) if s["r"] <= up + 500_000_000]
-    stopped = [s for s in states if s["state"] == "stopped"]
+
+    def stops(t0: int, t1: int) -> list[dict]:
+        return [
+            s for s in d.controller_states(t0)
+            if s["r"] <= t1 and s["state"] == "stopped" and s["previous"] != "stopped"
+        ]  # fmt: skip
+
+    stopped, stopped_before = stops(down, up + 500_000_000), stops(before, down)
     # The hand's watchdog: zero velocity when no fresh command came for 50 ms.
     watchdog = _counter(d, "prosthesis_bridge", "watchdog_stops", up + 2_000_000_000)
     watchdog0 = _counter(d, "prosthesis_bridge", "watchdog_stops", down)
+    watchdog_before = _counter(d, "prosthesis_bridge", "watchdog_stops", before)
     recorded = d.recorded()
     resumed_s = (
         min(m.log_time for m in recorded if m.key == "lpc/camera/depth" and m.log_time > up) - up
@@ -409,18 +416,22 @@ def test_multihost_a_cut_cable_costs_the_wearable_nothing(deployment: Deployment
     info_gaps = [ln.strip() for ln in info.splitlines() if "gap" in ln]
     report(
         f"cable cut: laptop unplugged {CUT_S:.0f} s",
-        f"  wearable: {len(during)} hand commands during the cut, longest interval "
-        f"{_max_interval_ms(during):.1f} ms (before: {_max_interval_ms(calm):.1f} ms); "
-        f"controller stopped: {len(stopped)} times; bridge watchdog stops during the cut: "
-        f"{watchdog - watchdog0}",
+        f"  wearable, {CUT_S:.0f} s before the cut -> during it: hand commands {len(calm)} -> "
+        f"{len(during)}, longest interval {_max_interval_ms(calm):.1f} -> "
+        f"{_max_interval_ms(during):.1f} ms, controller stops {len(stopped_before)} -> "
+        f"{len(stopped)} {[s['reason'] for s in stopped]}; bridge watchdog stops "
+        f"{watchdog0 - watchdog_before} -> {watchdog - watchdog0}",
         f"  recorder: resumed {resumed_s:.2f} s after "
         f"the link returned (depth after link-up in the file); depth silent in the file "
         f"{[(b - a) / 1e9 for a, b in depth_gap]} s",
         f"  logged on lpc/log/recorder: {len(gap_logs)} gaps, e.g. {gap_logs[:2]}",
         f"  lpc info: {info_gaps[:3]}",
     )
-    assert len(during) > 0.8 * CUT_S * 100, "the controller kept commanding at 100 Hz"
-    assert stopped == [], f"the controller stopped during the cut: {stopped[:2]}"
+    # Against the same stretch just before, not absolute figures: the machine may be loaded.
+    # A router that waited for the unplugged laptop let a quarter of the commands through.
+    assert len(during) >= 0.8 * len(calm), "the controller kept commanding"
+    assert _max_interval_ms(during) < max(500.0, 1.5 * _max_interval_ms(calm))
+    assert len(stopped) <= len(stopped_before), f"stops during the cut: {stopped}"
     assert depth_gap, "the file shows the silence of the cut"
     assert any("lpc/camera/depth" in g for g in gap_logs)
     assert any("gap on lpc/camera/depth" in g for g in info_gaps)
@@ -470,11 +481,13 @@ def test_multihost_offloaded_reconstruction_goes_stale_and_resumes(
     resumed = next(s for s in d.controller_states(up_ns) if s["state"] in ("ready", "preshaping"))
     first_target = min(t["r"] for t in d.probe.of("lpc/grasp/target", up_ns))
     left = next((s for s in transitions if s["previous"] == "preshaping"), None)
+    stale = [s for s in transitions if "lpc/grasp/target" in s["reason"]]
+    stale_ms = f"{(stale[0]['r'] - down) / 1e6:.0f} ms" if stale else "(not: stopped before)"
     report(
         "offloaded reconstruction (cloud method on the laptop), cable cut during a pre-shape",
-        f"  link-down -> hand zero velocity (held until link-up) {(zero_ns - down) / 1e6:.0f} ms;"
-        f" last target -> zero velocity {(zero_ns - last_target) / 1e6:.0f} ms (threshold "
-        f"{STALE_TARGET_MS:.0f} ms)",
+        f"  link-down -> stopped on the stale target {stale_ms}, -> hand zero velocity (held "
+        f"until link-up) {(zero_ns - down) / 1e6:.0f} ms; last target -> zero velocity "
+        f"{(zero_ns - last_target) / 1e6:.0f} ms (threshold {STALE_TARGET_MS:.0f} ms)",
         "  controller during the cut: "
         + "; ".join(
             f"+{(s['r'] - down) / 1e6:.0f} ms {s['previous']} -> {s['state']} ({s['reason']})"
