@@ -276,7 +276,6 @@ def test_multihost_intruders_are_kept_out(deployment: Deployment) -> None:
         lambda: len(d.probe.of("lpc/prosthesis/command", mark)) > 20, 10, "commands after"
     )
     commands = d.probe.of("lpc/prosthesis/command", since)
-    sources = {c.get("source") for c in commands}
     forged = [c for c in commands if str(c.get("source", "")).startswith("intruder")]
     lines = ["intruders:"]
     for what, (_, _, connects) in attempts.items():
@@ -284,9 +283,10 @@ def test_multihost_intruders_are_kept_out(deployment: Deployment) -> None:
         if not r["connected"]:
             stopped = f"refused: {r['reason'][:90]}"
         else:
+            arrived = sum(c.get("source") == r["as"] for c in forged)
             stopped = (
-                f"connected; sent {r['commands_sent']} hand commands, the hand saw 0 of them "
-                f"(ACL ingress deny); received {r['received']} samples"
+                f"connected; sent {r['commands_sent']} hand commands, {arrived} reached the "
+                f"wearable's bus (ACL: ingress put denied); received {r['received']} samples"
                 + (" (ACL: subscribing denied)" if r["received"] == 0 else " (ACL: allowed)")
             )
         lines.append(f"  {what:<38} {stopped}")
@@ -294,7 +294,6 @@ def test_multihost_intruders_are_kept_out(deployment: Deployment) -> None:
     lines.append(f"  the routers logged: {_router_refusals(d)}")
     report(*lines)
     assert forged == [], f"the bridge's side saw forged commands: {forged[:3]}"
-    assert sources <= {"controller", "", None} or not forged
     # The viewer may watch (the ACL's bus rule) but the unknown CN gets nothing at all.
     assert results["role viewer -> wearable"]["received"] > 0
     assert results["role viewer -> laptop"]["received"] > 0
@@ -343,7 +342,7 @@ def test_multihost_the_laptop_records_every_topic_without_gaps(deployment: Deplo
 
     netns.wait_until(complete, 30, "the recording", 1.0)
     published, recorded, missing = _compare(d, t0, t1, messages)
-    lines = [f"steady recording, {STEADY_S:.0f} s, camera at 90 Hz: key, published -> recorded"]
+    lines = [f"steady recording, {STEADY_S:.0f} s, camera set to 90 Hz: key, published -> recorded"]
     for key in sorted(published):
         lines.append(f"  {key:<32} {published[key]:>6} -> {recorded[key]:>6}")
     total = sum(published.values())
@@ -412,14 +411,10 @@ def test_multihost_a_cut_cable_costs_the_wearable_nothing(deployment: Deployment
     resumed_s = (
         min(m.log_time for m in recorded if m.key == "lpc/camera/depth" and m.log_time > up) - up
     ) / 1e9
+    depth_times = [m.log_time for m in recorded if m.key == "lpc/camera/depth"]
+    # The file's own silence over the cut (receive times either side of it).
     depth_gap = [
-        (a.log_time, b.log_time)
-        for a, b in zip(
-            [m for m in recorded if m.key == "lpc/camera/depth"],
-            [m for m in recorded if m.key == "lpc/camera/depth"][1:],
-            strict=False,
-        )
-        if b.log_time - a.log_time > 1e9
+        (a, b) for a, b in itertools.pairwise(depth_times) if b - a > 1e9 and a <= up and b >= down
     ]
     with contextlib.redirect_stdout(io.StringIO()) as out:
         assert lpc(["info", str(d.recording)]) == 0
@@ -438,7 +433,7 @@ def test_multihost_a_cut_cable_costs_the_wearable_nothing(deployment: Deployment
         f"hand commands {published.get('lpc/prosthesis/command', 0)} -> "
         f"{kept.get('lpc/prosthesis/command', 0)}",
         f"  recorder: resumed {resumed_s:.2f} s after "
-        f"the link returned (depth after link-up in the file); depth silent in the file "
+        f"the link returned (depth after link-up in the file); depth silent over the cut "
         f"{[(b - a) / 1e9 for a, b in depth_gap]} s",
         f"  logged on lpc/log/recorder: {len(gap_logs)} gaps, e.g. {gap_logs[:2]}",
         f"  lpc info: {info_gaps[:3]}",
