@@ -13,6 +13,6 @@ ones (``tests/test_layers.py`` reads every import and holds the tree to this):
   logic. May use perception (never control: a codec does not decide).
 - ``sim``: the scene, the simulated camera, EMG user, virtual user, timelines and hand. May use
   every layer above, to render what a sensor sees and to play the user the controller expects.
-- this package's own modules (``replay``, ``trials``, ``foxglove_convert``) tie the layers
-  together and may use any of them.
+- this package's own modules (``replay``, ``trials``, ``foxglove_convert``, ``gaps``) tie the
+  layers together and may use any of them.
 """

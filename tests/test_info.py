@@ -86,3 +86,16 @@ def test_info_not_an_mcap_file_is_an_error_without_traceback(
     assert lpc(["info", str(tmp_path / "x.mcap")]) == 2
     err = capsys.readouterr().err
     assert "not an MCAP file" in err and "Traceback" not in err
+
+
+def test_info_says_where_the_gaps_are(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # EMG at 100 Hz for 1 s, a 3 s hole, then on again with two samples lost on the way.
+    path = tmp_path / "gap.mcap"
+    with LogWriter(path) as writer:
+        for seq in [*range(1, 101), *range(103, 153)]:
+            t = T0 + seq * 10_000_000 + (3_000_000_000 if seq > 100 else 0)
+            writer.write("lpc/emg", EmgSample(seq=seq, t_ns=t, channels=[0.1, 0.2]), t)
+    assert lpc(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "gaps         1 (1 silences), 2 messages missing by seq" in out
+    assert "gap on lpc/emg from 0.990 s: silent 3.030 s, 2 missing by seq" in out

@@ -1,7 +1,9 @@
 """``lpc info FILE.mcap``: what a recording holds — topics, counts, rates, times, duration.
 
 It reads the file record by record rather than trusting its summary, so a file cut short by a
-crash is summarised up to its last good chunk, with a note saying where the cut is.
+crash is summarised up to its last good chunk, with a note saying where the cut is. Gaps (a
+steady topic silent, a ``seq`` that jumped: ``lpc_core.gaps``, as the recorder logs them) are
+listed with where they start and how many messages they lost.
 """
 
 from __future__ import annotations
@@ -11,7 +13,10 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lpc_core.gaps import SOURCE_SEQ_KEYS, Gap, GapState, gap_step
 from services.mcap_log import McapLog, McapLogError, format_time
+
+MAX_GAPS_SHOWN = 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,6 +47,7 @@ class Summary:
     topics: dict[str, TopicStats] = field(default_factory=dict)
     first_ns: int | None = None
     last_ns: int | None = None
+    gaps: list[Gap] = field(default_factory=list)
 
     @property
     def messages(self) -> int:
@@ -50,7 +56,12 @@ class Summary:
 
 def summarise(log: McapLog, *, validate: bool = False) -> Summary:
     summary = Summary()
+    gaps = GapState()
     for m in log.messages(ordered=False, decode=validate):
+        if not m.key.startswith("lpc/_rejected/"):
+            # The file's own order is the order the recorder received them in.
+            gaps, found = gap_step(gaps, m.key, m.sequence, m.log_time)
+            summary.gaps.extend(found)
         stats = summary.topics.get(m.key)
         if stats is None:
             stats = summary.topics[m.key] = TopicStats(first_ns=m.log_time, last_ns=m.log_time)
@@ -103,6 +114,29 @@ def render(path: Path, log: McapLog, summary: Summary, *, validate: bool) -> lis
         if validate:
             line += f"  {t.invalid}" + (f" (first: {t.first_error[:120]})" if t.first_error else "")
         lines.append(line.rstrip())
+    if summary.gaps:
+        silent = [g for g in summary.gaps if g.silent]
+        missing = sum(g.missing for g in summary.gaps)
+        lines += [
+            "",
+            f"gaps         {len(summary.gaps)} ({len(silent)} silences), {missing} messages "
+            "missing by seq",
+        ]
+        # Silences say where a link or a producer was lost: each on its own line. Short seq
+        # jumps (a dropped message here and there) are summed per topic.
+        lines += [f"  {g.describe(start)}" for g in silent[:MAX_GAPS_SHOWN]]
+        if len(silent) > MAX_GAPS_SHOWN:
+            lines.append(f"  ... and {len(silent) - MAX_GAPS_SHOWN} more silences")
+        jumps: dict[str, list[int]] = {}
+        for g in summary.gaps:
+            if not g.silent:
+                jumps.setdefault(g.key, []).append(g.missing)
+        for key in sorted(jumps):
+            n, lost = len(jumps[key]), sum(jumps[key])
+            lines.append(f"  seq jumps on {key}: {n}, {lost} missing")
+    else:
+        skipped = ", ".join(sorted(SOURCE_SEQ_KEYS))
+        lines += ["", f"gaps         none (seq jumps on {skipped} are skipped frames)"]
     if log.cut is not None:
         lines += ["", f"note: {log.cut.describe()}; nothing after it is readable"]
     return lines

@@ -1,0 +1,115 @@
+"""Gaps in a recorded bus: a steady topic that fell silent, or a sequence number that jumped.
+
+The recorder runs ``gap_step`` on every message it writes, and logs each gap on
+``lpc/log/recorder``; ``lpc info`` runs it over a file, so a recording says where it has holes
+whoever made it. A cut cable shows as one silence per steady topic from the far host, from the
+last message before the cut to the first after it, with the messages lost on the way (by
+``seq``).
+
+Every publisher numbers its messages 1, 2, 3... per key, so a jump is a loss on the way, with
+one exception: ``lpc/reconstruction`` and ``lpc/grasp/target`` carry the ``seq`` of the frame
+they came from, and the reconstructor skips frames by design when it is busy. A ``seq`` that
+goes back is a publisher that restarted, not a loss.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+from lpc_core.control.state import evolve
+
+# Keys whose seq is their source frame's: jumps are skipped frames, not losses.
+SOURCE_SEQ_KEYS = frozenset({"lpc/reconstruction", "lpc/grasp/target"})
+
+
+@dataclass(frozen=True)
+class GapParams:
+    """A topic is steady once ``steady_count`` messages have come at ``steady_hz`` or faster
+    (on average); a steady topic is silent when nothing came for ``silence_periods`` of its
+    period, and at least ``min_silence_ms``. Logs (``lpc/log/``) come when something happens,
+    so they are never steady."""
+
+    steady_hz: float = 5.0
+    steady_count: int = 20
+    silence_periods: float = 10.0
+    min_silence_ms: float = 500.0
+
+    def __post_init__(self) -> None:
+        for name in ("steady_hz", "silence_periods", "min_silence_ms"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A hole in one topic: nothing between ``start_ns`` and ``end_ns`` (receive times of the
+    messages either side), ``missing`` messages lost by ``seq``, ``silent`` if it was long."""
+
+    key: str
+    start_ns: int
+    end_ns: int
+    missing: int
+    silent: bool
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) / 1e9
+
+    def describe(self, origin_ns: int = 0) -> str:
+        """One line; times in seconds from ``origin_ns`` (log time itself by default)."""
+        what = f"silent {self.duration_s:.3f} s" if self.silent else "seq jump"
+        start = (self.start_ns - origin_ns) / 1e9
+        return f"gap on {self.key} from {start:.3f} s: {what}, {self.missing} missing by seq"
+
+
+@dataclass(frozen=True)
+class _Track:
+    seq: int
+    last_ns: int
+    period_ns: float | None = None
+    count: int = 1
+
+
+@dataclass(frozen=True)
+class GapState:
+    params: GapParams = field(default_factory=GapParams)
+    tracks: Mapping[str, _Track] = field(default_factory=lambda: MappingProxyType({}))
+    gaps: int = 0
+    missing: int = 0
+
+
+def gap_step(state: GapState, key: str, seq: int, received_ns: int) -> tuple[GapState, list[Gap]]:
+    """One message of ``key`` (its ``seq``, received at ``received_ns``); the gaps it closes."""
+    p = state.params
+    track = state.tracks.get(key)
+    gaps: list[Gap] = []
+    if track is None:
+        new = _Track(seq=seq, last_ns=received_ns)
+    else:
+        dt = received_ns - track.last_ns
+        missing = seq - track.seq - 1 if seq > track.seq and key not in SOURCE_SEQ_KEYS else 0
+        steady = (
+            track.period_ns is not None
+            and track.count >= p.steady_count
+            and track.period_ns <= 1e9 / p.steady_hz
+            and not key.startswith("lpc/log/")
+        )
+        silent = steady and dt > max(p.min_silence_ms * 1e6, p.silence_periods * track.period_ns)
+        if silent or missing > 0:
+            gaps.append(Gap(key, track.last_ns, received_ns, missing, silent))
+        # The period follows the topic's normal pace: a silence does not stretch it.
+        period = track.period_ns
+        if not silent:
+            period = float(dt) if period is None else 0.9 * period + 0.1 * dt
+        new = _Track(seq=seq, last_ns=received_ns, period_ns=period, count=track.count + 1)
+    tracks = dict(state.tracks)
+    tracks[key] = new
+    state = evolve(
+        state,
+        tracks=MappingProxyType(tracks),
+        gaps=state.gaps + len(gaps),
+        missing=state.missing + sum(g.missing for g in gaps),
+    )
+    return state, gaps
