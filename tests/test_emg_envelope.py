@@ -91,7 +91,7 @@ def test_envelope_follows_modulated_carrier(fs: float, mains: float) -> None:
 def test_envelope_of_gaussian_emg_is_its_mean_absolute_value(fs: float) -> None:
     t, raw, a, mav = _raw(fs, 30.0, "noise", 50.0, seed=3)
     t_ns, values = _run(EnvelopeParams(rate_hz=fs), raw)
-    err0, delay_ms, err = _error_and_delay(t_ns, values, t, a, mav)
+    _, delay_ms, err = _error_and_delay(t_ns, values, t, a, mav)
     ts = (t_ns - T0_NS) / 1e9
     keep = ts > 2.0
     bias = values[keep, 0].mean() / (mav * np.interp(ts[keep] - delay_ms / 1e3, t, a)).mean()

@@ -95,7 +95,9 @@ def design(params: EnvelopeParams) -> EnvelopeDesign:
     notes: list[str] = []
     nyquist_cap = 0.45 * fs
     if high > nyquist_cap:
-        notes.append(f"band-pass upper edge {high:g} Hz clamped to {nyquist_cap:g} Hz (rate {fs:g} Hz)")
+        notes.append(
+            f"band-pass upper edge {high:g} Hz clamped to {nyquist_cap:g} Hz (rate {fs:g} Hz)"
+        )
         high = nyquist_cap
     if high <= 1.5 * low:
         notes.append(
@@ -108,7 +110,9 @@ def design(params: EnvelopeParams) -> EnvelopeDesign:
         applied = (low, high)
     notch: float | None = params.mains_hz
     if params.mains_hz >= 0.5 * fs * 0.98:
-        notes.append(f"mains {params.mains_hz:g} Hz is at or above Nyquist ({fs / 2:g} Hz): no notch")
+        notes.append(
+            f"mains {params.mains_hz:g} Hz is at or above Nyquist ({fs / 2:g} Hz): no notch"
+        )
         notch = None
     else:
         b, a = signal.iirnotch(params.mains_hz, NOTCH_Q, fs=fs)
