@@ -105,9 +105,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pause", type=float, default=2.0, metavar="S")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    return run(
-        args.name, args.rate, args.duration, args.scope, args.pause_at, args.pause, args.seed
-    )
+    try:
+        return run(
+            args.name, args.rate, args.duration, args.scope, args.pause_at, args.pause, args.seed
+        )
+    except KeyboardInterrupt:  # SIGINT is how a bench or a person stops it
+        return 0
 
 
 if __name__ == "__main__":
