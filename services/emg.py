@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--serial-port", default="", help="serial port of the BrainFlow board")
     parser.add_argument(
-        "--mains", type=float, choices=(50.0, 60.0), default=50.0, help="mains notch, Hz (50)"
+        "--mains", type=int, choices=(50, 60), default=50, help="mains notch, Hz (50)"
     )
     parser.add_argument(
         "--envelope-hz", type=float, default=8.0, help="envelope low-pass, Hz (8; raw sources)"

@@ -247,8 +247,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--mains",
-        type=float,
-        choices=(50.0, 60.0),
+        type=int,
+        choices=(50, 60),
         help="mains frequency notched out of raw EMG, Hz (--emg lsl|brainflow; default 50)",
     )
     parser.add_argument(
