@@ -196,7 +196,9 @@ def test_emg_service_over_brainflow_publishes_envelopes(
     try:
         wait_for(lambda: len(emg) > 300, 60.0, "3 s of envelopes")
         values = np.array([s.channels for s in emg[50:300]])
-        assert values.shape[1] == 2 and np.all(values > 0)
+        # Rectified and smoothed: never negative; exactly zero only where the filter starts
+        # afresh (its first output, after an outage on a loaded machine).
+        assert values.shape[1] == 2 and np.all(values >= 0) and np.mean(values > 0) > 0.95
         assert all(s.source == "brainflow" and s.unit == "uV" for s in emg)
         t_ns = np.array([s.t_ns for s in emg])
         # 250 Hz in, one output per 2.5 samples: 8 and 12 ms apart, 10 ms on average.
