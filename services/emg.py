@@ -151,15 +151,14 @@ async def _raw_device(bus: Bus, args: argparse.Namespace) -> None:
                 bus.status = "ok"
                 bus.log("info", f"EMG samples resumed after {gap_ms:.0f} ms")
             silent_since_ns = bus.clock.now_ns()
-            if state is None or state.design.params.rate_hz != rate_hz:
-                state = envelope_state(
-                    EnvelopeParams(
+            try:
+                if state is None or state.design.params.rate_hz != rate_hz:
+                    params = EnvelopeParams(
                         rate_hz=rate_hz, mains_hz=args.mains, lowpass_hz=args.envelope_hz
                     )
-                )
-                for note in state.design.notes:
-                    bus.log("info", f"envelope: {note}")
-            try:
+                    state = envelope_state(params)
+                    for note in state.design.notes:
+                        bus.log("info", f"envelope: {note}")
                 state, env = envelope_step(state, samples, t_ns)
             except ValueError as exc:
                 bus.reject(args.source, str(exc))

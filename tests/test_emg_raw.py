@@ -20,7 +20,7 @@ import zenoh
 
 from schemas import EmgSample, decode
 from services.drivers.emg_lsl_sim import GAIN, SIM_ENVELOPE_V
-from services.drivers.emg_raw import BrainFlowEmg, LslEmg, brainflow_board_id
+from services.drivers.emg_raw import BrainFlowEmg, LslEmg, brainflow_board_id, import_pylsl
 from services.drivers.errors import DeviceUnavailable, InitialisationError
 from tests.conftest import spawn_service, wait_for
 
@@ -98,6 +98,20 @@ def test_lsl_emg_resolve_times_out_with_a_clear_message() -> None:
     with pytest.raises(DeviceUnavailable, match="no LSL stream with name 'lpc-nobody'"):
         LslEmg(name="lpc-nobody", timeout=0.5, scope="machine")
     assert time.monotonic() - start < 10.0
+
+
+def test_lsl_emg_rejects_streams_too_slow_or_too_narrow() -> None:
+    pylsl = import_pylsl("machine")
+    name = f"lpc-slow-{uuid.uuid4().hex[:8]}"
+    info = pylsl.StreamInfo(name, "EMG", 2, 50.0, pylsl.cf_float32, name)
+    outlet = pylsl.StreamOutlet(info)
+    try:
+        with pytest.raises(InitialisationError, match="50 Hz: raw EMG needs"):
+            LslEmg(name=name, timeout=10.0, scope="machine")
+        with pytest.raises(InitialisationError, match="has 2 channels"):
+            LslEmg((0, 2), name=name, timeout=10.0, scope="machine")
+    finally:
+        del outlet
 
 
 def test_emg_service_over_lsl_degrades_and_resumes(

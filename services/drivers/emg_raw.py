@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from lpc_core.devices.emg_envelope import MIN_RATE_HZ
 from services.drivers.errors import DeviceUnavailable, InitialisationError, OperationError
 
 LSL_SCOPES = ("machine", "link", "site", "organization", "global")
@@ -86,13 +87,16 @@ class LslEmg:
         info = found[0]
         if info.channel_format() == pylsl.cf_string:
             raise InitialisationError(f"LSL stream {info.name()!r} carries strings, not samples")
-        self.rate_hz = float(info.nominal_srate())
-        if self.rate_hz <= 0:
-            raise InitialisationError(f"LSL stream {info.name()!r} has no regular rate")
         count = info.channel_count()
         if max(channels) >= count:
             raise InitialisationError(
                 f"LSL stream {info.name()!r} has {count} channels; channels {channels} asked"
+            )
+        self.rate_hz = float(info.nominal_srate())
+        if self.rate_hz < MIN_RATE_HZ:
+            raise InitialisationError(
+                f"LSL stream {info.name()!r} runs at {self.rate_hz:g} Hz: raw EMG needs a regular "
+                f"rate of at least {MIN_RATE_HZ:g} Hz"
             )
         self.description = (
             f"LSL stream {info.name()!r} (type {info.type()!r}, {count} channels, "
@@ -164,6 +168,11 @@ class BrainFlowEmg:
         if max(channels) >= len(rows):
             raise InitialisationError(
                 f"BrainFlow board {board!r} has {len(rows)} EMG channels; channels {channels} asked"
+            )
+        if self.rate_hz < MIN_RATE_HZ:
+            raise InitialisationError(
+                f"BrainFlow board {board!r} samples at {self.rate_hz:g} Hz: raw EMG needs at "
+                f"least {MIN_RATE_HZ:g} Hz"
             )
         self._rows = [rows[i] for i in channels]
         params = BrainFlowInputParams()
