@@ -149,7 +149,8 @@ async def _raw_device(bus: Bus, args: argparse.Namespace) -> None:
             if bus.status == "degraded":
                 gap_ms = (bus.clock.now_ns() - silent_since_ns) / 1e6
                 bus.status = "ok"
-                bus.log("info", f"EMG samples resumed after {gap_ms:.0f} ms")
+                what = "resumed" if seq else "first samples"
+                bus.log("info", f"EMG samples {what} after {gap_ms:.0f} ms")
             silent_since_ns = bus.clock.now_ns()
             try:
                 if state is None or state.design.params.rate_hz != rate_hz:
