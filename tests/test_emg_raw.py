@@ -21,7 +21,7 @@ import zenoh
 from schemas import EmgSample, decode
 from services.drivers.emg_lsl_sim import GAIN, SIM_ENVELOPE_V
 from services.drivers.emg_raw import BrainFlowEmg, LslEmg, brainflow_board_id, import_pylsl
-from services.drivers.errors import DeviceUnavailable, InitialisationError
+from services.drivers.errors import DeviceUnavailable, InitialisationError, OperationError
 from tests.conftest import spawn_service, wait_for
 
 MAV = np.sqrt(2 / np.pi)  # mean absolute value of a unit Gaussian
@@ -91,6 +91,36 @@ def test_lsl_emg_maps_the_asked_channels(outlet: tuple[str, subprocess.Popen[byt
     finally:
         source.shutdown()
         source.shutdown()  # twice is safe
+
+
+def _recv_some(source: LslEmg, timeout: float = 20.0) -> np.ndarray:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = source.recv(timeout=0.1)
+        if got is not None:
+            return got[0]
+    pytest.fail(f"no samples within {timeout} s")
+
+
+def test_lsl_emg_resolves_again_after_a_long_silence(
+    outlet: tuple[str, subprocess.Popen[bytes]],
+) -> None:
+    name, process = outlet
+    source = LslEmg(name=name, timeout=10.0, scope="machine", reresolve_s=0.5)
+    try:
+        _recv_some(source)
+        process.send_signal(signal.SIGUSR1)  # the outlet goes away for 2 s
+        deadline = time.monotonic() + 20.0
+        with pytest.raises(OperationError, match=r"no samples for 0\.5 s: resolving again"):
+            while time.monotonic() < deadline:
+                source.recv(timeout=0.1)
+    finally:
+        source.shutdown()
+    again = LslEmg(name=name, timeout=20.0, scope="machine")  # found once the outlet is back
+    try:
+        assert _recv_some(again).shape[1] == 2
+    finally:
+        again.shutdown()
 
 
 def test_lsl_emg_resolve_times_out_with_a_clear_message() -> None:

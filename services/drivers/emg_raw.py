@@ -70,8 +70,10 @@ class LslEmg:
         stream_type: str = "EMG",
         timeout: float = 5.0,
         scope: str | None = None,
+        reresolve_s: float = 5.0,
     ) -> None:
         pylsl = import_pylsl(scope)
+        self.reresolve_s = reresolve_s
         self.channels = channels
         self._closed = False
         prop, value = ("name", name) if name else ("type", stream_type)
@@ -108,6 +110,7 @@ class LslEmg:
         except RuntimeError as exc:  # pylsl's TimeoutError and the rest derive from it
             raise InitialisationError(f"cannot open {self.description}: {exc}") from exc
         self._index = list(channels)
+        self._last_sample = time.monotonic()
 
     def recv(self, timeout: float | None = None) -> tuple[np.ndarray, int] | None:
         if self._closed:
@@ -117,7 +120,13 @@ class LslEmg:
         except RuntimeError as exc:  # pylsl's LostError and internal errors
             raise OperationError(f"LSL stream lost: {exc}") from exc
         if not stamps:
+            if time.monotonic() - self._last_sample > self.reresolve_s:
+                # liblsl recovers only a stream with the same identity (source id, or name,
+                # type, rate and channels); an amplifier app restarted otherwise needs a new
+                # resolve, which the caller does by opening the source again.
+                raise OperationError(f"no samples for {self.reresolve_s:g} s: resolving again")
             return None
+        self._last_sample = time.monotonic()
         return np.asarray(samples, dtype=float)[:, self._index], time.time_ns()
 
     def shutdown(self) -> None:
