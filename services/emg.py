@@ -186,7 +186,12 @@ def _open(args: argparse.Namespace) -> SerialEmg | HandEmg | LslEmg | BrainFlowE
             scope=args.lsl_scope,
         )
     if args.source == "brainflow":
-        return BrainFlowEmg(tuple(args.channels), board=args.board, serial_port=args.serial_port)
+        return BrainFlowEmg(
+            tuple(args.channels),
+            board=args.board,
+            serial_port=args.serial_port,
+            config=args.board_config,
+        )
     return HandEmg(tuple(args.channels), profile="lpc", interface=args.interface, channel=args.can)
 
 
@@ -221,6 +226,12 @@ def main(argv: list[str] | None = None) -> int:
         "--board", default="synthetic", help="BrainFlow board: cyton, ganglion, synthetic, ..."
     )
     parser.add_argument("--serial-port", default="", help="serial port of the BrainFlow board")
+    parser.add_argument(
+        "--board-config",
+        default="",
+        metavar="CMD",
+        help="settings command sent to the BrainFlow board before it streams",
+    )
     parser.add_argument(
         "--mains", type=int, choices=(50, 60), default=50, help="mains notch, Hz (50)"
     )

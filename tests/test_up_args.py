@@ -86,6 +86,7 @@ def test_up_args_real_emg_defaults_to_the_calibrated_profile(
         (("--profile", "p.json"), "--profile is for a real EMG"),
         (("--emg", "brainflow"), "--emg brainflow needs --board (e.g. --board cyton)"),
         (("--emg", "lsl", "--board", "cyton"), "--board does not apply to --emg lsl"),
+        (("--emg", "lsl", "--board-config", "x"), "--board-config does not apply to --emg lsl"),
         (("--emg", "brainflow", "--board", "x", "--lsl-type", "EMG"), "does not apply"),
         (("--emg", "lsl", "--lsl-stream", "a", "--lsl-type", "EMG"), "alternatives"),
         (("--mains", "60"), "--mains does not apply to --emg sim"),
@@ -167,11 +168,12 @@ def test_up_args_lsl_and_brainflow_emg_pass_their_flags(profile: Path) -> None:
     ]
     args = parse(
         *("--emg", "brainflow", "--board", "cyton", "--serial-port", "/dev/ttyUSB0"),
-        *("--profile", str(profile)),
+        *("--board-config", "x1060000X", "--profile", str(profile)),
     )
     assert up._validate(args) is None
     assert argv_of("emg", args) == [
-        *("--source", "brainflow", "--board", "cyton", "--serial-port", "/dev/ttyUSB0")
+        *("--source", "brainflow", "--board", "cyton", "--serial-port", "/dev/ttyUSB0"),
+        *("--board-config", "x1060000X"),
     ]
     assert argv_of("controller", args)[:2] == ["--profile", str(profile)]
 

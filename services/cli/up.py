@@ -73,6 +73,7 @@ def _emg_argv(args: argparse.Namespace) -> list[str]:
         case "brainflow":
             argv = ["--source", "brainflow", "--board", args.board]
             argv += ["--serial-port", args.serial_port] if args.serial_port else []
+            argv += ["--board-config", args.board_config] if args.board_config else []
         case _:
             return ["--source", "sim", "--seed", str(args.seed)]
     if getattr(args, "mains", None) is not None:
@@ -246,6 +247,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--serial-port", metavar="PORT", help="serial port of the BrainFlow board (e.g. cyton)"
     )
     parser.add_argument(
+        "--board-config",
+        metavar="CMD",
+        help="settings command for the BrainFlow board (BrainFlow's config_board), sent "
+        "before it streams; e.g. a Cyton's channel settings",
+    )
+    parser.add_argument(
         "--mains",
         type=int,
         choices=(50, 60),
@@ -318,6 +325,7 @@ def _validate_emg(args: argparse.Namespace) -> str | None:
             "--lsl-scope",
             "--board",
             "--serial-port",
+            "--board-config",
             "--mains",
         )
     }
@@ -336,7 +344,7 @@ def _validate_emg(args: argparse.Namespace) -> str | None:
         return "--lsl-stream and --lsl-type are alternatives: give one"
     optional = {
         "lsl": ("--lsl-stream", "--lsl-type", "--lsl-scope", "--mains"),
-        "brainflow": ("--serial-port", "--mains"),
+        "brainflow": ("--serial-port", "--board-config", "--mains"),
     }.get(emg, ())
     allowed = {*needs, *optional, "--profile", "--emg-channels"} if emg != "sim" else set()
     for flag, present in given.items():

@@ -12,6 +12,7 @@ into 100 Hz envelopes with ``lpc_core.devices.emg_envelope``.
 - ``BrainFlowEmg``: any board BrainFlow drives, by name (``cyton``, ``ganglion``,
   ``synthetic``, ``cyton_daisy``, ...) or number; the channels are indices into the board's EMG
   channels (its EXG channels when it lists none). BrainFlow reports EXG data in microvolts.
+  ``config`` is sent to the board before it streams (BrainFlow's ``config_board``).
 
 Both packages are optional extras (``pip install 'lpc[lsl]'``, ``'lpc[brainflow]'``); a missing
 one raises ``DeviceUnavailable`` saying which to install.
@@ -153,7 +154,12 @@ class BrainFlowEmg:
     """Two EMG channels of a BrainFlow board."""
 
     def __init__(
-        self, channels: tuple[int, int] = (0, 1), *, board: str = "synthetic", serial_port: str = ""
+        self,
+        channels: tuple[int, int] = (0, 1),
+        *,
+        board: str = "synthetic",
+        serial_port: str = "",
+        config: str = "",
     ) -> None:
         try:
             from brainflow.board_shim import BoardShim, BrainFlowError, BrainFlowInputParams
@@ -189,6 +195,8 @@ class BrainFlowEmg:
         self._board = BoardShim(board_id, params)
         try:
             self._board.prepare_session()
+            if config:  # the board's own settings command, e.g. a Cyton's channel setting
+                self._board.config_board(config)
             self._board.start_stream()
         except BrainFlowError as exc:
             self._release()
