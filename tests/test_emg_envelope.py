@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import signal
 
 from lpc_core.devices.emg_envelope import (
     EnvelopeParams,
@@ -12,72 +11,22 @@ from lpc_core.devices.emg_envelope import (
     envelope_state,
     envelope_step,
 )
+from lpc_core.sim.raw_emg import envelope_error, raw_emg, run_chunked
 
 T0_NS = 1_700_000_000_000_000_000
 
 
-def _envelope(t: np.ndarray) -> np.ndarray:
-    """A slow, always positive muscle drive (volts): 0.5 Hz and 1.3 Hz components."""
-    return 1e-4 * (2.0 + np.sin(2 * np.pi * 0.5 * t) + 0.5 * np.sin(2 * np.pi * 1.3 * t + 1.0))
-
-
-def _raw(fs: float, seconds: float, carrier: str, mains: float, seed: int = 0):
-    """Raw EMG: the envelope times a carrier, plus mains hum five times the EMG, an electrode
-    offset and a slow motion artefact. Returns (t, raw (N, 2), envelope, MAV per unit)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(round(seconds * fs)) / fs
-    a = _envelope(t)
-    if carrier == "noise":
-        # Gaussian noise inside the EMG band, unit standard deviation: its MAV is sqrt(2/pi).
-        w = rng.standard_normal(len(t))
-        band = signal.butter(6, (40.0, min(400.0, 0.4 * fs)), "bandpass", fs=fs, output="sos")
-        w = signal.sosfiltfilt(band, w)
-        c, mav = w / w.std(), np.sqrt(2 / np.pi)
-    else:
-        c, mav = np.sin(2 * np.pi * min(150.0, 0.35 * fs) * t), 2 / np.pi
-    x = a * c + 5e-4 * np.sin(2 * np.pi * mains * t) + 2e-3 + 3e-4 * np.sin(2 * np.pi * 0.3 * t)
-    return t, np.stack([x, 0.5 * x], axis=1), a, mav
-
-
 def _run(params: EnvelopeParams, raw: np.ndarray, seed: int = 1, max_chunk_s: float = 0.05):
-    """Feed ``raw`` in chunks of random size (1 sample to ``max_chunk_s``); all outputs."""
-    rng = np.random.default_rng(seed)
-    state = envelope_state(params)
-    times, values, i = [], [], 0
-    while i < len(raw):
-        k = int(rng.integers(1, int(params.rate_hz * max_chunk_s) + 2))
-        chunk = raw[i : i + k]
-        i += len(chunk)
-        state, out = envelope_step(state, chunk, T0_NS + round((i - 1) / params.rate_hz * 1e9))
-        times.append(out.t_ns)
-        values.append(out.values)
-    return np.concatenate(times), np.concatenate(values)
-
-
-def _error_and_delay(t_ns, values, t, a, mav, skip_s=2.0):
-    """Relative RMS error at zero lag, the delay (ms) that minimises it, and the error there."""
-    ts = (t_ns - T0_NS) / 1e9
-    keep = ts > skip_s  # past the filters' start-up
-    expected = mav * np.interp(ts[keep], t, a)
-    scale = np.sqrt(np.mean(expected**2))
-
-    def err(lag_s: float) -> float:
-        e = values[keep, 0] - mav * np.interp(ts[keep] - lag_s, t, a)
-        return float(np.sqrt(np.mean(e**2)) / scale)
-
-    lags = np.arange(0.0, 0.1, 0.001)
-    errors = np.array([err(d) for d in lags])
-    best = int(np.argmin(errors))
-    return err(0.0), lags[best] * 1e3, errors[best]
+    return run_chunked(params, raw, T0_NS, seed=seed, max_chunk_s=max_chunk_s)
 
 
 @pytest.mark.parametrize("fs", [200.0, 250.0, 512.0, 1000.0, 2000.0])
 @pytest.mark.parametrize("mains", [50.0, 60.0])
 def test_envelope_follows_modulated_carrier(fs: float, mains: float) -> None:
-    t, raw, a, mav = _raw(fs, 12.0, "sine", mains)
-    params = EnvelopeParams(rate_hz=fs, mains_hz=mains)
-    t_ns, values = _run(params, raw)
-    err0, delay_ms, err = _error_and_delay(t_ns, values, t, a, mav)
+    emg = raw_emg(fs, 12.0, "sine", mains)
+    t_ns, values = _run(EnvelopeParams(rate_hz=fs, mains_hz=mains), emg.raw)
+    e = envelope_error(emg, t_ns, values, T0_NS)
+    err0, delay_ms, err = e.error_at_zero, e.delay_ms, e.error
     # The second-order 8 Hz low-pass delays a slow envelope by about 30 ms; the sampling
     # picks the first input sample at or after each output instant (at most 5 ms at 200 Hz).
     assert 25.0 <= delay_ms <= 40.0, delay_ms
@@ -89,12 +38,14 @@ def test_envelope_follows_modulated_carrier(fs: float, mains: float) -> None:
 
 @pytest.mark.parametrize("fs", [512.0, 1000.0, 2000.0])
 def test_envelope_of_gaussian_emg_is_its_mean_absolute_value(fs: float) -> None:
-    t, raw, a, mav = _raw(fs, 30.0, "noise", 50.0, seed=3)
-    t_ns, values = _run(EnvelopeParams(rate_hz=fs), raw)
-    _, delay_ms, err = _error_and_delay(t_ns, values, t, a, mav)
+    emg = raw_emg(fs, 30.0, "noise", 50.0, seed=3)
+    t_ns, values = _run(EnvelopeParams(rate_hz=fs), emg.raw)
+    e = envelope_error(emg, t_ns, values, T0_NS)
+    delay_ms, err = e.delay_ms, e.error
     ts = (t_ns - T0_NS) / 1e9
     keep = ts > 2.0
-    bias = values[keep, 0].mean() / (mav * np.interp(ts[keep] - delay_ms / 1e3, t, a)).mean()
+    truth = emg.mav * np.interp(ts[keep] - delay_ms / 1e3, emg.t, emg.drive)
+    bias = values[keep, 0].mean() / truth.mean()
     # A random signal's MAV estimate fluctuates (fewer independent samples in a narrower band):
     # the bound is on the estimator's spread, the bias must be small.
     assert err < 0.2, err
