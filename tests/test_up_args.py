@@ -84,6 +84,14 @@ def test_up_args_real_emg_defaults_to_the_calibrated_profile(
         (("--emg", "can", "--can-channel", "can0", "--emg-port", "x"), "does not apply"),
         (("--emg", "serial", "--emg-port", "x", "--can-channel", "can0"), "does not apply"),
         (("--profile", "p.json"), "--profile is for a real EMG"),
+        (("--emg", "brainflow"), "--emg brainflow needs --board (e.g. --board cyton)"),
+        (("--emg", "lsl", "--board", "cyton"), "--board does not apply to --emg lsl"),
+        (("--emg", "lsl", "--board-config", "x"), "--board-config does not apply to --emg lsl"),
+        (("--emg", "brainflow", "--board", "x", "--lsl-type", "EMG"), "does not apply"),
+        (("--emg", "lsl", "--lsl-stream", "a", "--lsl-type", "EMG"), "alternatives"),
+        (("--mains", "60"), "--mains does not apply to --emg sim"),
+        (("--emg", "serial", "--emg-port", "x", "--mains", "60"), "--mains does not apply"),
+        (("--emg-channels", "0,1"), "--emg-channels does not apply to --emg sim"),
     ],
 )
 def test_up_args_missing_or_stray_device_flags_are_clear_errors(
@@ -136,3 +144,64 @@ def test_up_args_services_take_what_up_passes(
     assert controller.main(argv_of("controller", parse())) == 0
     assert started["emg"].source == "sim"
     assert controller.initial_state(started["controller"]).params.profile.user == "sim"
+
+
+def test_up_args_lsl_and_brainflow_emg_pass_their_flags(profile: Path) -> None:
+    args = parse("--emg", "lsl", "--lsl-stream", "Trigno", "--profile", str(profile))
+    assert up._validate(args) is None
+    assert argv_of("emg", args) == [
+        "--source",
+        "lsl",
+        "--lsl-type",
+        "EMG",
+        "--lsl-stream",
+        "Trigno",
+    ]
+    args = parse(
+        *("--emg", "lsl", "--lsl-type", "EXG", "--lsl-scope", "machine", "--mains", "60"),
+        *("--emg-channels", "2,5", "--profile", str(profile)),
+    )
+    assert up._validate(args) is None
+    assert argv_of("emg", args) == [
+        *("--source", "lsl", "--lsl-type", "EXG", "--lsl-scope", "machine"),
+        *("--mains", "60", "--channels", "2", "5"),
+    ]
+    args = parse(
+        *("--emg", "brainflow", "--board", "cyton", "--serial-port", "/dev/ttyUSB0"),
+        *("--board-config", "x1060000X", "--profile", str(profile)),
+    )
+    assert up._validate(args) is None
+    assert argv_of("emg", args) == [
+        *("--source", "brainflow", "--board", "cyton", "--serial-port", "/dev/ttyUSB0"),
+        *("--board-config", "x1060000X"),
+    ]
+    assert argv_of("controller", args)[:2] == ["--profile", str(profile)]
+
+
+@pytest.mark.parametrize("text", ["0", "0,1,2", "a,b", "-1,0"])
+def test_up_args_emg_channels_want_two_indices(text: str) -> None:
+    with pytest.raises(SystemExit):
+        parse("--emg", "lsl", "--emg-channels", text)
+
+
+def test_up_args_raw_emg_flags_reach_the_emg_service(
+    profile: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from services import emg
+
+    started = {}
+    monkeypatch.setattr(emg, "run_service", lambda name, serve, args: started.update(a=args) or 0)
+    args = parse("--emg", "lsl", "--lsl-stream", "s", "--emg-channels", "1,0", "--mains", "60")
+    assert emg.main([*argv_of("emg", args), "--lsl-scope", "machine"]) == 0
+    got = started["a"]
+    assert (got.source, got.lsl_stream, got.channels, got.mains) == ("lsl", "s", [1, 0], 60.0)
+    assert got.unit == "raw"
+    args = parse("--emg", "brainflow", "--board", "ganglion", "--serial-port", "/dev/ttyACM0")
+    assert emg.main(argv_of("emg", args)) == 0
+    got = started["a"]
+    assert (got.source, got.board, got.serial_port, got.unit) == (
+        "brainflow",
+        "ganglion",
+        "/dev/ttyACM0",
+        "uV",
+    )

@@ -63,11 +63,35 @@ def _emg_argv(args: argparse.Namespace) -> list[str]:
     """The EMG device flags (``_validate`` has checked they are there), or the scripted user."""
     match getattr(args, "emg", "sim"):
         case "serial":
-            return ["--source", "serial", "--port", args.emg_port]
+            argv = ["--source", "serial", "--port", args.emg_port]
         case "can":
-            return ["--source", "can", "--can", args.can_channel, "--interface", args.can_interface]
+            argv = ["--source", "can", "--can", args.can_channel, "--interface", args.can_interface]
+        case "lsl":
+            argv = ["--source", "lsl", "--lsl-type", args.lsl_type or "EMG"]
+            argv += ["--lsl-stream", args.lsl_stream] if args.lsl_stream else []
+            argv += ["--lsl-scope", args.lsl_scope] if args.lsl_scope else []
+        case "brainflow":
+            argv = ["--source", "brainflow", "--board", args.board]
+            argv += ["--serial-port", args.serial_port] if args.serial_port else []
+            argv += ["--board-config", args.board_config] if args.board_config else []
         case _:
             return ["--source", "sim", "--seed", str(args.seed)]
+    if getattr(args, "mains", None) is not None:
+        argv += ["--mains", f"{args.mains:g}"]
+    if getattr(args, "emg_channels", None) is not None:
+        argv += ["--channels", *(str(c) for c in args.emg_channels)]
+    return argv
+
+
+def _channel_pair(text: str) -> tuple[int, int]:
+    """``--emg-channels 0,1``: the source's flexor and extensor channel indices."""
+    try:
+        pair = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        pair = ()
+    if len(pair) != 2 or min(pair) < 0:
+        raise argparse.ArgumentTypeError(f"want two channel indices like 0,1, not {text!r}")
+    return pair  # type: ignore[return-value]
 
 
 def _controller_argv(args: argparse.Namespace) -> list[str]:
@@ -190,11 +214,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--emg",
-        choices=("sim", "serial", "can"),
+        choices=("sim", "serial", "can", "lsl", "brainflow"),
         default="sim",
-        help="EMG source: a scripted simulated user (default), a serial amplifier (--emg-port) "
-        "or the hand's CAN status (--can-channel); a real EMG runs the controller on the "
-        "calibrated --profile",
+        help="EMG source: a scripted simulated user (default), a serial amplifier (--emg-port), "
+        "the hand's CAN status (--can-channel), a raw stream over the Lab Streaming Layer "
+        "(--lsl-stream or --lsl-type) or a BrainFlow board (--board); a real EMG runs the "
+        "controller on the calibrated --profile",
+    )
+    parser.add_argument(
+        "--emg-channels",
+        type=_channel_pair,
+        metavar="F,E",
+        help="the source's flexor and extensor channels (default 0,1)",
+    )
+    parser.add_argument(
+        "--lsl-stream", metavar="NAME", help="LSL stream name (--emg lsl; default: by type)"
+    )
+    parser.add_argument("--lsl-type", metavar="TYPE", help="LSL stream type (--emg lsl; EMG)")
+    parser.add_argument(
+        "--lsl-scope",
+        choices=("machine", "link", "site", "organization", "global"),
+        help="LSL discovery scope (--emg lsl; machine: this computer only; default liblsl's "
+        "configuration, lsl_api.cfg)",
+    )
+    parser.add_argument(
+        "--board",
+        metavar="NAME",
+        help="BrainFlow board (--emg brainflow): cyton, ganglion, cyton_daisy, synthetic, ... "
+        "any name or id BrainFlow knows",
+    )
+    parser.add_argument(
+        "--serial-port", metavar="PORT", help="serial port of the BrainFlow board (e.g. cyton)"
+    )
+    parser.add_argument(
+        "--board-config",
+        metavar="CMD",
+        help="settings command for the BrainFlow board (BrainFlow's config_board), sent "
+        "before it streams; e.g. a Cyton's channel settings",
+    )
+    parser.add_argument(
+        "--mains",
+        type=int,
+        choices=(50, 60),
+        help="mains frequency notched out of raw EMG, Hz (--emg lsl|brainflow; default 50)",
     )
     parser.add_argument(
         "--emg-port", metavar="PORT", help="serial port of the EMG amplifier (--emg serial)"
@@ -252,25 +314,45 @@ def _validate_emg(args: argparse.Namespace) -> str | None:
     """Each EMG source has its device flags and no other's; a real EMG, a calibration."""
     emg = getattr(args, "emg", "sim")
     given = {
-        flag: getattr(args, attr, None) is not None
-        for flag, attr in (
-            ("--emg-port", "emg_port"),
-            ("--can-channel", "can_channel"),
-            ("--profile", "profile"),
+        flag: getattr(args, flag.removeprefix("--").replace("-", "_"), None) is not None
+        for flag in (
+            "--emg-port",
+            "--can-channel",
+            "--profile",
+            "--emg-channels",
+            "--lsl-stream",
+            "--lsl-type",
+            "--lsl-scope",
+            "--board",
+            "--serial-port",
+            "--board-config",
+            "--mains",
         )
     }
-    needs = {"sim": (), "serial": ("--emg-port",), "can": ("--can-channel",)}[emg]
+    needs = {
+        "sim": (),
+        "serial": ("--emg-port",),
+        "can": ("--can-channel",),
+        "lsl": (),
+        "brainflow": ("--board",),
+    }[emg]
+    examples = {"--emg-port": "/dev/ttyUSB0", "--can-channel": "can0", "--board": "cyton"}
     for flag in needs:
         if not given[flag]:
-            example = "/dev/ttyUSB0" if flag == "--emg-port" else "can0"
-            return f"--emg {emg} needs {flag} (e.g. {flag} {example})"
-    allowed = {*needs, "--profile"} if emg != "sim" else set()
+            return f"--emg {emg} needs {flag} (e.g. {flag} {examples[flag]})"
+    if emg == "lsl" and given["--lsl-stream"] and given["--lsl-type"]:
+        return "--lsl-stream and --lsl-type are alternatives: give one"
+    optional = {
+        "lsl": ("--lsl-stream", "--lsl-type", "--lsl-scope", "--mains"),
+        "brainflow": ("--serial-port", "--board-config", "--mains"),
+    }.get(emg, ())
+    allowed = {*needs, *optional, "--profile", "--emg-channels"} if emg != "sim" else set()
     for flag, present in given.items():
         if present and flag not in allowed:
             if flag == "--profile":
                 return (
-                    "--profile is for a real EMG (--emg serial|can); the simulated user has "
-                    "its own calibration"
+                    "--profile is for a real EMG (--emg serial|can|lsl|brainflow); the simulated "
+                    "user has its own calibration"
                 )
             return f"{flag} does not apply to --emg {emg}"
     if emg == "sim" or "controller" not in (args.services or SERVICES):

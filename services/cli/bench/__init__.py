@@ -20,6 +20,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "recorder": ("services.cli.bench.recorder", "MCAP write cost, recorder loss, replay speed"),
     "render": ("services.cli.bench.render", "simulated camera and scan-cut speed"),
     "foxglove": ("services.cli.bench.foxglove", "Foxglove conversion, export and bridge figures"),
+    "emg": ("services.cli.bench.emg", "lpc/emg rate from LSL or BrainFlow raw EMG; an outage"),
 }
 
 
