@@ -1,0 +1,221 @@
+"""The Ability Hand: grip postures, the simulated hand on a pty, the driver, and the one watchdog
+over the hand's serial line and the wrist's virtual CAN bus together."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+
+import numpy as np
+import pytest
+
+from lpc_core.devices import ability as ab
+from lpc_core.devices import ability_grips as ag
+from lpc_core.devices.hand import HandCommand, HandStatus
+from lpc_core.sim.ability_hand import (
+    AbilityParams,
+    AbilityState,
+    ability_command,
+    ability_reply,
+    ability_step,
+)
+from services.drivers.ability import AbilityHand, open_ability
+from services.drivers.ability_sim import AbilitySim
+from services.drivers.errors import DeviceUnavailable, OperationError
+from services.drivers.hand import HandLink
+from services.drivers.hand_sim import SimulatedHand
+from tests.conftest import wait_for
+from tests.test_prosthesis_bridge import Recorder
+
+_channels = itertools.count()
+
+
+@pytest.fixture
+def channel() -> str:
+    return f"lpc-ability-{next(_channels)}-{time.monotonic_ns()}"
+
+
+def _body(stuffed: bytes) -> bytes:
+    (body,) = ab.FrameParser().feed(stuffed)
+    assert isinstance(body, bytes)
+    return body
+
+
+# --------------------------------------------------------------------------- grip postures
+
+
+@pytest.mark.parametrize("grip", sorted(ag.GRIPS))
+def test_grip_table_round_trip_and_limits(grip: str) -> None:
+    lo, hi = ag.posture(grip).range_mm
+    apertures = np.linspace(lo, hi, 57)
+    lower, upper = ag.JOINT_LIMITS_DEG
+    for a in apertures:
+        q = ag.positions_for(grip, a)
+        assert ((q >= lower) & (q <= upper)).all()
+        assert ag.aperture_of(grip, q) == pytest.approx(a, abs=1e-9)
+        name, aperture, residual = ag.classify(q)
+        assert (name, round(aperture, 6), residual) == (grip, round(a, 6), pytest.approx(0.0))
+    assert ag.aperture_of(grip, ag.positions_for(grip, hi + 50)) == pytest.approx(hi)
+
+
+def test_grip_force_counts_only_the_moving_joints_above_free_motion() -> None:
+    idle = np.full(6, 0.05)
+    assert ag.grip_force_pct("power", idle) == 0.0
+    squeeze = np.array([0.55, 0.1, 0.1, 0.1, 0.1, 2.0])  # the thumb rotator does not count
+    assert ag.grip_force_pct("pinch", squeeze) == pytest.approx(50.0)
+    assert ag.grip_force_pct("lateral", squeeze) == pytest.approx(0.0)  # only the thumb flexor
+    with pytest.raises(ValueError, match="grip must be one of"):
+        ag.positions_for("hook", 30.0)
+
+
+# --------------------------------------------------------------------------- the hand model
+
+
+def test_simulated_joints_follow_first_order_and_stop_on_the_object() -> None:
+    state = AbilityState(object_mm=50.0)
+    t = 0
+    state = ability_step(state, t)
+    target = ag.positions_for("power", 0.0)
+    command = ab.decode_command(_body(ab.position_frame(target)))
+    state = ability_command(state, command, t)
+    q0 = np.asarray(state.positions)
+    t += 50_000_000  # one time constant: 1 - 1/e of the way, unless the object stops it
+    state = ability_step(state, t)
+    grip, aperture, _ = ag.classify(np.asarray(state.positions))
+    assert grip == "power" and aperture >= 50.0 - 1e-6
+    for _ in range(40):  # the command repeated, as the driver does (else the hand holds)
+        t += 10_000_000
+        state = ability_command(state, command, t)
+    assert ag.aperture_of("power", np.asarray(state.positions)) == pytest.approx(50.0, abs=0.01)
+    assert state.squeeze_mm == pytest.approx(50.0, abs=0.01)
+    reply = ab.decode_reply(_body(ab.encode_reply(ability_reply(state))))
+    assert ag.grip_force_pct("power", reply.currents_a) == pytest.approx(100.0, abs=0.5)
+    assert max(reply.touch) == 4095 and reply.touch[24:30] == (4095,) * 6  # thumb tips
+    assert not np.allclose(q0, state.positions)
+
+
+def test_simulated_hand_leaves_api_mode_and_holds_after_300_ms() -> None:
+    state = ability_step(AbilityState(params=AbilityParams(tau_s=0.2)), 0)  # a slow hand
+    command = ab.decode_command(_body(ab.position_frame([90] * 5 + [-80])))
+    state = ability_command(state, command, 0)
+    poses = {}
+    for t_ms in range(10, 610, 10):  # one command at 0, then none
+        state = ability_step(state, t_ms * 1_000_000)
+        poses[t_ms] = np.asarray(state.positions)
+    assert not state.api_mode
+    assert not np.allclose(poses[100], poses[300])  # still moving toward the target
+    assert np.allclose(poses[310], poses[600])  # out of API mode: held where it was
+    assert poses[600][0] < 89.0  # short of the target
+
+
+# --------------------------------------------------------------------------- the driver
+
+
+def test_driver_contract_on_a_pty() -> None:
+    with AbilityHand() as hand:
+        statuses: list[HandStatus] = []
+        start = None
+        began = time.monotonic()
+        while time.monotonic() - began < 0.3:  # 0.3 s at half speed: 18 mm of set-point
+            hand.send(HandCommand(grasp=0.5, grip="power"), timeout=0.01)
+            status = hand.recv(timeout=0.01)  # the next reply, or the one after the keepalive
+            if status is not None:
+                start = start if start is not None else status.aperture_mm
+                statuses.append(status)
+        assert len(statuses) >= 10 and start is not None
+        assert statuses[-1].aperture_mm < start - 5.0  # closing, as commanded
+        assert statuses[-1].grip == "power" and statuses[-1].wrist_angle_deg == 0.0
+        assert hand.sim is not None and hand.sim.commands >= 40
+    hand.shutdown()  # safe twice
+    with pytest.raises(OperationError, match="shut down"):
+        hand.send(HandCommand())
+
+
+def test_driver_executes_the_commanded_grip() -> None:
+    with AbilityHand() as hand:
+        for grip in ("pinch", "lateral", "tripod", "power"):
+            hand.send(HandCommand(grip=grip), timeout=0.01)
+            assert hand.sim is not None
+            wait_for(
+                lambda g=grip: hand.recv(0.02) is not None and hand.sim.state.grip == g,
+                5.0,
+                f"the simulated hand to take the {grip} posture",
+            )
+
+
+def test_driver_counts_bad_frames_and_carries_on() -> None:
+    with AbilityHand() as hand:
+        assert hand.sim is not None
+        master = hand.sim._master
+        good = ab.encode_reply(ability_reply(AbilityState()))
+        os.write(master, b"\x7e\x01\x02\x03\x7e")  # too short for any reply
+        os.write(master, good[:-10] + b"\x7e")  # truncated
+        os.write(master, good[1:-1] * 9)  # unstuffed: no frame characters for > 512 bytes
+        os.write(master, b"\x7e\x7d\x01\x7e")  # a bad escape
+        statuses = [hand.recv(timeout=0.2) for _ in range(10)]
+        assert all(s is not None for s in statuses)
+        counted = hand.health()
+        assert counted.get("bad_frames_unknown", 0) + counted.get("bad_frames_truncated", 0) >= 2
+        assert counted.get("bad_frames_unframed", 0) >= 1
+        assert counted.get("bad_frames_escape", 0) >= 1
+
+
+def test_driver_without_a_hand_is_a_clear_error() -> None:
+    with pytest.raises(DeviceUnavailable, match="/dev/lpc-no-such-port"):
+        AbilityHand("/dev/lpc-no-such-port")
+    sim = AbilitySim()
+    sim.silenced = True
+    try:
+        with pytest.raises(Exception, match="no reply to a read-only query"):
+            AbilityHand(sim.port, timeout=0.2)
+    finally:
+        sim.close()
+
+
+# --------------------------------------------------------------------------- one watchdog
+
+
+def test_one_watchdog_stops_fingers_and_wrist_within_50_ms(channel: str) -> None:
+    recorder = Recorder(channel)
+    with AbilitySim() as fingers, SimulatedHand("lpc", channel=channel):
+        link = HandLink(
+            lambda: open_ability(fingers.port, channel=channel),
+            on_status=lambda s: None,
+            watchdog_s=0.04,  # the bridge's default: stopped within 50 ms with jitter to spare
+        )
+        link.start()
+        try:
+            wait_for(lambda: link.connected, 5.0, "the link to connect")
+            start = time.monotonic()
+            while time.monotonic() - start < 0.3:  # a 100 Hz stream, then nothing
+                last_mono, last_wall = time.monotonic_ns(), time.time()
+                link.command(HandCommand(grasp=0.5, wrist=0.5, grip="power"))
+                time.sleep(0.01)
+            wait_for(lambda: link.counters["watchdog_stops"] >= 1, 5.0, "the watchdog")
+            time.sleep(0.1)  # frames after the stop, to see they hold
+            frames = [r for r in fingers.received if r.header == ab.Mode.POSITION]
+            final = frames[-1].values
+            held_from = next(
+                i for i in range(len(frames)) if all(f.values == final for f in frames[i:])
+            )
+            hold_ms = (frames[held_from].arrival_ns - last_mono) / 1e6
+            wait_for(
+                lambda: any(c.wrist == 0.0 and t > last_wall for t, c in recorder.commands()),
+                5.0,
+                "the wrist's zero command on the bus",
+            )
+            commands = recorder.commands()
+            zero = min(t for t, c in commands if c.wrist == 0.0 and t > last_wall)
+            stop_ms = (zero - last_wall) * 1e3
+            print(
+                f"one watchdog: fingers held {hold_ms:.1f} ms, wrist zero {stop_ms:.1f} ms "
+                "after the last fresh command"
+            )
+            assert frames[held_from - 1].values != final  # they were moving before
+            assert 0.0 < hold_ms <= 50.0
+            assert 0.0 < stop_ms <= 50.0
+        finally:
+            link.stop()
+            link.stop()
+            recorder.close()
