@@ -40,6 +40,8 @@ from services.drivers.errors import (
 )
 from services.drivers.hand import HandDriver
 
+MIN_WRITE_TIMEOUT_S = 0.1
+
 
 class AbilityHand:
     """The fingers of an Ability Hand on a serial port (or a simulated one: ``port=None``)."""
@@ -98,14 +100,20 @@ class AbilityHand:
     # ------------------------------------------------------------------ interface
 
     def send(self, command: HandCommand, timeout: float | None = 0.01) -> None:
-        """Take a velocity (and grip) command and send the set-point it gives now."""
+        """Take a velocity (and grip) command. The set-point goes out with the next frame of
+        the ``period_s`` stream (one reply each: the status stays at 100 Hz), at once when the
+        command stops the fingers or changes the grip."""
+        if self._closed:
+            raise OperationError(f"Ability Hand port {self.port} is shut down")
         self._advance()
+        urgent = command.grasp == 0.0 and self._speed != 0.0
         if command.grip is not None and command.grip != self.grip:
-            self.grip = command.grip
+            self.grip, urgent = command.grip, True
             lo, hi = ag.posture(self.grip).range_mm
             self.aperture_sp = min(max(self.aperture_sp, lo), hi)
         self._speed = command.grasp
-        self._send_setpoint(timeout)
+        if urgent:
+            self._send_setpoint(timeout)
 
     def recv(self, timeout: float | None = None) -> HandStatus | None:
         """The next reply as a status, or ``None`` after ``timeout``; keeps the set-point
@@ -181,13 +189,16 @@ class AbilityHand:
     def _write(self, data: bytes, timeout: float | None) -> None:
         if self._closed:
             raise OperationError(f"Ability Hand port {self.port} is shut down")
+        # A frame is 0.4 ms of line at 460800 baud: the timeout only catches a stuck port. A
+        # few ms would fire spuriously on a loaded machine (pyserial checks it after the write).
+        timeout = None if timeout is None else max(timeout, MIN_WRITE_TIMEOUT_S)
         try:
             if self._serial.write_timeout != timeout:
                 self._serial.write_timeout = timeout
             self._serial.write(data)
         except serial.SerialTimeoutException as exc:
             raise DriverTimeout(f"write to {self.port} timed out after {timeout} s") from exc
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, TypeError) as exc:  # TypeError: closed under us
             raise OperationError(f"write to {self.port} failed: {exc}") from exc
 
     def _reply(self, timeout: float) -> ab.Reply | None:
@@ -200,7 +211,8 @@ class AbilityHand:
                 remaining = max(deadline - time.monotonic(), 0.0)
                 ready, _, _ = select.select([self._serial.fileno()], [], [], remaining)
                 data = self._serial.read(max(1, self._serial.in_waiting)) if ready else b""
-            except (serial.SerialException, OSError, ValueError) as exc:
+            except (serial.SerialException, OSError, ValueError, TypeError) as exc:
+                # TypeError, ValueError: the port was closed by another thread meanwhile.
                 raise OperationError(f"read from {self.port} failed: {exc}") from exc
             latest = None
             for event in self._parser.feed(data):

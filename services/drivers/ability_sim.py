@@ -58,6 +58,9 @@ class AbilitySim:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         tty.setraw(self._master)
+        # A hand's UART transmits whether or not the host reads: a reply the host's full buffer
+        # cannot take is lost (counted), it never stalls the hand.
+        os.set_blocking(self._master, False)
         self.port = os.ttyname(self._slave)
         self._parser = ab.FrameParser()
         self.received: collections.deque[Received] = collections.deque(maxlen=history)
@@ -92,14 +95,20 @@ class AbilitySim:
                 if not ready:
                     continue
                 data = os.read(self._master, 4096)
+            except BlockingIOError:
+                continue
             except OSError:  # closed under us
                 return
             arrival = self._clock()
             for event in self._parser.feed(data):
                 reply = self._apply(event, arrival)
                 if reply and not self.silenced:
-                    with contextlib.suppress(OSError):
+                    try:
                         os.write(self._master, reply)
+                    except BlockingIOError:
+                        self.errors["replies_lost"] += 1
+                    except OSError:
+                        pass
 
     def _apply(self, event: bytes | ab.FrameError, arrival: int) -> bytes:
         if isinstance(event, ab.FrameError):

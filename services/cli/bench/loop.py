@@ -3,9 +3,11 @@
 Reads ``lpc/controller/state``, ``lpc/emg``, ``lpc/prosthesis/command`` and
 ``lpc/prosthesis/state`` and prints: the states visited and each transition's count, the
 pre-shapes (time to reach the target, and the error when the controller reported it against
-the hand's own status), the rates of the three 100 Hz topics, the gaps in the command stream,
+the hand's own status), the same per grip (``lpc_core.perception.grip``; a one-grip hand makes
+every pre-shape in power), the rates of the three 100 Hz topics, the gaps in the command stream,
 and the targets of issue 7 (all four states visited, a pre-shape within tolerance, >= 95 Hz).
-With ``--run S`` it first records ``lpc up --source sim --duration S``.
+With ``--run S`` it first records ``lpc up --source sim --duration S`` (``--hand ability``:
+with the simulated Ability Hand).
 """
 
 from __future__ import annotations
@@ -32,6 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", nargs="?", help="an MCAP recording of a session")
     parser.add_argument("--run", type=float, metavar="S", help="record a sim session of S s first")
     parser.add_argument("--port", type=int, default=7447, help="rendezvous port for --run")
+    parser.add_argument(
+        "--hand",
+        choices=("can", "ability"),
+        default="can",
+        help="the hand of the --run session: lpc's CAN hand (default) or the Ability Hand",
+    )
     parser.add_argument("--json", action="store_true", help="one JSON object instead of text")
 
 
@@ -57,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
             str(args.port),
             "--status-every",
             "1e9",
+            "--hand",
+            args.hand,
         ]
         code = subprocess.call(cmd, stdout=subprocess.DEVNULL)
         if code != 0:
@@ -95,7 +105,11 @@ def analyse(path: str) -> dict:
             continue
         reached = next((r for r in states[i:] if r.event == "at_target"), None)
         left = next((r for r in states[i + 1 :] if r.state != "preshaping"), None)
-        entry: dict = {"t_s": round((s.t_ns - states[0].t_ns) / 1e9, 2), "reached": False}
+        entry: dict = {
+            "t_s": round((s.t_ns - states[0].t_ns) / 1e9, 2),
+            "reached": False,
+            "grip": s.grip,
+        }
         if reached is not None and (left is None or reached.t_ns <= left.t_ns):
             k = bisect.bisect_left(hand_t, reached.t_ns)
             hand = hands[min(k, len(hands) - 1)]
@@ -134,6 +148,8 @@ def analyse(path: str) -> dict:
             "over_50ms": int((gaps > 50).sum()),
         },
     }
+    figures["hand"] = hands[-1].hand if hands else ""
+    figures["per_grip"] = _per_grip(preshapes)
     figures["targets"] = {
         "states_visited": all(s in visited for s in REQUIRED_STATES),
         "preshape_within_tolerance": any(e["reached"] for e in preshapes),
@@ -143,20 +159,52 @@ def analyse(path: str) -> dict:
     return figures
 
 
+def _per_grip(preshapes: list[dict]) -> dict:
+    """Per grip: pre-shapes, how many reached the target, median time to it, mean |error|."""
+    out = {}
+    for grip in sorted({e["grip"] for e in preshapes}):
+        mine = [e for e in preshapes if e["grip"] == grip]
+        timed = [e for e in mine if "time_to_target_ms" in e]
+        out[grip] = {
+            "preshapes": len(mine),
+            "reached": sum(e["reached"] for e in mine),
+            "time_to_target_ms_p50": (
+                round(float(np.median([e["time_to_target_ms"] for e in timed])), 1)
+                if timed
+                else None
+            ),
+            "aperture_error_mm_mean_abs": (
+                round(float(np.mean([abs(e["aperture_error_mm"]) for e in timed])), 2)
+                if timed
+                else None
+            ),
+        }
+    return out
+
+
 def _print(f: dict) -> None:
     print(f"recording      {f['recording']}")
+    print(f"hand           {f['hand']}")
     print(f"visited        {', '.join(f['visited'])}")
     for name, count in sorted(f["transitions"].items()):
         print(f"  {count:4d}  {name}")
     for e in f["preshapes"]:
         if e["reached"] or "time_to_target_ms" in e:
             print(
-                f"pre-shape at {e['t_s']:7.2f} s: target in {e['time_to_target_ms']:6.1f} ms, "
-                f"aperture error {e['aperture_error_mm']:+.2f} mm, "
-                f"wrist error {e['wrist_error_deg']:+.2f} deg"
+                f"pre-shape at {e['t_s']:7.2f} s ({e['grip']:<7}): target in "
+                f"{e['time_to_target_ms']:6.1f} ms, aperture error {e['aperture_error_mm']:+.2f} "
+                f"mm, wrist error {e['wrist_error_deg']:+.2f} deg"
             )
         else:
-            print(f"pre-shape at {e['t_s']:7.2f} s: left before reaching the target")
+            print(f"pre-shape at {e['t_s']:7.2f} s ({e['grip']:<7}): left before the target")
+    for grip, g in f["per_grip"].items():
+        t = g["time_to_target_ms_p50"]
+        err = g["aperture_error_mm_mean_abs"]
+        print(
+            f"grip {grip:<9} {g['preshapes']} pre-shapes, {g['reached']} reached; time to "
+            f"target p50 {'-' if t is None else f'{t:.0f} ms'}, aperture |error| mean "
+            f"{'-' if err is None else f'{err:.2f} mm'}"
+        )
     for key, rate in f["rates_hz"].items():
         print(f"rate           {key:<24} {rate:7.2f} Hz")
     g = f["command_gap_ms"]
