@@ -179,8 +179,8 @@ def test_driver_without_a_hand_is_a_clear_error() -> None:
 def test_one_watchdog_stops_fingers_and_wrist_within_50_ms(channel: str) -> None:
     """Five times: a 100 Hz command stream, then nothing. Each time the one watchdog holds the
     fingers (their set-point stops moving) and zeroes the wrist in the same pass, never before
-    the watchdog's 40 ms; the median stop is within 50 ms (one late pass on a loaded machine
-    does not make the bound)."""
+    the watchdog's 40 ms; the median stop is within 50 ms (a late pass on a loaded machine
+    does not make the bound; times are when the hand and the bus saw the frames)."""
     recorder = Recorder(channel)
     cycles: list[tuple[float, float]] = []
     with AbilitySim() as fingers, SimulatedHand("lpc", channel=channel):
@@ -227,7 +227,7 @@ def test_one_watchdog_stops_fingers_and_wrist_within_50_ms(channel: str) -> None
         "one watchdog (fingers held, wrist zero) ms after the last fresh command: "
         + ", ".join(f"({h:.1f}, {w:.1f})" for h, w in cycles)
     )
-    for hold_ms, stop_ms in cycles:
-        assert hold_ms >= 40.0 - 2.0 and stop_ms >= 40.0 - 2.0  # never early
-    assert float(np.median([h for h, _ in cycles])) <= 50.0
-    assert float(np.median([w for _, w in cycles])) <= 50.0
+    holds, stops = np.array(cycles).T
+    assert (holds >= 40.0 - 2.0).all() and (stops >= 40.0 - 2.0).all()  # never early
+    assert float(np.median(np.abs(holds - stops))) <= 10.0  # one pass stops both
+    assert float(np.median(holds)) <= 50.0 and float(np.median(stops)) <= 50.0

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import os
 import select
+import threading
 import time
 from typing import Any
 
@@ -74,7 +76,9 @@ class AbilityHand:
         self._closed = False
         self._speed = 0.0
         self._advanced = time.monotonic()
-        self._written = -float("inf")
+        self._due = time.monotonic()
+        self._setpoint_lock = threading.Lock()
+        self._replies: collections.deque[ab.Reply] = collections.deque(maxlen=64)
         self._counter = 0
         try:
             self._serial = serial.Serial(self.port, baudrate=baudrate, timeout=0, write_timeout=0.1)
@@ -105,32 +109,38 @@ class AbilityHand:
         command stops the fingers or changes the grip."""
         if self._closed:
             raise OperationError(f"Ability Hand port {self.port} is shut down")
-        self._advance()
-        urgent = command.grasp == 0.0 and self._speed != 0.0
-        if command.grip is not None and command.grip != self.grip:
-            self.grip, urgent = command.grip, True
-            lo, hi = ag.posture(self.grip).range_mm
-            self.aperture_sp = min(max(self.aperture_sp, lo), hi)
-        self._speed = command.grasp
-        if urgent:
-            self._send_setpoint(timeout)
+        with self._setpoint_lock:
+            self._advance()
+            urgent = command.grasp == 0.0 and self._speed != 0.0
+            if command.grip is not None and command.grip != self.grip:
+                self.grip, urgent = command.grip, True
+                lo, hi = ag.posture(self.grip).range_mm
+                self.aperture_sp = min(max(self.aperture_sp, lo), hi)
+            self._speed = command.grasp
+            if urgent:
+                self._send_setpoint(timeout)
 
     def recv(self, timeout: float | None = None) -> HandStatus | None:
-        """The next reply as a status, or ``None`` after ``timeout``; keeps the set-point
-        flowing every ``period_s`` meanwhile."""
+        """The next reply as a status, or ``None`` after ``timeout``. Meanwhile the set-point
+        goes out every ``period_s`` on a fixed schedule, without waiting for the replies: a
+        caller woken late catches up, and the status keeps its rate on average."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
+            if self._replies:
+                return self._status(self._replies.popleft())
             now = time.monotonic()
-            if now - self._written >= self.period_s:
-                self._advance()
-                self._send_setpoint(0.01)
-            wait = self._written + self.period_s - time.monotonic()
+            if now >= self._due:
+                with self._setpoint_lock:  # send() may come from another thread
+                    self._advance()
+                    self._send_setpoint(0.01)
+                self._due += self.period_s
+                if now - self._due > 0.25:  # far behind (a stalled machine): resynchronise
+                    self._due = now + self.period_s
+            wait = self._due - time.monotonic()
             if deadline is not None:
                 wait = min(wait, deadline - time.monotonic())
-            reply = self._reply(max(wait, 0.0))
-            if reply is not None:
-                return self._status(reply)
-            if deadline is not None and time.monotonic() >= deadline:
+            self._read(max(wait, 0.0))
+            if not self._replies and deadline is not None and time.monotonic() >= deadline:
                 return None
 
     def health(self) -> dict[str, int]:
@@ -165,7 +175,6 @@ class AbilityHand:
     def _send_setpoint(self, timeout: float | None) -> None:
         positions = ag.positions_for(self.grip, self.aperture_sp)
         self._write(ab.position_frame(positions, self.reply_variant, self.address), timeout)
-        self._written = time.monotonic()
 
     def _status(self, reply: ab.Reply) -> HandStatus:
         positions = reply.positions_deg
@@ -187,46 +196,57 @@ class AbilityHand:
     # ------------------------------------------------------------------ bytes
 
     def _write(self, data: bytes, timeout: float | None) -> None:
+        """Write all of ``data``; ``DriverTimeout`` only when the port stays unwritable for
+        ``timeout`` (at least ``MIN_WRITE_TIMEOUT_S``: a frame is 0.4 ms of line at 460800
+        baud). pyserial's own write timeout is not used: it checks the clock after a write
+        that succeeded, so a thread descheduled for that long on a loaded machine fails."""
         if self._closed:
             raise OperationError(f"Ability Hand port {self.port} is shut down")
-        # A frame is 0.4 ms of line at 460800 baud: the timeout only catches a stuck port. A
-        # few ms would fire spuriously on a loaded machine (pyserial checks it after the write).
-        timeout = None if timeout is None else max(timeout, MIN_WRITE_TIMEOUT_S)
+        wait = None if timeout is None else max(timeout, MIN_WRITE_TIMEOUT_S)
+        view = memoryview(data)
         try:
-            if self._serial.write_timeout != timeout:
-                self._serial.write_timeout = timeout
-            self._serial.write(data)
-        except serial.SerialTimeoutException as exc:
-            raise DriverTimeout(f"write to {self.port} timed out after {timeout} s") from exc
-        except (serial.SerialException, OSError, TypeError) as exc:  # TypeError: closed under us
+            fd = self._serial.fileno()
+            while view:
+                try:
+                    view = view[os.write(fd, view) :]
+                    continue
+                except BlockingIOError:
+                    pass
+                _, ready, _ = select.select([], [fd], [], wait)
+                if not ready:
+                    raise DriverTimeout(f"write to {self.port} blocked for {wait} s")
+        except (serial.SerialException, OSError, TypeError, ValueError) as exc:
+            # TypeError, ValueError: the port was closed by another thread meanwhile.
             raise OperationError(f"write to {self.port} failed: {exc}") from exc
 
-    def _reply(self, timeout: float) -> ab.Reply | None:
-        """The next good reply within ``timeout``; bad frames are counted and skipped."""
+    def _read(self, timeout: float) -> None:
+        """Wait up to ``timeout`` for bytes; queue the good replies, count the bad frames."""
         if self._closed:
             raise OperationError(f"Ability Hand port {self.port} is shut down")
-        deadline = time.monotonic() + timeout
-        while True:
+        try:
+            ready, _, _ = select.select([self._serial.fileno()], [], [], timeout)
+            data = self._serial.read(max(1, self._serial.in_waiting)) if ready else b""
+        except (serial.SerialException, OSError, ValueError, TypeError) as exc:
+            # TypeError, ValueError: the port was closed by another thread meanwhile.
+            raise OperationError(f"read from {self.port} failed: {exc}") from exc
+        for event in self._parser.feed(data):
+            if isinstance(event, ab.FrameError):
+                self.errors[event.kind] += 1
+                continue
             try:
-                remaining = max(deadline - time.monotonic(), 0.0)
-                ready, _, _ = select.select([self._serial.fileno()], [], [], remaining)
-                data = self._serial.read(max(1, self._serial.in_waiting)) if ready else b""
-            except (serial.SerialException, OSError, ValueError, TypeError) as exc:
-                # TypeError, ValueError: the port was closed by another thread meanwhile.
-                raise OperationError(f"read from {self.port} failed: {exc}") from exc
-            latest = None
-            for event in self._parser.feed(data):
-                if isinstance(event, ab.FrameError):
-                    self.errors[event.kind] += 1
-                    continue
-                try:
-                    latest = ab.decode_reply(event)
-                except ab.FrameError as exc:
-                    self.errors[exc.kind] += 1
-            if latest is not None:
-                return latest
-            if time.monotonic() >= deadline:
+                self._replies.append(ab.decode_reply(event))
+            except ab.FrameError as exc:
+                self.errors[exc.kind] += 1
+
+    def _reply(self, timeout: float) -> ab.Reply | None:
+        """The next good reply within ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while not self._replies:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
                 return None
+            self._read(remaining)
+        return self._replies.popleft()
 
     def _close_sim(self) -> None:
         if self.sim is not None:
