@@ -231,3 +231,25 @@ def test_one_watchdog_stops_fingers_and_wrist_within_50_ms(channel: str) -> None
     assert (holds >= 40.0 - 2.0).all() and (stops >= 40.0 - 2.0).all()  # never early
     assert float(np.median(np.abs(holds - stops))) <= 10.0  # one pass stops both
     assert float(np.median(holds)) <= 50.0 and float(np.median(stops)) <= 50.0
+
+
+def test_driver_starts_from_the_hands_pose_and_grip() -> None:
+    sim = AbilitySim()
+    try:
+        with AbilityHand(sim.port) as first:
+            first.send(HandCommand(grip="lateral"), timeout=0.01)
+            wait_for(
+                lambda: first.recv(0.02) is not None and sim.state.grip == "lateral",
+                5.0,
+                "the lateral posture",
+            )
+            wait_for(
+                lambda: (s := first.recv(0.02)) is not None and abs(s.aperture_mm - 60.0) < 0.5,
+                5.0,
+                "the fingers to settle",
+            )
+        with AbilityHand(sim.port) as again:  # a reconnection: the hand is still in lateral
+            assert again.grip == "lateral"
+            assert again.aperture_sp == pytest.approx(60.0, abs=0.5)
+    finally:
+        sim.close()

@@ -98,8 +98,11 @@ class AbilityHand:
             self._serial.close()
             self._close_sim()
             raise
+        # Start from where the hand is, in the grip its pose is nearest to (after a reconnection
+        # the hand may still be in another grip than power).
+        self.grip, aperture, _ = ag.classify(reply.positions_deg)
         lo, hi = ag.posture(self.grip).range_mm
-        self.aperture_sp = min(max(ag.aperture_of(self.grip, reply.positions_deg), lo), hi)
+        self.aperture_sp = min(max(aperture, lo), hi)
 
     # ------------------------------------------------------------------ interface
 
