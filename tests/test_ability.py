@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 
 from lpc_core.devices import ability as ab
 from lpc_core.devices import ability_grips as ag
@@ -20,12 +21,13 @@ from lpc_core.sim.ability_hand import (
     ability_reply,
     ability_step,
 )
+from schemas import ProsthesisCommand, decode, encode
 from services.drivers.ability import AbilityHand, open_ability
 from services.drivers.ability_sim import AbilitySim
 from services.drivers.errors import DeviceUnavailable, OperationError
 from services.drivers.hand import HandLink
 from services.drivers.hand_sim import SimulatedHand
-from tests.conftest import wait_for
+from tests.conftest import spawn_service, wait_for
 from tests.test_prosthesis_bridge import Recorder
 
 _channels = itertools.count()
@@ -253,3 +255,61 @@ def test_driver_starts_from_the_hands_pose_and_grip() -> None:
             assert again.aperture_sp == pytest.approx(60.0, abs=0.5)
     finally:
         sim.close()
+
+
+# --------------------------------------------------------------------------- over the bus
+
+
+def test_bridge_service_drives_the_ability_hand_in_the_commanded_grip(
+    rendezvous: zenoh.Session, endpoint: str
+) -> None:
+    states: list = []
+    health: list = []
+    sub = rendezvous.declare_subscriber(
+        "lpc/prosthesis/state",
+        lambda s: states.append(decode("lpc/prosthesis/state", s.payload.to_bytes())),
+    )
+    hsub = rendezvous.declare_subscriber(
+        "lpc/health/prosthesis_bridge",
+        lambda s: health.append(decode("lpc/health/prosthesis_bridge", s.payload.to_bytes())),
+    )
+    process = spawn_service(
+        "services.prosthesis_bridge", endpoint, "--sim-hand", "--hand", "ability"
+    )
+    try:
+        wait_for(lambda: len(states) > 10, 20.0, "status from the bridge")
+        assert states[-1].hand == "ability:sim+lpc:sim"
+        pub = rendezvous.declare_publisher("lpc/prosthesis/command")
+        seq = itertools.count(1)
+        deadline = time.monotonic() + 10.0
+        # Close in pinch on the bridge's simulated object (60 mm by default) until it is held.
+        while (
+            not (states[-1].grip == "pinch" and states[-1].grip_force_pct > 50.0)
+            and time.monotonic() < deadline
+        ):
+            command = ProsthesisCommand(
+                seq=next(seq), t_ns=time.time_ns(), grasp=0.8, wrist=0.3, grip="pinch"
+            )
+            pub.put(encode(command))
+            time.sleep(0.01)
+        held = states[-1]
+        assert held.grip == "pinch" and held.grip_force_pct > 50.0  # from the motor currents
+        assert held.aperture_mm == pytest.approx(60.0, abs=1.0)  # stopped on its surface
+        assert states[-1].wrist_angle_deg > 0.0  # the CAN wrist turned meanwhile
+        # Commands stop: the one watchdog holds the fingers and stops the wrist.
+        wait_for(
+            lambda: (
+                len(states) > 30
+                and abs(states[-1].aperture_mm - states[-20].aperture_mm) < 0.05
+                and abs(states[-1].wrist_angle_deg - states[-20].wrist_angle_deg) < 0.05
+            ),
+            5.0,
+            "fingers and wrist to stop",
+        )
+        wait_for(lambda: any(h.counters.get("watchdog_stops", 0) for h in health), 5.0, "health")
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+        sub.undeclare()
+        hsub.undeclare()
+    assert process.returncode == 0
