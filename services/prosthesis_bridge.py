@@ -59,11 +59,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     if args.sim_hand:
         sim = SimulatedHand(args.profile, args.interface, args.channel, object_mm=args.object_mm)
         sim.start()
-    if args.hand == "ability":
+    hand_port = getattr(args, "hand_port", None)  # callers that build the args may omit both
+    if getattr(args, "hand", "can") == "ability":
         # The fingers on serial, the wrist on CAN: one driver, one link, one watchdog.
-        if args.hand_port is None:
+        if hand_port is None:
             fingers = AbilitySim(object_mm=args.object_mm)
-        port = args.hand_port or fingers.port  # type: ignore[union-attr]
+        port = hand_port or fingers.port  # type: ignore[union-attr]
         wrist = f"{args.profile}:{'sim' if args.sim_hand else args.interface}"
         name = f"ability:{'sim' if fingers else port}+{wrist}"
         opener: Callable[[], object] = lambda: open_ability(  # noqa: E731
