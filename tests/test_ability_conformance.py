@@ -21,9 +21,16 @@ import serial
 
 from lpc_core.devices import ability as ab
 from lpc_core.devices import ability_grips as ag
+from lpc_core.sim.ability_hand import AbilityState, ability_reply
 from services.drivers.ability_sim import AbilitySim
 
 N_COMMANDS = 300
+
+
+def _report(capsys: pytest.CaptureFixture[str], line: str) -> None:
+    """The counts compared, shown in CI's log too (outside pytest's capture)."""
+    with capsys.disabled():
+        print(f"\n{line}")
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +53,9 @@ def vendor(tmp_path_factory: pytest.TempPathFactory) -> SimpleNamespace:
         sys.path.pop(0)
 
 
-def test_position_frames_match_the_vendor(vendor: SimpleNamespace) -> None:
+def test_position_frames_match_the_vendor(
+    vendor: SimpleNamespace, capsys: pytest.CaptureFixture[str]
+) -> None:
     rng = np.random.default_rng(16)
     for _ in range(N_COMMANDS):
         positions = rng.uniform(-200.0, 200.0, 6)  # beyond +-150 deg: both clamp
@@ -55,10 +64,12 @@ def test_position_frames_match_the_vendor(vendor: SimpleNamespace) -> None:
         ours = ab.position_frame(positions, variant, address)
         theirs = bytes(vendor.api.create_pos_msg(variant, positions.tolist(), address))
         assert ours == theirs, (positions, variant, address)
-    print(f"conformance: {N_COMMANDS} position commands byte-identical to create_pos_msg")
+    _report(capsys, f"conformance: {N_COMMANDS} position commands byte-identical to create_pos_msg")
 
 
-def test_velocity_frames_match_the_vendor(vendor: SimpleNamespace) -> None:
+def test_velocity_frames_match_the_vendor(
+    vendor: SimpleNamespace, capsys: pytest.CaptureFixture[str]
+) -> None:
     rng = np.random.default_rng(17)
     for _ in range(N_COMMANDS):
         velocities = rng.uniform(-2999.0, 2999.0, 6)  # the vendor does not clamp velocities
@@ -66,10 +77,12 @@ def test_velocity_frames_match_the_vendor(vendor: SimpleNamespace) -> None:
         ours = ab.velocity_frame(velocities, variant)
         theirs = bytes(vendor.api.create_vel_msg(variant, velocities.tolist()))
         assert ours == theirs, (velocities, variant)
-    print(f"conformance: {N_COMMANDS} velocity commands byte-identical to create_vel_msg")
+    _report(capsys, f"conformance: {N_COMMANDS} velocity commands byte-identical to create_vel_msg")
 
 
-def test_grip_frames_match_the_vendor(vendor: SimpleNamespace) -> None:
+def test_grip_frames_match_the_vendor(
+    vendor: SimpleNamespace, capsys: pytest.CaptureFixture[str]
+) -> None:
     rng = np.random.default_rng(18)
     n = 0
     for grip in range(256):
@@ -77,7 +90,7 @@ def test_grip_frames_match_the_vendor(vendor: SimpleNamespace) -> None:
         assert ab.grip_frame(grip, speed) == bytes(vendor.api.create_grip_msg(grip, speed))
         n += 1
     assert ab.grip_frame(ab.Grip.KEY) == bytes(vendor.api.create_grip_msg(ab.Grip.KEY))
-    print(f"conformance: {n + 1} grip commands byte-identical to create_grip_msg")
+    _report(capsys, f"conformance: {n + 1} grip commands byte-identical to create_grip_msg")
 
 
 def _vendor_frames(vendor: SimpleNamespace, data: bytes) -> list:
@@ -104,7 +117,9 @@ def _compare(theirs: object, ours: ab.Reply) -> None:
     assert theirs.hot_cold & 0xFF == ours.hot_cold
 
 
-def test_vendor_parser_decodes_every_reply_of_the_simulated_hand(vendor: SimpleNamespace) -> None:
+def test_vendor_parser_decodes_every_reply_of_the_simulated_hand(
+    vendor: SimpleNamespace, capsys: pytest.CaptureFixture[str]
+) -> None:
     rng = np.random.default_rng(19)
     counts = dict.fromkeys((0, 1, 2), 0)
     with AbilitySim(object_mm=40.0) as sim:
@@ -139,16 +154,17 @@ def test_vendor_parser_decodes_every_reply_of_the_simulated_hand(vendor: SimpleN
         assert sum(sim.errors.values()) == 0
     total = sum(counts.values())
     assert total == N_COMMANDS
-    print(
+    _report(
+        capsys,
         f"conformance: {total} replies of the simulated hand decoded alike by ah_parser "
-        f"(variant 1: {counts[0]}, 2: {counts[1]}, 3: {counts[2]})"
+        f"(variant 1: {counts[0]}, 2: {counts[1]}, 3: {counts[2]})",
     )
 
 
-def test_damaged_frames_are_rejected_and_counted(vendor: SimpleNamespace) -> None:
+def test_damaged_frames_are_rejected_and_counted(
+    vendor: SimpleNamespace, capsys: pytest.CaptureFixture[str]
+) -> None:
     rng = np.random.default_rng(20)
-    from lpc_core.sim.ability_hand import AbilityState, ability_reply
-
     state = AbilityState(squeeze_mm=5.0, grip="power")
     good = [ab.encode_reply(ability_reply(state, v)) for v in (0, 1, 2)]
     stream = bytearray()
@@ -188,7 +204,8 @@ def test_damaged_frames_are_rejected_and_counted(vendor: SimpleNamespace) -> Non
                 rejected += 1
     assert decoded == expected["good"]
     assert rejected == expected["bad"]
-    print(
+    _report(
+        capsys,
         f"conformance: {len(stream)} bytes, {expected['good']} good replies decoded, "
-        f"{rejected} rejections for {expected['bad']} damaged frames {kinds}"
+        f"{rejected} rejections for {expected['bad']} damaged frames {kinds}",
     )
