@@ -207,7 +207,7 @@ def test_one_watchdog_stops_fingers_and_wrist_within_50_ms(channel: str) -> None
                 after = [
                     r
                     for r in fingers.received
-                    if r.header == ab.Mode.POSITION and r.arrival_ns > last_mono
+                    if r.header & 0xF0 == ab.Mode.POSITION and r.arrival_ns > last_mono
                 ]
                 final = after[-1].values
                 held = next(r for r in after if r.values == final)

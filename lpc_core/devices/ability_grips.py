@@ -32,6 +32,8 @@ as for the RoboLimb's 1.2 A).
 
 from __future__ import annotations
 
+import bisect
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -69,9 +71,11 @@ class GripPosture:
         if not (np.diff(angles[:, lead]) < 0).all():
             raise ValueError("the lead joint must open monotonically with the aperture")
 
-    @property
+    @functools.cached_property
     def table(self) -> np.ndarray:
-        return np.asarray(self.angles_deg, dtype=np.float64)
+        table = np.asarray(self.angles_deg, dtype=np.float64)
+        table.flags.writeable = False  # shared by every caller
+        return table
 
     @property
     def lead(self) -> int:
@@ -127,10 +131,12 @@ def positions_for(grip: str, aperture_mm: float) -> np.ndarray:
     """The six joint angles (degrees) that make ``grip`` at ``aperture_mm`` (clamped to its
     range)."""
     p = posture(grip)
-    lo, hi = p.range_mm
-    a = min(max(float(aperture_mm), lo), hi)
+    ap = p.apertures_mm
+    a = min(max(float(aperture_mm), ap[0]), ap[-1])
+    k = min(bisect.bisect_right(ap, a), len(ap) - 1)  # the row above a (the top row at the end)
+    w = (a - ap[k - 1]) / (ap[k] - ap[k - 1])
     table = p.table
-    return np.array([np.interp(a, p.apertures_mm, table[:, j]) for j in range(N_JOINTS)])
+    return table[k - 1] + w * (table[k] - table[k - 1])
 
 
 def aperture_of(grip: str, positions_deg: np.ndarray) -> float:
@@ -154,8 +160,14 @@ def classify(positions_deg: np.ndarray) -> tuple[str, float, float]:
     """(grip, aperture mm, residual degrees): the grip whose posture path passes nearest to a
     pose, for the simulated hand, which sees joint angles only. The residual is the largest
     joint's distance from that grip's posture at the pose's aperture."""
+    return _classify(tuple(float(x) for x in positions_deg))
+
+
+@functools.lru_cache(maxsize=256)
+def _classify(pose_deg: tuple[float, ...]) -> tuple[str, float, float]:
+    # Cached: the simulated hand asks about the same commanded pose at every step.
     best: tuple[str, float, float] | None = None
-    pose = np.asarray(positions_deg, dtype=np.float64)
+    pose = np.asarray(pose_deg, dtype=np.float64)
     for name in GRIPS:
         aperture = aperture_of(name, pose)
         residual = float(np.abs(positions_for(name, aperture) - pose).max())

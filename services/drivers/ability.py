@@ -56,7 +56,7 @@ class AbilityHand:
         *,
         baudrate: int = ab.BAUDRATE,
         address: int = ab.ADDRESS,
-        reply_variant: int = 0,
+        reply_variant: int = 2,  # variant 3: positions, currents, rotor speeds (39 bytes)
         period_s: float = 0.01,
         full_speed_mm_s: float = 120.0,
         timeout: float = 1.0,
