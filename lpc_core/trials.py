@@ -281,6 +281,7 @@ class TrialOutcome:
     trigger_s: float | None = None
     take_over_s: float | None = None
     sim_s: float = 0.0
+    grip: str | None = None  # the grip of the last pre-shape (a one-grip hand does power)
 
     @property
     def frame_success(self) -> float | None:
@@ -382,6 +383,7 @@ class _Attempt:
     target: GraspTarget | None = None
     slip: bool = False
     orientation_error_deg: float | None = None
+    grip: str | None = None
 
 
 @dataclass
@@ -460,6 +462,7 @@ def _run_attempt(
             elif isinstance(out, ControllerState) and out.state != out.previous:
                 if out.state == "preshaping":
                     result.preshapes += 1
+                    result.grip = out.grip
                 if out.state == "ready" and result.first_ready_s is None:
                     result.first_ready_s = (t_ns - start_ns) / 1e9
                 if out.event == "released":
@@ -697,6 +700,7 @@ def run_trial(
         pierced_reconstructions=pierced,
         pierced_correct=correct,
         first_ready_s=a.first_ready_s,
+        grip=a.grip,
         trigger_s=moments.get("trigger"),
         take_over_s=moments.get("take_over"),
         sim_s=(a.end_ns - BASE_NS) / 1e9,

@@ -16,6 +16,8 @@ Seq = Annotated[int, Meta(ge=0, le=2**63 - 1)]
 TimeNs = Annotated[int, Meta(ge=0, le=2**63 - 1)]
 Unit = Annotated[float, Meta(ge=0.0, le=1.0)]
 ShapeName = Literal["sphere", "cylinder", "cuboid", "none"]
+# A multi-grip hand's grips (lpc_core.perception.grip chooses one); a one-grip hand does power.
+GripName = Literal["power", "tripod", "lateral", "pinch"]
 
 
 class Message(Struct, kw_only=True, frozen=True):
@@ -119,7 +121,8 @@ class Reconstruction(Message, frozen=True, kw_only=True, tag="reconstruction"):
 class GraspTarget(Message, frozen=True, kw_only=True, tag="grasp_target"):
     """``lpc/grasp/target``: the 10-frame median window.
 
-    ``reconstructed`` is the flag the controller waits for.
+    ``reconstructed`` is the flag the controller waits for. ``grip`` is the grip the rule table
+    of ``lpc_core.perception.grip`` chose for it, ``grip_reason`` why.
     """
 
     frame_seq: Seq
@@ -129,6 +132,8 @@ class GraspTarget(Message, frozen=True, kw_only=True, tag="grasp_target"):
     reconstructed: bool = False
     frames: Annotated[int, Meta(ge=0)] = 0
     agreement: Unit = 0.0
+    grip: GripName = "power"
+    grip_reason: str = ""
 
 
 class AimCue(Message, frozen=True, kw_only=True, tag="aim_cue"):
@@ -175,17 +180,20 @@ class ControllerState(Message, frozen=True, kw_only=True, tag="controller_state"
     dof: Literal["grasp", "wrist"] = "grasp"
     target_width_mm: float | None = None
     target_angle_deg: float | None = None
+    grip: GripName = "power"  # the grip pre-shaped for (or, before one, of the target)
 
 
 class ProsthesisCommand(Message, frozen=True, kw_only=True, tag="prosthesis_command"):
     """``lpc/prosthesis/command``: velocity set-points, each in [-1, 1] of the hand's maximum.
 
-    ``grasp`` > 0 closes the hand; ``wrist`` > 0 rotates toward positive wrist angle.
+    ``grasp`` > 0 closes the hand; ``wrist`` > 0 rotates toward positive wrist angle; a
+    multi-grip hand closes in ``grip`` (a one-grip hand ignores it).
     """
 
     grasp: Annotated[float, Meta(ge=-1.0, le=1.0)]
     wrist: Annotated[float, Meta(ge=-1.0, le=1.0)]
     source: str = "controller"
+    grip: GripName = "power"
 
 
 class ProsthesisState(Message, frozen=True, kw_only=True, tag="prosthesis_state"):
@@ -196,6 +204,7 @@ class ProsthesisState(Message, frozen=True, kw_only=True, tag="prosthesis_state"
     grip_force_pct: float = 0.0
     emg: list[float] = []
     hand: str = "sim"
+    grip: GripName = "power"  # the grip the hand is making
 
 
 class Health(Message, frozen=True, kw_only=True, tag="health"):

@@ -9,13 +9,16 @@ import argparse
 import asyncio
 import sys
 
+from services.drivers.ability_sim import AbilitySim
 from services.drivers.errors import DriverError
 from services.drivers.hand import BACKENDS
 from services.drivers.hand_sim import SimulatedHand
 from services.runtime import Bus, run_service, service_parser
 
 
-async def follow_grasps(bus: Bus, sim: SimulatedHand, default_mm: float | None) -> None:
+async def follow_grasps(
+    bus: Bus, sim: SimulatedHand | AbilitySim, default_mm: float | None
+) -> None:
     """Simulation only: the object the hand closes on is the one it was pre-shaped for."""
     async for state in bus.subscribe("lpc/controller/state"):
         if state.state == "preshaping" and state.target_width_mm is not None:

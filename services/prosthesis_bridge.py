@@ -3,16 +3,24 @@
 40 ms (default), so that the hand is stopped within 50 ms of the last command even with
 scheduling jitter; a command older than that when it arrives is dropped and counted. Bus errors are
 logged and counted, and the bridge reopens the bus with backoff. ``--sim-hand`` runs the
-simulated hand on the same bus (required with python-can's in-process virtual bus)."""
+simulated hand on the same bus (required with python-can's in-process virtual bus).
+
+``--hand ability`` drives a PSYONIC Ability Hand on ``--hand-port`` (pyserial, 460800 baud; a
+simulated one on a pseudo-terminal without a port) in the command's grip, with the wrist
+rotator still on CAN in lpc's layout: one watchdog stops both (zero velocity on the wrist, the
+fingers held where they are). Bad frames from the hand are counted in health."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
 import sys
+from collections.abc import Callable
 
 from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisState
+from services.drivers.ability import open_ability
+from services.drivers.ability_sim import AbilitySim
 from services.drivers.hand import BACKENDS, DEFAULT_CHANNEL, HandLink, open_hand
 from services.drivers.hand_sim import SimulatedHand
 from services.hand_sim import follow_grasps
@@ -36,46 +44,80 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 aperture_mm=status.aperture_mm,
                 grip_force_pct=status.grip_force_pct,
                 emg=list(status.emg),
-                hand=f"{args.profile}:{'sim' if args.sim_hand else args.interface}",
+                hand=name,
+                grip=status.grip,  # type: ignore[arg-type]
             )
         )
         if seq % 100 == 0:
             report()
 
     def report() -> None:
-        for name, count in link.counters.items():  # totals: assign, do not add
-            bus.health.counters[name] = count
+        for key, count in link.counters.items():  # totals: assign, do not add
+            bus.health.counters[key] = count
 
-    sim = None
+    sim = fingers = None
     if args.sim_hand:
         sim = SimulatedHand(args.profile, args.interface, args.channel, object_mm=args.object_mm)
         sim.start()
+    hand_port = getattr(args, "hand_port", None)  # callers that build the args may omit both
+    if getattr(args, "hand", "can") == "ability":
+        # The fingers on serial, the wrist on CAN: one driver, one link, one watchdog.
+        if hand_port is None:
+            fingers = AbilitySim(object_mm=args.object_mm)
+        port = hand_port or fingers.port  # type: ignore[union-attr]
+        wrist = f"{args.profile}:{'sim' if args.sim_hand else args.interface}"
+        name = f"ability:{'sim' if fingers else port}+{wrist}"
+        opener: Callable[[], object] = lambda: open_ability(  # noqa: E731
+            port, interface=args.interface, channel=args.channel
+        )
+    else:
+        name = f"{args.profile}:{'sim' if args.sim_hand else args.interface}"
+        opener = lambda: open_hand(  # noqa: E731
+            args.profile, interface=args.interface, channel=args.channel
+        )
+
     link = HandLink(
-        lambda: open_hand(args.profile, interface=args.interface, channel=args.channel),
+        opener,  # type: ignore[arg-type]
         on_status=lambda status: loop.call_soon_threadsafe(publish, status),
         on_event=lambda level, text: loop.call_soon_threadsafe(bus.log, level, text),
         watchdog_s=args.watchdog_ms / 1000.0,
     ).start()
-    follow = asyncio.create_task(follow_grasps(bus, sim, args.object_mm)) if sim else None
+    # Simulation only: the object between the fingers is the one pre-shaped for.
+    held = fingers if fingers is not None else sim
+    follow = asyncio.create_task(follow_grasps(bus, held, args.object_mm)) if held else None
     try:
         async for command in bus.subscribe("lpc/prosthesis/command"):
             age_ns = bus.clock.now_ns() - command.t_ns
             if age_ns > watchdog_ns:
                 bus.health.counters["stale_commands"] += 1
                 continue
-            link.command(HandCommand(grasp=command.grasp, wrist=command.wrist))
+            link.command(HandCommand(grasp=command.grasp, wrist=command.wrist, grip=command.grip))
     finally:
         if follow is not None:
             follow.cancel()
         link.stop()
         if sim is not None:
             sim.stop()
+        if fingers is not None:
+            fingers.close()
         report()
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = service_parser("prosthesis_bridge", __doc__ or "")
-    parser.add_argument("--profile", choices=sorted(BACKENDS), default="lpc", help="frame layout")
+    parser.add_argument(
+        "--hand",
+        choices=("can", "ability"),
+        default="can",
+        help="can: the whole hand on CAN (--profile); ability: a PSYONIC Ability Hand on "
+        "--hand-port (simulated on a pty without one), its wrist rotator on CAN",
+    )
+    parser.add_argument(
+        "--hand-port", metavar="PORT", help="the Ability Hand's serial port (e.g. /dev/ttyUSB0)"
+    )
+    parser.add_argument(
+        "--profile", choices=sorted(BACKENDS), default="lpc", help="CAN frame layout"
+    )
     parser.add_argument(
         "--interface", default="virtual", help="python-can interface (virtual, socketcan, ...)"
     )
@@ -93,6 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 5 <= args.watchdog_ms <= 1000:
         parser.error("--watchdog-ms must be in [5, 1000]")
+    if args.hand_port is not None and args.hand != "ability":
+        parser.error("--hand-port is for --hand ability")
+    if args.hand == "ability" and args.profile != "lpc":
+        parser.error("--hand ability keeps its wrist on CAN in lpc's layout: --profile lpc")
     if args.interface == "virtual" and not args.sim_hand:
         print(
             "[prosthesis_bridge] warning: virtual bus without --sim-hand: no hand", file=sys.stderr

@@ -11,7 +11,7 @@ from lpc_core.devices.hand import HandCommand
 from lpc_core.sim.emg_sim import MuscleParams, Tick, UserState, user_step
 from lpc_core.sim.hand import HandState, hand_step
 from schemas import AimCue, ControllerState, GraspTarget, ProsthesisCommand, ProsthesisState
-from services.cli.bench.loop import analyse
+from services.cli.bench.loop import analyse, preshape_per_grip
 from services.mcap_log import LogWriter
 
 KEYS = {
@@ -89,6 +89,9 @@ def test_bench_loop_analyse_finds_the_cycle_and_the_rates(tmp_path: Path) -> Non
     assert abs(f["preshapes"][0]["aperture_error_mm"]) <= 3.5
     assert all(abs(r - 100.0) < 1.0 for r in f["rates_hz"].values())
     assert f["command_gap_ms"]["max"] < 50 and f["targets_met"]
+    # One grip here (the stand-in vision's targets carry the default): all pre-shapes in power.
+    assert set(f["per_grip"]) == {"power"}
+    assert f["per_grip"]["power"]["preshapes"] == len(f["preshapes"])
 
 
 def test_bench_loop_analyse_flags_a_slow_command_stream(tmp_path: Path) -> None:
@@ -97,3 +100,13 @@ def test_bench_loop_analyse_flags_a_slow_command_stream(tmp_path: Path) -> None:
     f = analyse(str(path))
     assert f["rates_hz"]["lpc/prosthesis/command"] < 95
     assert not f["targets"]["rates_at_least_95_hz"] and not f["targets_met"]
+
+
+def test_bench_loop_grips_preshapes_the_ability_hand_in_every_grip() -> None:
+    figures = preshape_per_grip(repeat=1)
+    assert list(figures) == ["power", "tripod", "lateral", "pinch"]
+    assert all(g["preshapes"] == 1 for g in figures.values())
+    reached = [g for g in figures.values() if g["reached"]]
+    assert reached  # a loaded machine may miss one in 5 s, never all
+    for g in reached:
+        assert g["aperture_error_mm_mean_abs"] <= 3.5  # the controller's 3 mm, as above

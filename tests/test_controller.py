@@ -141,12 +141,20 @@ class Rig:
     def co_contraction(self) -> None:
         self.gesture(0.8, 0.8)
 
-    def target(self, width: float | None = 60.0, angle: float | None = 20.0, ok: bool = True):
+    def target(
+        self,
+        width: float | None = 60.0,
+        angle: float | None = 20.0,
+        ok: bool = True,
+        grip: str = "power",
+    ):
         """Vision now reports this target (once at once, then every 30 ms)."""
-        self.vision = {"width": width, "angle": angle, "ok": ok}
-        return self._publish_target(width, angle, ok)
+        self.vision = {"width": width, "angle": angle, "ok": ok, "grip": grip}
+        return self._publish_target(width, angle, ok, grip)
 
-    def _publish_target(self, width: float | None, angle: float | None, ok: bool) -> list:
+    def _publish_target(
+        self, width: float | None, angle: float | None, ok: bool, grip: str = "power"
+    ) -> list:
         self.seq += 1
         return self.feed(
             GraspTarget(
@@ -158,6 +166,7 @@ class Rig:
                 wrist_angle_deg=angle if ok else None,
                 reconstructed=ok,
                 frames=10,
+                grip=grip,  # type: ignore[arg-type]
             )
         )
 
@@ -251,6 +260,23 @@ def test_controller_ready_to_preshaping_on_quick_flexion() -> None:
     sp = rig.core.setpoint
     assert sp is not None and sp.aperture_mm == 60.0 + 15.0  # width + slack
     assert sp.wrist_deg == pytest.approx(20.0, abs=1e-6)
+
+
+def test_controller_preshapes_in_the_targets_grip_and_keeps_it_in_direct_control() -> None:
+    rig = Rig()
+    rig.run(0.05)
+    rig.cue()
+    rig.target(width=40.0, grip="tripod")
+    assert rig.mode is State.READY and rig.states()[-1].grip == "tripod"
+    assert "tripod grip" in rig.states()[-1].reason
+    assert rig.commands()[-1].grip == "power"  # not pre-shaped yet: the hand keeps its grip
+    rig.quick_flexion()
+    assert rig.mode is State.PRESHAPING and rig.core.grip == "tripod"
+    entered = [s for s in rig.states() if s.state == "preshaping" and s.previous == "ready"]
+    assert entered and entered[0].grip == "tripod"
+    assert rig.commands()[-1].grip == "tripod"
+    rig.quick_extension()
+    assert rig.mode is State.DIRECT and rig.commands()[-1].grip == "tripod"
 
 
 def test_controller_ready_to_aiming_after_the_target_is_lost_for_300_ms() -> None:

@@ -144,6 +144,8 @@ class InProcessBridge:
 
     def __init__(self, endpoint: str, channel: str) -> None:
         self.args = argparse.Namespace(
+            hand="can",
+            hand_port=None,
             profile="lpc",
             interface="virtual",
             channel=channel,

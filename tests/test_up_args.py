@@ -205,3 +205,23 @@ def test_up_args_raw_emg_flags_reach_the_emg_service(
         "/dev/ttyACM0",
         "uV",
     )
+
+
+def test_up_args_ability_hand_reaches_the_bridge(monkeypatch: pytest.MonkeyPatch) -> None:
+    from services import prosthesis_bridge
+
+    assert argv_of("prosthesis_bridge", parse()) == ["--sim-hand"]
+    args = parse("--hand", "ability")
+    assert up._validate(args) is None
+    assert argv_of("prosthesis_bridge", args) == ["--sim-hand", "--hand", "ability"]
+    args = parse("--hand", "ability", "--hand-port", "/dev/ttyUSB0")
+    bridge_argv = argv_of("prosthesis_bridge", args)
+    assert bridge_argv[-2:] == ["--hand-port", "/dev/ttyUSB0"]
+    started: dict[str, argparse.Namespace] = {}
+    monkeypatch.setattr(
+        prosthesis_bridge, "run_service", lambda name, serve, a: started.setdefault(name, a) and 0
+    )
+    prosthesis_bridge.main(bridge_argv)
+    bridge = started["prosthesis_bridge"]
+    assert (bridge.hand, bridge.hand_port, bridge.sim_hand) == ("ability", "/dev/ttyUSB0", True)
+    assert up._validate(parse("--hand-port", "/dev/ttyUSB0")) == "--hand-port is for --hand ability"

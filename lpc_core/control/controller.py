@@ -228,6 +228,7 @@ class Setpoint:
     wrist_deg: float | None  # None: keep the wrist where it is (a sphere has no axis)
     width_mm: float
     shape: str
+    grip: str = "power"
 
 
 @dataclass(frozen=True)
@@ -263,6 +264,7 @@ class ControllerCore:
     commanded_since_tick: bool = False
     published_ns: int | None = None
     vision_since_ns: int | None = None  # when the controller began relying on the grasp target
+    grip: str = "power"  # the hand's grip: the last pre-shape's, kept through direct control
 
     def __post_init__(self) -> None:
         if self.intent is None:
@@ -341,7 +343,8 @@ def _enter(core: ControllerCore, state: State, now_ns: int, out: list[Output]) -
     """Entry actions of a state."""
     if state is S.PRESHAPING:
         setpoint = _setpoint(core)
-        return evolve(core, setpoint=setpoint, at_target=False, holding=(False, False))
+        grip = setpoint.grip if setpoint is not None else core.grip
+        return evolve(core, setpoint=setpoint, at_target=False, holding=(False, False), grip=grip)
     if state is S.DIRECT:
         return evolve(core, dof="grasp", grasped=False, contact_mm=None, active_ns=now_ns)
     if state is S.STOPPED:
@@ -435,8 +438,10 @@ def _on_target(
     previous, was_present = core.target, core.target_present
     core = evolve(core, target=target, target_present=True, target_missing_since=None)
     width = float(target.grasp_width_mm)  # type: ignore[arg-type]
-    desc = f"{target.shape} {width:.0f} mm" + (
-        f" at {target.wrist_angle_deg:.0f}°" if target.wrist_angle_deg is not None else ""
+    desc = (
+        f"{target.shape} {width:.0f} mm"
+        + (f" at {target.wrist_angle_deg:.0f}°" if target.wrist_angle_deg is not None else "")
+        + f", {target.grip} grip"
     )
     if core.mode in (S.IDLE, S.AIMING):
         return apply_event(core, E.NEW_TARGET, now_ns, f"reconstructed {desc}", out)
@@ -522,7 +527,11 @@ def _setpoint(core: ControllerCore) -> Setpoint | None:
         base = current if p.camera_on_hand else 0.0
         wrist = _nearest_equivalent(base + target.wrist_angle_deg + p.wrist_offset_deg, current, p)
     return Setpoint(
-        aperture_mm=aperture, wrist_deg=wrist, width_mm=target.grasp_width_mm, shape=target.shape
+        aperture_mm=aperture,
+        wrist_deg=wrist,
+        width_mm=target.grasp_width_mm,
+        shape=target.shape,
+        grip=target.grip,
     )
 
 
@@ -578,7 +587,15 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
         else:
             wrist = velocity
     seq = core.command_seq + 1
-    out.append(ProsthesisCommand(seq=seq, t_ns=now_ns, grasp=float(grasp), wrist=float(wrist)))
+    out.append(
+        ProsthesisCommand(
+            seq=seq,
+            t_ns=now_ns,
+            grasp=float(grasp),
+            wrist=float(wrist),
+            grip=core.grip,  # type: ignore[arg-type]
+        )
+    )
     return evolve(core, command_seq=seq, commanded_since_tick=True)
 
 
@@ -604,6 +621,11 @@ def _publish(
             if sp is not None
             else (target.grasp_width_mm if target is not None else None),
             target_angle_deg=sp.wrist_deg if sp is not None else None,
+            grip=(  # type: ignore[arg-type]
+                sp.grip
+                if sp is not None
+                else (target.grip if target is not None and core.mode is S.READY else core.grip)
+            ),
         )
     )
     return evolve(core, state_seq=seq, published_ns=now_ns)

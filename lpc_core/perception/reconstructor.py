@@ -25,6 +25,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from lpc_core.perception.cloud import CloudParams, reconstruct_cloud
+from lpc_core.perception.grip import choose_grip
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.laser import LaserParams, reconstruct_laser
 from lpc_core.perception.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
@@ -160,6 +161,7 @@ def _core(message: Reconstruction) -> CoreReconstruction:
 
 
 def grasp_target_message(window: WindowResult, message: Reconstruction) -> GraspTarget:
+    choice = choose_grip(window.shape, window.grasp_width_mm, window.wrist_angle_deg)
     return GraspTarget(
         seq=message.seq,
         t_ns=message.t_ns,
@@ -170,6 +172,8 @@ def grasp_target_message(window: WindowResult, message: Reconstruction) -> Grasp
         reconstructed=window.reconstructed,
         frames=window.frames,
         agreement=window.agreement,
+        grip=choice.grip,  # type: ignore[arg-type]
+        grip_reason=choice.reason,
     )
 
 

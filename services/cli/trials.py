@@ -337,6 +337,7 @@ def _counts(outcomes: Sequence[TrialOutcome]) -> dict[str, Any]:
         "reconstruction_success": _round(success, 3),
         "frame_success": _round(frame_correct / frame_pierced if frame_pierced else math.nan, 3),
         "width_error_mm": _round(float(np.mean(errors)) if errors else math.nan, 1),
+        "grips": dict(Counter(o.grip for o in outcomes if o.grip is not None)),
     }
 
 
@@ -428,6 +429,8 @@ def report(conditions: list[Condition]) -> str:
             f"{'-' if fs is None else f'{100 * fs:.1f}%':>11}"
             f"{'-' if we is None else f'{we:.1f} mm':>10}  {reasons}"
         )
+        grips = ", ".join(f"{k} {v}" for k, v in sorted(s["grips"].items())) or "-"
+        lines.append(f"{'':<28}grips pre-shaped (lpc_core.perception.grip): {grips}")
     lines.append(
         "  paper: 13 (prototype) and 17 (benchmark) failed trials beyond the 1000 recorded; "
         "per-frame shape success 89-96.5% (prototype), 93-100% (benchmark); size error "

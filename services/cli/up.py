@@ -94,6 +94,16 @@ def _channel_pair(text: str) -> tuple[int, int]:
     return pair  # type: ignore[return-value]
 
 
+def _hand_argv(args: argparse.Namespace) -> list[str]:
+    """The simulated CAN hand (or wrist), and the Ability Hand when asked for."""
+    argv = ["--sim-hand"]
+    if getattr(args, "hand", "can") == "ability":
+        argv += ["--hand", "ability"]
+        if getattr(args, "hand_port", None):
+            argv += ["--hand-port", args.hand_port]
+    return argv
+
+
 def _controller_argv(args: argparse.Namespace) -> list[str]:
     # The hand is always the simulated one (--sim-hand), and no camera turns with its wrist.
     # A real EMG needs the person's calibration; the scripted user has its own.
@@ -135,8 +145,9 @@ SERVICES: dict[str, ServiceSpec] = {
     ),
     # The simulated hand carries no camera: the tactor directions do not turn with its wrist.
     "aim": ServiceSpec("services.aim", lambda args: ["--camera-fixed"]),
-    # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand.
-    "prosthesis_bridge": ServiceSpec("services.prosthesis_bridge", lambda args: ["--sim-hand"]),
+    # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand
+    # (with --hand ability, the wrist rotator's CAN side of it).
+    "prosthesis_bridge": ServiceSpec("services.prosthesis_bridge", lambda args: _hand_argv(args)),
     "controller": ServiceSpec("services.controller", _controller_argv),
     "emg": ServiceSpec("services.emg", _emg_argv),
     "camera": ServiceSpec("services.camera", _camera_argv),
@@ -205,6 +216,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("eai", "line"),
         default="eai",
         help="tactor protocol: EAI controller framing (default) or the DIY line protocol",
+    )
+    parser.add_argument(
+        "--hand",
+        choices=("can", "ability"),
+        default="can",
+        help="the hand: lpc's CAN layout on a simulated hand (default), or a PSYONIC Ability "
+        "Hand (--hand-port; simulated on a pty without one) in the grip chosen per object, "
+        "its wrist rotator on CAN",
+    )
+    parser.add_argument(
+        "--hand-port",
+        metavar="PORT",
+        help="serial port of the Ability Hand (--hand ability), e.g. /dev/ttyUSB0",
     )
     parser.add_argument(
         "--method",
@@ -304,6 +328,8 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--port must be a TCP port number"
     if not 0 <= getattr(args, "foxglove_port", 8765) <= 65535:
         return "--foxglove-port must be a TCP port number"
+    if getattr(args, "hand_port", None) and getattr(args, "hand", "can") != "ability":
+        return "--hand-port is for --hand ability"
     unknown = sorted(set(args.services or []) - set(SERVICES))
     if unknown:
         return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"

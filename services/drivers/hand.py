@@ -394,6 +394,9 @@ class HandLink:
                 continue
             if status is not None:
                 self.counters["status"] += 1
+                health = getattr(driver, "health", None)
+                if health is not None:  # a driver that counts bad frames of its own
+                    self.counters.update(health())
                 self._on_status(status)
             self._watchdog()
 

@@ -3,9 +3,16 @@
 Reads ``lpc/controller/state``, ``lpc/emg``, ``lpc/prosthesis/command`` and
 ``lpc/prosthesis/state`` and prints: the states visited and each transition's count, the
 pre-shapes (time to reach the target, and the error when the controller reported it against
-the hand's own status), the rates of the three 100 Hz topics, the gaps in the command stream,
+the hand's own status), the same per grip (``lpc_core.perception.grip``; a one-grip hand makes
+every pre-shape in power), the rates of the three 100 Hz topics, the gaps in the command stream,
 and the targets of issue 7 (all four states visited, a pre-shape within tolerance, >= 95 Hz).
-With ``--run S`` it first records ``lpc up --source sim --duration S``.
+With ``--run S`` it first records ``lpc up --source sim --duration S`` (``--hand ability``:
+with the simulated Ability Hand).
+
+``--grips`` measures every grip of the Ability Hand without the scene (which shows only the
+grips its objects call for): the controller's step function, in this process, pre-shapes the
+real driver and the simulated hand over a pty (wrist on python-can's virtual bus) for one
+object per grip, ``--repeat`` times, in real time.
 """
 
 from __future__ import annotations
@@ -32,10 +39,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", nargs="?", help="an MCAP recording of a session")
     parser.add_argument("--run", type=float, metavar="S", help="record a sim session of S s first")
     parser.add_argument("--port", type=int, default=7447, help="rendezvous port for --run")
+    parser.add_argument(
+        "--hand",
+        choices=("can", "ability"),
+        default="can",
+        help="the hand of the --run session: lpc's CAN hand (default) or the Ability Hand",
+    )
     parser.add_argument("--json", action="store_true", help="one JSON object instead of text")
+    parser.add_argument(
+        "--grips",
+        action="store_true",
+        help="pre-shape the simulated Ability Hand once per grip (no scene, no bus)",
+    )
+    parser.add_argument("--repeat", type=int, default=3, help="pre-shapes per grip (--grips)")
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.grips:
+        if not 1 <= args.repeat <= 50:
+            print("lpc bench loop: error: --repeat must be 1..50", file=sys.stderr)
+            return 2
+        figures = preshape_per_grip(args.repeat)
+        print(json.dumps(figures, sort_keys=True) if args.json else _grip_lines(figures))
+        return 0 if all(g["reached"] == g["preshapes"] for g in figures.values()) else 1
     path = args.recording
     if args.run is not None:
         if not 5 <= args.run <= 3600:
@@ -57,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
             str(args.port),
             "--status-every",
             "1e9",
+            "--hand",
+            args.hand,
         ]
         code = subprocess.call(cmd, stdout=subprocess.DEVNULL)
         if code != 0:
@@ -95,7 +123,11 @@ def analyse(path: str) -> dict:
             continue
         reached = next((r for r in states[i:] if r.event == "at_target"), None)
         left = next((r for r in states[i + 1 :] if r.state != "preshaping"), None)
-        entry: dict = {"t_s": round((s.t_ns - states[0].t_ns) / 1e9, 2), "reached": False}
+        entry: dict = {
+            "t_s": round((s.t_ns - states[0].t_ns) / 1e9, 2),
+            "reached": False,
+            "grip": s.grip,
+        }
         if reached is not None and (left is None or reached.t_ns <= left.t_ns):
             k = bisect.bisect_left(hand_t, reached.t_ns)
             hand = hands[min(k, len(hands) - 1)]
@@ -134,6 +166,8 @@ def analyse(path: str) -> dict:
             "over_50ms": int((gaps > 50).sum()),
         },
     }
+    figures["hand"] = hands[-1].hand if hands else ""
+    figures["per_grip"] = _per_grip(preshapes)
     figures["targets"] = {
         "states_visited": all(s in visited for s in REQUIRED_STATES),
         "preshape_within_tolerance": any(e["reached"] for e in preshapes),
@@ -143,20 +177,52 @@ def analyse(path: str) -> dict:
     return figures
 
 
+def _per_grip(preshapes: list[dict]) -> dict:
+    """Per grip: pre-shapes, how many reached the target, median time to it, mean |error|."""
+    out = {}
+    for grip in sorted({e["grip"] for e in preshapes}):
+        mine = [e for e in preshapes if e["grip"] == grip]
+        timed = [e for e in mine if "time_to_target_ms" in e]
+        out[grip] = {
+            "preshapes": len(mine),
+            "reached": sum(e["reached"] for e in mine),
+            "time_to_target_ms_p50": (
+                round(float(np.median([e["time_to_target_ms"] for e in timed])), 1)
+                if timed
+                else None
+            ),
+            "aperture_error_mm_mean_abs": (
+                round(float(np.mean([abs(e["aperture_error_mm"]) for e in timed])), 2)
+                if timed
+                else None
+            ),
+        }
+    return out
+
+
 def _print(f: dict) -> None:
     print(f"recording      {f['recording']}")
+    print(f"hand           {f['hand']}")
     print(f"visited        {', '.join(f['visited'])}")
     for name, count in sorted(f["transitions"].items()):
         print(f"  {count:4d}  {name}")
     for e in f["preshapes"]:
         if e["reached"] or "time_to_target_ms" in e:
             print(
-                f"pre-shape at {e['t_s']:7.2f} s: target in {e['time_to_target_ms']:6.1f} ms, "
-                f"aperture error {e['aperture_error_mm']:+.2f} mm, "
-                f"wrist error {e['wrist_error_deg']:+.2f} deg"
+                f"pre-shape at {e['t_s']:7.2f} s ({e['grip']:<7}): target in "
+                f"{e['time_to_target_ms']:6.1f} ms, aperture error {e['aperture_error_mm']:+.2f} "
+                f"mm, wrist error {e['wrist_error_deg']:+.2f} deg"
             )
         else:
-            print(f"pre-shape at {e['t_s']:7.2f} s: left before reaching the target")
+            print(f"pre-shape at {e['t_s']:7.2f} s ({e['grip']:<7}): left before the target")
+    for grip, g in f["per_grip"].items():
+        t = g["time_to_target_ms_p50"]
+        err = g["aperture_error_mm_mean_abs"]
+        print(
+            f"grip {grip:<9} {g['preshapes']} pre-shapes, {g['reached']} reached; time to "
+            f"target p50 {'-' if t is None else f'{t:.0f} ms'}, aperture |error| mean "
+            f"{'-' if err is None else f'{err:.2f} mm'}"
+        )
     for key, rate in f["rates_hz"].items():
         print(f"rate           {key:<24} {rate:7.2f} Hz")
     g = f["command_gap_ms"]
@@ -166,3 +232,136 @@ def _print(f: dict) -> None:
     )
     for name, ok in f["targets"].items():
         print(f"target         {name:<28} {'met' if ok else 'NOT MET'}")
+
+
+# One object per grip, as the rule table chooses for it: (shape, width mm, axis angle deg).
+GRIP_OBJECTS = {
+    "power": ("cylinder", 70.0, 20.0),
+    "tripod": ("sphere", 40.0, None),
+    "lateral": ("cuboid", 30.0, 20.0),
+    "pinch": ("cylinder", 12.0, 20.0),
+}
+
+
+def preshape_per_grip(repeat: int, timeout_s: float = 5.0) -> dict:
+    """Per grip: time from the trigger to the controller's ``at_target`` and the aperture
+    error then, with the real Ability Hand driver on a simulated hand over a pty."""
+    import itertools
+    import time
+
+    from lpc_core.control.controller import (
+        ControllerCore,
+        Event,
+        State,
+        Tick,
+        apply_event,
+        controller_step,
+    )
+    from lpc_core.devices.hand import HandCommand
+    from lpc_core.perception.grip import choose_grip
+    from schemas import EmgSample, ProsthesisCommand, ProsthesisState
+    from services.drivers.ability import open_ability
+    from services.drivers.ability_sim import AbilitySim
+    from services.drivers.hand_sim import SimulatedHand
+
+    figures: dict = {}
+    seq = itertools.count(1)
+    for grip, (shape, width, angle) in GRIP_OBJECTS.items():
+        choice = choose_grip(shape, width, angle)
+        assert choice.grip == grip, (grip, choice)
+        times, errors, retriggers = [], [], 0
+        for k in range(repeat):
+            channel = f"lpc-bench-grip-{grip}-{k}-{time.monotonic_ns()}"
+            with (
+                AbilitySim() as fingers,
+                SimulatedHand("lpc", channel=channel),
+                open_ability(fingers.port, channel=channel) as hand,
+            ):
+                core, command = ControllerCore(), HandCommand()
+                start = reached = None
+                deadline = time.monotonic() + timeout_s
+                while reached is None and time.monotonic() < deadline:
+                    status = hand.recv(0.02)
+                    now = time.time_ns()
+                    n = next(seq)
+                    inputs: list = [EmgSample(seq=n, t_ns=now, channels=[0.0, 0.0]), Tick(now)]
+                    if status is not None:
+                        inputs.insert(
+                            0,
+                            ProsthesisState(
+                                seq=n,
+                                t_ns=now,
+                                wrist_angle_deg=status.wrist_angle_deg,
+                                aperture_mm=status.aperture_mm,
+                                grip_force_pct=status.grip_force_pct,
+                                grip=status.grip,  # type: ignore[arg-type]
+                            ),
+                        )
+                    # Vision keeps reporting the object (the target goes stale without it).
+                    inputs.append(_target(n, now, shape, width, angle, grip))
+                    out: list = []
+                    for message in inputs:
+                        core, produced = controller_step(core, message, now)
+                        out += produced
+                    if core.mode is State.READY and core.hand is not None:
+                        # The trigger; again after a stall of this process stopped the
+                        # controller (the time counts from the first).
+                        core = apply_event(core, Event.AUTO_PRESHAPE, now, "bench", out)
+                        retriggers += start is not None
+                        start = start if start is not None else time.monotonic()
+                    for o in out:
+                        if isinstance(o, ProsthesisCommand):
+                            command = HandCommand(grasp=o.grasp, wrist=o.wrist, grip=o.grip)
+                        elif getattr(o, "event", "") == "at_target" and start is not None:
+                            reached = time.monotonic() - start
+                    hand.send(command)
+                if reached is not None and core.setpoint is not None and core.hand is not None:
+                    times.append(1000.0 * reached)
+                    errors.append(core.hand.aperture_mm - core.setpoint.aperture_mm)
+        figures[grip] = {
+            "object": f"{shape} {width:g} mm",
+            "preshapes": repeat,
+            "reached": len(times),
+            "time_to_target_ms_p50": round(float(np.median(times)), 1) if times else None,
+            "time_to_target_ms_max": round(float(np.max(times)), 1) if times else None,
+            "aperture_error_mm_mean_abs": (
+                round(float(np.mean(np.abs(errors))), 2) if errors else None
+            ),
+            "retriggers": retriggers,
+        }
+    return figures
+
+
+def _target(n: int, t_ns: int, shape: str, width: float, angle: float | None, grip: str):  # type: ignore[no-untyped-def]
+    from schemas import GraspTarget
+
+    return GraspTarget(
+        seq=n,
+        t_ns=t_ns,
+        frame_seq=n,
+        shape=shape,  # type: ignore[arg-type]
+        grasp_width_mm=width,
+        wrist_angle_deg=angle,
+        reconstructed=True,
+        frames=10,
+        agreement=1.0,
+        grip=grip,  # type: ignore[arg-type]
+    )
+
+
+def _grip_lines(figures: dict) -> str:
+    lines = []
+    for grip, g in figures.items():
+        t, tmax, err = (
+            g["time_to_target_ms_p50"],
+            g["time_to_target_ms_max"],
+            g["aperture_error_mm_mean_abs"],
+        )
+        lines.append(
+            f"grip {grip:<8} {g['object']:<16} {g['reached']}/{g['preshapes']} reached; time to "
+            f"target p50 {'-' if t is None else f'{t:.0f} ms'} (max "
+            f"{'-' if tmax is None else f'{tmax:.0f} ms'}), aperture |error| mean "
+            f"{'-' if err is None else f'{err:.2f} mm'}"
+            + (f"; {g['retriggers']} re-triggered after a stall" if g["retriggers"] else "")
+        )
+    return "\n".join(lines)
