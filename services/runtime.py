@@ -12,6 +12,8 @@ import argparse
 import asyncio
 import collections
 import contextlib
+import contextvars
+import importlib
 import json
 import os
 import signal
@@ -375,6 +377,9 @@ class Bus:
             sub.close()
         self._schemas.undeclare()
         self._token.undeclare()
+        # A service restarted inside a container gets a new Bus on the same session.
+        self._health_pub.undeclare()
+        self._log_pub.undeclare()
 
 
 def _answer_schema_query(query: zenoh.Query) -> None:
@@ -425,6 +430,35 @@ def service_main(
     return run_service(name, serve, args)
 
 
+@dataclass(frozen=True)
+class LoadedService:
+    """A service's ``serve`` and its parsed flags, ready to run on a session opened elsewhere."""
+
+    name: str
+    serve: Serve
+    args: argparse.Namespace
+
+
+_LOADING: contextvars.ContextVar[list[LoadedService] | None] = contextvars.ContextVar(
+    "_LOADING", default=None
+)
+
+
+def load_service(module: str, argv: list[str]) -> LoadedService:
+    """Parse and check a service's flags with its own ``main`` and return what it would run,
+    without opening a session: the service container (``lpc up --together``) runs it then on
+    its shared one. Bad flags exit as they do on the command line (``SystemExit``)."""
+    loaded: list[LoadedService] = []
+    token = _LOADING.set(loaded)
+    try:
+        importlib.import_module(module).main(argv)
+    finally:
+        _LOADING.reset(token)
+    if len(loaded) != 1:
+        raise SystemExit(f"error: {module}.main did not reach run_service")
+    return loaded[0]
+
+
 def run_service(
     name: str,
     serve: Serve,
@@ -432,7 +466,13 @@ def run_service(
     *,
     clock: Clock | None = None,
 ) -> int:
-    """Open the session, run ``serve`` until it returns or SIGINT/SIGTERM arrives, close."""
+    """Open the session, run ``serve`` until it returns or SIGINT/SIGTERM arrives, close.
+
+    Under ``load_service`` it only hands ``serve`` and the flags back."""
+    loading = _LOADING.get()
+    if loading is not None:
+        loading.append(LoadedService(name, serve, args))
+        return 0
     try:
         return asyncio.run(_run(name, serve, args, clock))
     except KeyboardInterrupt:

@@ -20,6 +20,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "recorder": ("services.cli.bench.recorder", "MCAP write cost, recorder loss, replay speed"),
     "render": ("services.cli.bench.render", "simulated camera and scan-cut speed"),
     "foxglove": ("services.cli.bench.foxglove", "Foxglove conversion, export and bridge figures"),
+    "footprint": (
+        "services.cli.bench.footprint",
+        "the whole set under a CPU quota: CPU, memory, rates, drops, latency per service",
+    ),
 }
 
 
