@@ -31,6 +31,7 @@ from schemas import TOPICS, BadMessage, Health, Log, Topic, encode, json_schema,
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 HEALTH_PERIOD_S = 1.0
+YIELD_AFTER_NS = 2_000_000  # a backlogged subscription yields the loop after this long
 
 
 # --------------------------------------------------------------------------- clock
@@ -236,6 +237,7 @@ class Subscription:
 
     def __init__(self, bus: Bus, key: str, *, latest: bool, capacity: int, decode: bool) -> None:
         self._bus = bus
+        self.key = key
         self._latest = latest
         self._decode = decode
         self._queue: collections.deque[tuple[str, bytes, int]] = collections.deque(
@@ -244,7 +246,13 @@ class Subscription:
         self._ready = asyncio.Event()
         self._loop = bus.loop
         self._closed = False
-        self._zsub = bus.session.declare_subscriber(key, self._on_sample)
+        self._resumed_ns = 0
+        self._router = bus.router if bus.router is not None and bus.router.covers(key) else None
+        self._zsub: zenoh.Subscriber | None = None
+        if self._router is not None:
+            self._router.add(self)
+        else:
+            self._zsub = bus.session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh's thread: copy the payload out and hand it over; nothing else.
@@ -261,13 +269,17 @@ class Subscription:
     async def receive(self) -> tuple[str, Any, int]:
         """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
         while True:
-            if self._queue:
-                # Yield once per message even when backlogged, so signals, health and the
-                # other tasks still run while a slow consumer catches up.
+            if self._queue and time.monotonic_ns() - self._resumed_ns > YIELD_AFTER_NS:
+                # Yield when backlogged too, so signals, health and the other tasks still run
+                # while a slow consumer catches up; but not after every message: in a shared
+                # loop (the container) a consumer that yields per message drains one message
+                # per loop pass, and a busy loop passes a few hundred times a second.
                 await asyncio.sleep(0)
+                self._resumed_ns = time.monotonic_ns()
             while not self._queue:
                 self._ready.clear()
                 await self._ready.wait()
+                self._resumed_ns = time.monotonic_ns()
             key, payload, received_ns = self._queue.popleft()
             stream = self._bus.health.received[key]
             stream.count += 1
@@ -291,7 +303,69 @@ class Subscription:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._zsub.undeclare()
+            if self._zsub is not None:
+                self._zsub.undeclare()
+            if self._router is not None:
+                self._router.remove(self)
+
+
+class Router:
+    """One Zenoh subscriber on ``lpc/**`` for all the services of one process (the container),
+    handing each sample to the loop once and to every local subscription it matches there.
+
+    A subscriber per subscription would copy each payload out once per subscriber, each on its
+    own Zenoh callback thread contending for the GIL, and wake the loop once per copy. Samples
+    reach the loop in batches: one wake-up for all that arrived while it was busy.
+    """
+
+    PREFIX = "lpc/**"
+
+    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._subs: list[Subscription] = []
+        self._routes: dict[str, list[Subscription]] = {}
+        self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
+        self._scheduled = False
+        self._clock = SystemClock()
+        self._prefix = zenoh.KeyExpr(self.PREFIX)
+        self._zsub = session.declare_subscriber(self.PREFIX, self._on_sample)
+
+    def covers(self, key: str) -> bool:
+        return self._prefix.includes(zenoh.KeyExpr(key))
+
+    def add(self, sub: Subscription) -> None:
+        self._subs.append(sub)
+        self._routes.clear()
+
+    def remove(self, sub: Subscription) -> None:
+        with contextlib.suppress(ValueError):
+            self._subs.remove(sub)
+        self._routes.clear()
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Zenoh's thread: copy the payload out and queue it; wake the loop only if it sleeps.
+        self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(), self._clock.now_ns()))
+        if not self._scheduled:
+            self._scheduled = True
+            with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
+                self._loop.call_soon_threadsafe(self._drain)
+
+    def _drain(self) -> None:
+        # Cleared before emptying the inbox: a sample queued meanwhile schedules another drain.
+        self._scheduled = False
+        inbox = self._inbox
+        while inbox:
+            item = inbox.popleft()
+            route = self._routes.get(item[0])
+            if route is None:
+                key = zenoh.KeyExpr(item[0])
+                route = [s for s in self._subs if zenoh.KeyExpr(s.key).intersects(key)]
+                self._routes[item[0]] = route
+            for sub in route:
+                sub._push(item)
+
+    def close(self) -> None:
+        self._zsub.undeclare()
 
 
 class Bus:
@@ -306,9 +380,11 @@ class Bus:
         clock: Clock | None = None,
         quiet: bool = False,
         argv: list[str] | None = None,
+        router: Router | None = None,
     ) -> None:
         self.session = session
         self.service = service
+        self.router = router
         self.loop = loop
         self.clock: Clock = clock or SystemClock()
         self.health = HealthCounters(service, argv)
