@@ -183,12 +183,17 @@ def load_all(specs: list[dict[str, Any]]) -> list[LoadedService]:
     return loaded
 
 
-async def run_container(loaded: list[LoadedService], args: argparse.Namespace) -> int:
+async def run_container(
+    loaded: list[LoadedService], args: argparse.Namespace, stop: asyncio.Event | None = None
+) -> int:
+    """Run ``loaded`` until SIGINT/SIGTERM (or ``stop``, when given), then stop them in
+    reverse order."""
     loop = asyncio.get_running_loop()
     loop.set_task_factory(_task_factory)
-    stop = asyncio.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+    if stop is None:
+        stop = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
     try:
         session = zenoh.open(config_from_args(args))
     except zenoh.ZError as exc:
@@ -211,7 +216,7 @@ async def run_container(loaded: list[LoadedService], args: argparse.Namespace) -
         for task in reversed(tasks):
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
-        own.publish_health()
+        _publish_container_health(own, runners)
         own.log("info", "stopped")
         own.close()
         router.close()
@@ -220,12 +225,16 @@ async def run_container(loaded: list[LoadedService], args: argparse.Namespace) -
 
 async def _container_health(bus: Bus, runners: list[ServiceRunner]) -> None:
     while True:
-        for runner in runners:
-            bus.health.counters[f"restarts:{runner.name}"] = runner.restarts
-        bus.health.counters["restarts"] = sum(r.restarts for r in runners)
-        bus.health.counters["cpu_ms"] = round(time.process_time() * 1000)
-        bus.publish_health()
+        _publish_container_health(bus, runners)
         await asyncio.sleep(HEALTH_PERIOD_S)
+
+
+def _publish_container_health(bus: Bus, runners: list[ServiceRunner]) -> None:
+    for runner in runners:
+        bus.health.counters[f"restarts:{runner.name}"] = runner.restarts
+    bus.health.counters["restarts"] = sum(r.restarts for r in runners)
+    bus.health.counters["cpu_ms"] = round(time.process_time() * 1000)
+    bus.publish_health()
 
 
 def main(argv: list[str] | None = None) -> int:
