@@ -27,6 +27,7 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
 from typing import Any
 
@@ -58,13 +59,21 @@ class ServiceRunner:
         self.quiet = quiet
         self.cpu_ns = 0
         self.restarts = 0
-        self.started = asyncio.Event()
+        # Threading events: the runner may be on the control loop's thread.
+        self.started = threading.Event()
+        self.done = threading.Event()
 
     @property
     def name(self) -> str:
         return self.loaded.name
 
     async def run(self) -> None:
+        try:
+            await self._run()
+        finally:
+            self.done.set()
+
+    async def _run(self) -> None:
         loop = asyncio.get_running_loop()
         context = contextvars.copy_context()
         context.run(_RUNNER.set, self)
@@ -184,10 +193,13 @@ def load_all(specs: list[dict[str, Any]]) -> list[LoadedService]:
 
 
 async def run_container(
-    loaded: list[LoadedService], args: argparse.Namespace, stop: asyncio.Event | None = None
+    loaded: list[LoadedService],
+    args: argparse.Namespace,
+    stop: asyncio.Event | None = None,
+    control_loop: tuple[str, ...] = (),
 ) -> int:
     """Run ``loaded`` until SIGINT/SIGTERM (or ``stop``, when given), then stop them in
-    reverse order."""
+    reverse order. The services named in ``control_loop`` run on a loop of their own."""
     loop = asyncio.get_running_loop()
     loop.set_task_factory(_task_factory)
     if stop is None:
@@ -201,9 +213,18 @@ async def run_container(
         return 2
     with session:
         router = Router(session, loop)
-        runners = [ServiceRunner(s, session, router, args.quiet) for s in loaded]
-        tasks = [asyncio.create_task(r.run(), name=r.name) for r in runners]
-        await asyncio.gather(*(r.started.wait() for r in runners))
+        control = _ControlLoop(session) if any(s.name in control_loop for s in loaded) else None
+        runners, stoppers = [], []
+        for service in loaded:
+            if control is not None and service.name in control_loop:
+                runner = ServiceRunner(service, session, control.router, args.quiet)
+                stoppers.append(control.start(runner.run()).cancel)
+            else:
+                runner = ServiceRunner(service, session, router, args.quiet)
+                stoppers.append(asyncio.create_task(runner.run(), name=runner.name).cancel)
+            runners.append(runner)
+        while not all(r.started.is_set() for r in runners):
+            await asyncio.sleep(0.01)
         # The container's own token last: 'lpc up' waits for it, so all services are on.
         own = Bus(session, NAME, loop=loop, quiet=args.quiet, argv=sys.argv[1:])
         own.health.detail = "services: " + ", ".join(r.name for r in runners)
@@ -213,14 +234,42 @@ async def run_container(
         await stop.wait()
         own.status = "stopping"
         health.cancel()
-        for task in reversed(tasks):
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
+        for runner, stop_runner in reversed(list(zip(runners, stoppers, strict=True))):
+            stop_runner()
+            await asyncio.to_thread(runner.done.wait)
         _publish_container_health(own, runners)
         own.log("info", "stopped")
         own.close()
         router.close()
+        if control is not None:
+            control.close()
     return 0
+
+
+class _ControlLoop:
+    """A second event loop, on a thread of its own, for the control path: a service there
+    that wakes (EMG at 100 Hz, the controller, the tactor bridge) gets the interpreter within
+    one GIL switch interval, where on the shared loop it would wait behind a frame's rendering
+    or a chunk's compression."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.loop.set_task_factory(_task_factory)
+        # Its own subscribers, one per key: it wants a few small topics, not every depth frame.
+        self.router = Router(session, self.loop, wildcard=False)
+        self._thread = threading.Thread(target=self.loop.run_forever, name="control", daemon=True)
+        self._thread.start()
+
+    def start(self, coro: Any) -> Any:
+        """Run ``coro`` on the control loop; returns its concurrent future."""
+        return asyncio.run_coroutine_threadsafe(coro, self.loop)
+
+    def close(self) -> None:
+        self.router.close()
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(timeout=5)
+        if not self._thread.is_alive():
+            self.loop.close()
 
 
 async def _container_health(bus: Bus, runners: list[ServiceRunner]) -> None:
@@ -245,7 +294,8 @@ def main(argv: list[str] | None = None) -> int:
         "--services",
         required=True,
         metavar="JSON",
-        help='the services, in start order: [{"module": "services.scans", "argv": [...]}, ...]',
+        help='the services, in start order: [{"module": "services.scans", "argv": [...]}, ...]; '
+        '"loop": "control" puts one on the control loop',
     )
     args = parser.parse_args(argv)
     try:
@@ -257,12 +307,17 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(f"--services: {exc}")
     loaded = load_all(specs)
+    control = tuple(
+        service.name
+        for spec, service in zip(specs, loaded, strict=True)
+        if spec.get("loop") == "control"
+    )
     # Zenoh's callback thread and the loop take turns at the GIL; at the default 5 ms a sample
     # may wait that long for the loop to let go. lpc bench footprint --cpus 1.0 --together
     # --record (loaded machine, one run each): camera 62 -> 70 Hz at 1 ms.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     with contextlib.suppress(KeyboardInterrupt):
-        return asyncio.run(run_container(loaded, args))
+        return asyncio.run(run_container(loaded, args, control_loop=control))
     return 0
 
 

@@ -310,25 +310,38 @@ class Subscription:
 
 
 class Router:
-    """One Zenoh subscriber on ``lpc/**`` for all the services of one process (the container),
-    handing each sample to the loop once and to every local subscription it matches there.
+    """The subscriptions of all the services on one event loop of one process (the container),
+    each sample handed to the loop once and to every local subscription it is for.
 
     A subscriber per subscription would copy each payload out once per subscriber, each on its
-    own Zenoh callback thread contending for the GIL, and wake the loop once per copy. Samples
-    reach the loop in batches: one wake-up for all that arrived while it was busy.
+    own Zenoh callback thread contending for the GIL, and wake the loop once per copy. Here
+    samples reach the loop in batches: one wake-up for all that arrived while it was busy. With
+    ``wildcard`` one subscriber on ``lpc/**`` serves every subscription (a loop that records
+    wants everything anyway); otherwise one subscriber per distinct key (a loop that wants a
+    few small topics should not be handed every depth frame).
     """
 
     PREFIX = "lpc/**"
 
-    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(
+        self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, *, wildcard: bool = True
+    ) -> None:
+        self._session = session
         self._loop = loop
         self._subs: list[Subscription] = []
-        self._routes: dict[str, list[Subscription]] = {}
-        self._inbox: collections.deque[tuple[str, bytes, int]] = collections.deque()
+        self._routes: dict[str, list[Subscription]] = {}  # concrete key -> its subscriptions
+        self._by_key: dict[str, tuple[zenoh.Subscriber, list[Subscription]]] = {}
+        self._inbox: collections.deque[tuple[str | None, tuple[str, bytes, int]]] = (
+            collections.deque()
+        )
         self._scheduled = False
         self._clock = SystemClock()
         self._prefix = zenoh.KeyExpr(self.PREFIX)
-        self._zsub = session.declare_subscriber(self.PREFIX, self._on_sample)
+        self._wildcard = (
+            session.declare_subscriber(self.PREFIX, lambda s: self._on_sample(None, s))
+            if wildcard
+            else None
+        )
 
     def covers(self, key: str) -> bool:
         return self._prefix.includes(zenoh.KeyExpr(key))
@@ -336,15 +349,30 @@ class Router:
     def add(self, sub: Subscription) -> None:
         self._subs.append(sub)
         self._routes.clear()
+        if self._wildcard is None:
+            if sub.key not in self._by_key:
+                zsub = self._session.declare_subscriber(
+                    sub.key, lambda s, k=sub.key: self._on_sample(k, s)
+                )
+                self._by_key[sub.key] = (zsub, [])
+            self._by_key[sub.key][1].append(sub)
 
     def remove(self, sub: Subscription) -> None:
         with contextlib.suppress(ValueError):
             self._subs.remove(sub)
         self._routes.clear()
+        entry = self._by_key.get(sub.key)
+        if entry is not None:
+            with contextlib.suppress(ValueError):
+                entry[1].remove(sub)
+            if not entry[1]:
+                del self._by_key[sub.key]
+                entry[0].undeclare()
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
+    def _on_sample(self, route: str | None, sample: zenoh.Sample) -> None:
         # Zenoh's thread: copy the payload out and queue it; wake the loop only if it sleeps.
-        self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(), self._clock.now_ns()))
+        item = (str(sample.key_expr), sample.payload.to_bytes(), self._clock.now_ns())
+        self._inbox.append((route, item))
         if not self._scheduled:
             self._scheduled = True
             with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
@@ -355,17 +383,25 @@ class Router:
         self._scheduled = False
         inbox = self._inbox
         while inbox:
-            item = inbox.popleft()
-            route = self._routes.get(item[0])
-            if route is None:
-                key = zenoh.KeyExpr(item[0])
-                route = [s for s in self._subs if zenoh.KeyExpr(s.key).intersects(key)]
-                self._routes[item[0]] = route
-            for sub in route:
+            route, item = inbox.popleft()
+            if route is not None:
+                entry = self._by_key.get(route)
+                subs = entry[1] if entry is not None else []
+            else:
+                subs = self._routes.get(item[0])  # type: ignore[assignment]
+                if subs is None:
+                    key = zenoh.KeyExpr(item[0])
+                    subs = [s for s in self._subs if zenoh.KeyExpr(s.key).intersects(key)]
+                    self._routes[item[0]] = subs
+            for sub in subs:
                 sub._push(item)
 
     def close(self) -> None:
-        self._zsub.undeclare()
+        if self._wildcard is not None:
+            self._wildcard.undeclare()
+        for zsub, _ in self._by_key.values():
+            zsub.undeclare()
+        self._by_key.clear()
 
 
 class Bus:

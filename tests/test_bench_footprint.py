@@ -27,9 +27,10 @@ def test_footprint_quota_is_written_and_removed() -> None:
     quota = _quota_or_skip()
     try:
         if quota.version == 2:
-            assert (quota.path / "cpu.max").read_text().split() == ["50000", "100000"]
+            assert (quota.path / "cpu.max").read_text().split() == ["5000", "10000"]
         else:
-            assert (quota.path / "cpu.cfs_quota_us").read_text().strip() == "50000"
+            assert (quota.path / "cpu.cfs_quota_us").read_text().strip() == "5000"
+            assert (quota.path / "cpu.cfs_period_us").read_text().strip() == "10000"
     finally:
         quota.close()
     assert not quota.path.exists()

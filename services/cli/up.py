@@ -124,11 +124,18 @@ SERVICES: dict[str, ServiceSpec] = {
 # crash of the process that runs the controller, or a real hand would keep its last velocity.
 APART = ("prosthesis_bridge",)
 CONTAINER = "container"
+# With --together these run on the container's second event loop (its own thread): the
+# control path at 100 Hz does not wait behind a frame's rendering or a chunk's compression.
+CONTROL_LOOP = ("emg", "controller", "tactor_bridge")
 
 
 def _container_child(args: argparse.Namespace, members: list[Child]) -> Child:
     """One child that runs ``members`` as tasks of one process (``services.container``)."""
-    specs = [{"module": c.spec.module, "argv": ["--quiet", *c.argv]} for c in members]
+    specs = [
+        {"module": c.spec.module, "argv": ["--quiet", *c.argv]}
+        | ({"loop": "control"} if c.name in CONTROL_LOOP else {})
+        for c in members
+    ]
     spec = ServiceSpec(
         "services.container",
         # The members stop in turn, each within the grace it has as a process of its own.
