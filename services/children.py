@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import multiprocessing
+import os
 import signal
 
 
 def die_with_parent(sig: int = signal.SIGTERM) -> None:
     """Ask the kernel for ``sig`` when the parent process dies (Linux; elsewhere nothing), so
-    that no child outlives a supervisor, a service or a replay killed with SIGKILL."""
+    that no child outlives a supervisor, a service or a replay killed with SIGKILL.
+
+    A spawned worker asks only once it has imported its modules (seconds on a loaded board): if
+    its parent died meanwhile, it gets ``sig`` now."""
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, sig)  # PR_SET_PDEATHSIG
+    parent = multiprocessing.parent_process()
+    if parent is not None and parent.pid is not None and os.getppid() != parent.pid:
+        os.kill(os.getpid(), sig)

@@ -12,6 +12,8 @@ import argparse
 import asyncio
 import collections
 import contextlib
+import contextvars
+import importlib
 import json
 import os
 import signal
@@ -29,6 +31,7 @@ from schemas import TOPICS, BadMessage, Health, Log, Topic, encode, json_schema,
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 HEALTH_PERIOD_S = 1.0
+YIELD_AFTER_NS = 2_000_000  # a backlogged subscription yields the loop after this long
 
 
 # --------------------------------------------------------------------------- clock
@@ -234,6 +237,7 @@ class Subscription:
 
     def __init__(self, bus: Bus, key: str, *, latest: bool, capacity: int, decode: bool) -> None:
         self._bus = bus
+        self.key = key
         self._latest = latest
         self._decode = decode
         self._queue: collections.deque[tuple[str, bytes, int]] = collections.deque(
@@ -242,7 +246,13 @@ class Subscription:
         self._ready = asyncio.Event()
         self._loop = bus.loop
         self._closed = False
-        self._zsub = bus.session.declare_subscriber(key, self._on_sample)
+        self._resumed_ns = 0
+        self._router = bus.router if bus.router is not None and bus.router.covers(key) else None
+        self._zsub: zenoh.Subscriber | None = None
+        if self._router is not None:
+            self._router.add(self)
+        else:
+            self._zsub = bus.session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh's thread: copy the payload out and hand it over; nothing else.
@@ -259,13 +269,17 @@ class Subscription:
     async def receive(self) -> tuple[str, Any, int]:
         """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
         while True:
-            if self._queue:
-                # Yield once per message even when backlogged, so signals, health and the
-                # other tasks still run while a slow consumer catches up.
+            if self._queue and time.monotonic_ns() - self._resumed_ns > YIELD_AFTER_NS:
+                # Yield when backlogged too, so signals, health and the other tasks still run
+                # while a slow consumer catches up; but not after every message: in a shared
+                # loop (the container) a consumer that yields per message drains one message
+                # per loop pass, and a busy loop passes a few hundred times a second.
                 await asyncio.sleep(0)
+                self._resumed_ns = time.monotonic_ns()
             while not self._queue:
                 self._ready.clear()
                 await self._ready.wait()
+                self._resumed_ns = time.monotonic_ns()
             key, payload, received_ns = self._queue.popleft()
             stream = self._bus.health.received[key]
             stream.count += 1
@@ -289,7 +303,105 @@ class Subscription:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._zsub.undeclare()
+            if self._zsub is not None:
+                self._zsub.undeclare()
+            if self._router is not None:
+                self._router.remove(self)
+
+
+class Router:
+    """The subscriptions of all the services on one event loop of one process (the container),
+    each sample handed to the loop once and to every local subscription it is for.
+
+    A subscriber per subscription would copy each payload out once per subscriber, each on its
+    own Zenoh callback thread contending for the GIL, and wake the loop once per copy. Here
+    samples reach the loop in batches: one wake-up for all that arrived while it was busy. With
+    ``wildcard`` one subscriber on ``lpc/**`` serves every subscription (a loop that records
+    wants everything anyway); otherwise one subscriber per distinct key (a loop that wants a
+    few small topics should not be handed every depth frame).
+    """
+
+    PREFIX = "lpc/**"
+
+    def __init__(
+        self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, *, wildcard: bool = True
+    ) -> None:
+        self._session = session
+        self._loop = loop
+        self._subs: list[Subscription] = []
+        self._routes: dict[str, list[Subscription]] = {}  # concrete key -> its subscriptions
+        self._by_key: dict[str, tuple[zenoh.Subscriber, list[Subscription]]] = {}
+        self._inbox: collections.deque[tuple[str | None, tuple[str, bytes, int]]] = (
+            collections.deque()
+        )
+        self._scheduled = False
+        self._clock = SystemClock()
+        self._prefix = zenoh.KeyExpr(self.PREFIX)
+        self._wildcard = (
+            session.declare_subscriber(self.PREFIX, lambda s: self._on_sample(None, s))
+            if wildcard
+            else None
+        )
+
+    def covers(self, key: str) -> bool:
+        return self._prefix.includes(zenoh.KeyExpr(key))
+
+    def add(self, sub: Subscription) -> None:
+        self._subs.append(sub)
+        self._routes.clear()
+        if self._wildcard is None:
+            if sub.key not in self._by_key:
+                zsub = self._session.declare_subscriber(
+                    sub.key, lambda s, k=sub.key: self._on_sample(k, s)
+                )
+                self._by_key[sub.key] = (zsub, [])
+            self._by_key[sub.key][1].append(sub)
+
+    def remove(self, sub: Subscription) -> None:
+        with contextlib.suppress(ValueError):
+            self._subs.remove(sub)
+        self._routes.clear()
+        entry = self._by_key.get(sub.key)
+        if entry is not None:
+            with contextlib.suppress(ValueError):
+                entry[1].remove(sub)
+            if not entry[1]:
+                del self._by_key[sub.key]
+                entry[0].undeclare()
+
+    def _on_sample(self, route: str | None, sample: zenoh.Sample) -> None:
+        # Zenoh's thread: copy the payload out and queue it; wake the loop only if it sleeps.
+        item = (str(sample.key_expr), sample.payload.to_bytes(), self._clock.now_ns())
+        self._inbox.append((route, item))
+        if not self._scheduled:
+            self._scheduled = True
+            with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
+                self._loop.call_soon_threadsafe(self._drain)
+
+    def _drain(self) -> None:
+        # Cleared before emptying the inbox: a sample queued meanwhile schedules another drain.
+        self._scheduled = False
+        inbox = self._inbox
+        while inbox:
+            route, item = inbox.popleft()
+            if route is not None:
+                entry = self._by_key.get(route)
+                subs = entry[1] if entry is not None else []
+            else:
+                subs = self._routes.get(item[0])  # type: ignore[assignment]
+                if subs is None:
+                    key = zenoh.KeyExpr(item[0])
+                    subs = [s for s in self._subs if zenoh.KeyExpr(s.key).intersects(key)]
+                    self._routes[item[0]] = subs
+            for sub in subs:
+                sub._push(item)
+
+    def close(self) -> None:
+        if self._wildcard is not None:
+            self._wildcard.undeclare()
+        for zsub, _ in self._by_key.values():
+            zsub.undeclare()
+        self._by_key.clear()
 
 
 class Bus:
@@ -304,9 +416,11 @@ class Bus:
         clock: Clock | None = None,
         quiet: bool = False,
         argv: list[str] | None = None,
+        router: Router | None = None,
     ) -> None:
         self.session = session
         self.service = service
+        self.router = router
         self.loop = loop
         self.clock: Clock = clock or SystemClock()
         self.health = HealthCounters(service, argv)
@@ -375,6 +489,9 @@ class Bus:
             sub.close()
         self._schemas.undeclare()
         self._token.undeclare()
+        # A service restarted inside a container gets a new Bus on the same session.
+        self._health_pub.undeclare()
+        self._log_pub.undeclare()
 
 
 def _answer_schema_query(query: zenoh.Query) -> None:
@@ -425,6 +542,35 @@ def service_main(
     return run_service(name, serve, args)
 
 
+@dataclass(frozen=True)
+class LoadedService:
+    """A service's ``serve`` and its parsed flags, ready to run on a session opened elsewhere."""
+
+    name: str
+    serve: Serve
+    args: argparse.Namespace
+
+
+_LOADING: contextvars.ContextVar[list[LoadedService] | None] = contextvars.ContextVar(
+    "_LOADING", default=None
+)
+
+
+def load_service(module: str, argv: list[str]) -> LoadedService:
+    """Parse and check a service's flags with its own ``main`` and return what it would run,
+    without opening a session: the service container (``lpc up --together``) runs it then on
+    its shared one. Bad flags exit as they do on the command line (``SystemExit``)."""
+    loaded: list[LoadedService] = []
+    token = _LOADING.set(loaded)
+    try:
+        importlib.import_module(module).main(argv)
+    finally:
+        _LOADING.reset(token)
+    if len(loaded) != 1:
+        raise SystemExit(f"error: {module}.main did not reach run_service")
+    return loaded[0]
+
+
 def run_service(
     name: str,
     serve: Serve,
@@ -432,7 +578,13 @@ def run_service(
     *,
     clock: Clock | None = None,
 ) -> int:
-    """Open the session, run ``serve`` until it returns or SIGINT/SIGTERM arrives, close."""
+    """Open the session, run ``serve`` until it returns or SIGINT/SIGTERM arrives, close.
+
+    Under ``load_service`` it only hands ``serve`` and the flags back."""
+    loading = _LOADING.get()
+    if loading is not None:
+        loading.append(LoadedService(name, serve, args))
+        return 0
     try:
         return asyncio.run(_run(name, serve, args, clock))
     except KeyboardInterrupt:

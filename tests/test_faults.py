@@ -630,3 +630,68 @@ def test_faults_service_survives_a_payload_with_broken_text(endpoint: str) -> No
             if scans.poll() is None:
                 scans.send_signal(signal.SIGINT)
             scans.wait(timeout=10)
+
+
+# --------------------------------------------------------------------------- together
+
+
+def test_faults_together_container_frozen_then_killed() -> None:
+    """``lpc up --together``: every service but the prosthesis bridge shares one process. Freeze
+    it (SIGSTOP), then kill it (SIGKILL): each time the bridge's watchdog stops the hand; after
+    the kill ``lpc up`` restarts the process, the reconstructor's workers die with it, and every
+    service comes back (one new pid for all) with its output flowing again."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    services = [n for n in SERVICES if n not in ("recorder", "foxglove", "prosthesis_bridge")]
+    up = Up(port, services, "--together")
+    channel = f"lpc-together-{uuid.uuid4().hex[:8]}"
+    can_watch = CanWatch(channel)
+    report = []
+    try:
+        wait_for(lambda: up.said("services up") or up.process.poll() is not None, 90, "lpc up")
+        assert up.process.poll() is None, "\n".join(up.lines)
+        with (
+            zenoh.open(zenoh_config(connect=[endpoint])) as z,
+            InProcessBridge(endpoint, channel) as bridge,
+        ):
+            watch = BusWatch(z)
+            wait_for(lambda: all(watch.pid(n) for n in services), 30, "every service's health")
+            # Warm workers (their initializer asks to die with the parent) reconstruct.
+            wait_for(lambda: watch.count("lpc/reconstruction") > 0, 60, "reconstructions")
+            pid = watch.pid("controller")
+            assert {watch.pid(n) for n in services} == {pid}, "one process for all"
+            workers = psutil.Process(pid).children(recursive=True)
+            assert workers, "the reconstructor's pool is made of processes"
+            for fault in (signal.SIGSTOP, signal.SIGKILL):
+                wait_for(lambda: len(can_watch.since(time.time() - 0.1)) >= 3, 20, "commands")
+                t_fault = time.time()
+                os.kill(pid, fault)
+                try:
+                    wait_for(
+                        lambda t=t_fault: _stop_after(can_watch.since(t - 0.2), t) is not None,
+                        10,
+                        "the watchdog's stop frame",
+                    )
+                finally:
+                    if fault == signal.SIGSTOP:
+                        os.kill(pid, signal.SIGCONT)
+                found = _stop_after(can_watch.since(t_fault - 0.2), t_fault)
+                assert found is not None
+                last, stop = found
+                report.append(
+                    f"container {signal.Signals(fault).name}: hand stopped "
+                    f"{1000 * (stop - last):.1f} ms after the last command"
+                )
+            wait_for(lambda: not any(_alive(p) for p in workers), 30, "the workers gone")
+            wait_for(lambda: all(watch.pid(n) not in (None, pid) for n in services), 90, "all back")
+            assert up.said("restarting container")
+            assert len({watch.pid(n) for n in services}) == 1
+            for key in OUTPUT.values():
+                before = watch.count(key)
+                wait_for(lambda k=key, b=before: watch.count(k) > b + 5, 30, f"{key} again")
+            wait_for(lambda: len(can_watch.since(time.time() - 0.2)) >= 5, 30, "commands again")
+            assert bridge.failed is None
+    finally:
+        can_watch.close()
+        code = up.stop()
+    print("\n" + "\n".join(report) + f"\nlpc up --together exited {code}")

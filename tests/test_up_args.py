@@ -225,3 +225,28 @@ def test_up_args_ability_hand_reaches_the_bridge(monkeypatch: pytest.MonkeyPatch
     bridge = started["prosthesis_bridge"]
     assert (bridge.hand, bridge.hand_port, bridge.sim_hand) == ("ability", "/dev/ttyUSB0", True)
     assert up._validate(parse("--hand-port", "/dev/ttyUSB0")) == "--hand-port is for --hand ability"
+
+
+def test_up_args_together_one_container_and_the_bridge_apart() -> None:
+    """--together: every service but the prosthesis bridge in one container child, in start
+    order, the control path on its loop; each service's own main accepts the flags it gets."""
+    from services.container import load_all
+
+    args = parse("--together", "--record", "out.mcap")
+    members = [
+        up.Child(name, spec, spec.argv(args))
+        for name, spec in up.SERVICES.items()
+        if spec.enabled(args) and name not in up.APART
+    ]
+    child = up._container_child(args, members)
+    assert child.spec.module == "services.container"
+    specs = json.loads(child.argv[child.argv.index("--services") + 1])
+    assert [s["module"] for s in specs] == [up.SERVICES[m.name].module for m in members]
+    assert specs[0]["module"] == "services.recorder", "the recorder starts first"
+    assert "services.prosthesis_bridge" not in [s["module"] for s in specs]
+    on_control = {s["module"] for s in specs if s.get("loop") == "control"}
+    assert on_control == {"services.emg", "services.controller", "services.tactor_bridge"}
+    loaded = load_all(specs)
+    assert [s.name for s in loaded] == [m.name for m in members]
+    assert all(s.args.quiet for s in loaded)
+    assert set(child.members) == {m.name for m in members}

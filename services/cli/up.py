@@ -42,6 +42,7 @@ class ServiceSpec:
     # get the CPU first; work that may lag (reconstruction drops frames by design, the
     # recorder and the viewer have queues) yields to them.
     nice: int = 0
+    stop_grace_s: float = STOP_GRACE_S
 
 
 def _camera_argv(args: argparse.Namespace) -> list[str]:
@@ -154,6 +155,32 @@ SERVICES: dict[str, ServiceSpec] = {
 }
 
 
+# With --together these keep their own process: the hand's watchdog (40 ms) must outlive a
+# crash of the process that runs the controller, or a real hand would keep its last velocity.
+APART = ("prosthesis_bridge",)
+CONTAINER = "container"
+# With --together these run on the container's second event loop (its own thread): the
+# control path at 100 Hz does not wait behind a frame's rendering or a chunk's compression.
+CONTROL_LOOP = ("emg", "controller", "tactor_bridge")
+
+
+def _container_child(args: argparse.Namespace, members: list[Child]) -> Child:
+    """One child that runs ``members`` as tasks of one process (``services.container``)."""
+    specs = [
+        {"module": c.spec.module, "argv": ["--quiet", *c.argv]}
+        | ({"loop": "control"} if c.name in CONTROL_LOOP else {})
+        for c in members
+    ]
+    spec = ServiceSpec(
+        "services.container",
+        # The members stop in turn, each within the grace it has as a process of its own.
+        stop_grace_s=STOP_GRACE_S * len(members),
+    )
+    child = Child(CONTAINER, spec, ["--services", json.dumps(specs)])
+    child.members = {c.name: None for c in members}
+    return child
+
+
 def _sim_user(args: argparse.Namespace) -> bool:
     """The scripted EMG user unless an EMG device was asked for."""
     return getattr(args, "emg", "sim") == "sim"
@@ -170,6 +197,8 @@ class Child:
     alive: bool = False
     health: Health | None = None
     exit_codes: list[int] = field(default_factory=list)
+    # The container's services (--together), with their latest health.
+    members: dict[str, Health | None] = field(default_factory=dict)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -308,6 +337,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--foxglove-port", type=int, default=8765, help="Foxglove WebSocket port (default 8765)"
     )
+    parser.add_argument(
+        "--together",
+        action="store_true",
+        help="run the services as tasks of one process on one Zenoh session (for small "
+        f"boards; same topics); {', '.join(APART)} keeps its own process for the hand's "
+        "watchdog, the reconstructor its worker processes",
+    )
 
 
 def _validate(args: argparse.Namespace) -> str | None:
@@ -417,6 +453,10 @@ async def _supervise(args: argparse.Namespace) -> int:
         for name, spec in SERVICES.items()
         if name in wanted and spec.enabled(args)
     ]
+    if getattr(args, "together", False):
+        members = [c for c in children if c.name not in APART]
+        apart = [c for c in children if c.name in APART]
+        children = ([_container_child(args, members)] if members else []) + apart
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -463,6 +503,10 @@ def _store_health(by_name: dict[str, Child], key: str, payload: bytes) -> None:
     except (ValueError, KeyError):
         return
     child = by_name.get(health.service)
+    container = by_name.get(CONTAINER)
+    if child is None and container is not None and health.service in container.members:
+        container.members[health.service] = health
+        return
     if child is not None:
         child.health = health
         # Health proves the service is up even when its liveliness token is slow to arrive.
@@ -574,10 +618,10 @@ async def _stop_all(children: list[Child]) -> None:
         with contextlib.suppress(ProcessLookupError):
             process.send_signal(signal.SIGTERM)
         try:
-            await asyncio.wait_for(process.wait(), timeout=STOP_GRACE_S)
+            await asyncio.wait_for(process.wait(), timeout=child.spec.stop_grace_s)
         except TimeoutError:
             print(
-                f"lpc up: {child.name} did not stop in {STOP_GRACE_S} s; killing it",
+                f"lpc up: {child.name} did not stop in {child.spec.stop_grace_s} s; killing it",
                 file=sys.stderr,
             )
             with contextlib.suppress(ProcessLookupError):
@@ -591,23 +635,29 @@ def _unclean(child: Child) -> bool:
 
 
 def _status_line(child: Child) -> str:
-    h = child.health
+    return _health_line(child.name, child.health, child.alive, child.restarts)
+
+
+def _health_line(name: str, h: Health | None, alive: bool, restarts: int) -> str:
     if h is None:
-        return f"{child.name:<18} {'up' if child.alive else 'down':<8} (no health yet)"
+        return f"{name:<18} {'up' if alive else 'down':<8} (no health yet)"
     rate = ", ".join(f"{k.removeprefix('lpc/')} {v:5.1f} Hz" for k, v in h.rates_hz.items())
     lat = h.latency_ms
     latency = f"lat p50 {lat['p50']:6.2f} ms p99 {lat['p99']:6.2f} ms" if lat else "lat -"
     c = h.counters
+    restarts += c.get("restarts", 0) if name != CONTAINER else 0
     return (
-        f"{child.name:<18} {h.status:<8} {rate or '-':<28} {latency}  "
+        f"{name:<18} {h.status:<8} {rate or '-':<28} {latency}  "
         f"in {c.get('received', 0)} drop {c.get('dropped', 0)} rej {c.get('rejected', 0)}  "
-        f"rss {h.rss_bytes / 2**20:5.0f} MB"
-        + (f"  restarts {child.restarts}" if child.restarts else "")
+        f"rss {h.rss_bytes / 2**20:5.0f} MB" + (f"  restarts {restarts}" if restarts else "")
     )
 
 
 def _print_status(children: list[Child], elapsed: float, live: bool) -> None:
-    lines = [f"--- t = {elapsed:6.1f} s"] + [_status_line(c) for c in children]
+    lines = [f"--- t = {elapsed:6.1f} s"]
+    for child in children:
+        lines.append(_status_line(child))
+        lines += [_health_line(f"  {name}", h, child.alive, 0) for name, h in child.members.items()]
     if live:
         sys.stdout.write(
             f"\x1b[{len(lines)}F\x1b[J" if getattr(_print_status, "drawn", False) else ""
@@ -628,4 +678,13 @@ def _print_summary(children: list[Child]) -> None:
         }
         for c in children
     }
+    for c in children:  # a container's services, as if they were children
+        for name, h in c.members.items():
+            summary[name] = {
+                "exit": summary[c.name]["exit"],
+                "restarts": c.restarts + (h.counters.get("restarts", 0) if h else 0),
+                "rates_hz": h.rates_hz if h else {},
+                "latency_ms": h.latency_ms if h else {},
+                "counters": h.counters if h else {},
+            }
     print("lpc up: summary " + json.dumps(summary, sort_keys=True), file=sys.stderr, flush=True)

@@ -21,6 +21,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "render": ("services.cli.bench.render", "simulated camera and scan-cut speed"),
     "foxglove": ("services.cli.bench.foxglove", "Foxglove conversion, export and bridge figures"),
     "emg": ("services.cli.bench.emg", "lpc/emg rate from LSL or BrainFlow raw EMG; an outage"),
+    "footprint": (
+        "services.cli.bench.footprint",
+        "the whole set under a CPU quota: CPU, memory, rates, drops, latency per service",
+    ),
 }
 
 

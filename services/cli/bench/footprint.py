@@ -1,0 +1,632 @@
+"""``lpc bench footprint``: the whole set (``lpc up --source sim``) confined to ``--cpus`` CPUs,
+as on the small computer worn with the prosthesis: per service its CPU share, resident memory,
+rates, drops and capture latency, then the totals and the figures the set must keep.
+
+The quota is the kernel's CFS bandwidth control through the cgroup interface: v2 ``cpu.max``
+or v1 ``cpu.cfs_quota_us``, whichever this machine has (needs root). ``lpc up`` is started
+inside a fresh cgroup, so every service and the reconstructor's workers share the quota; the
+cgroup's weight is raised so that other work on the machine cannot take the quota from it, and
+the cgroup is removed afterwards, also on failure. Without ``--cpus`` the set runs unconfined
+(and shares the machine with whatever else runs on it).
+
+CPU and memory come from the processes themselves (psutil: user + system time over the
+measured window, and resident set size); with ``--together`` the per-service CPU is what
+each service's tasks took on the shared event loop (its health's ``cpu_ms``), and the rest of
+the process (Zenoh's threads, the loop itself) is shown apart. Rates and latencies come from
+each service's ``lpc/health``; the bench also listens to every small topic (not depth: pulling
+18 MB/s out of the set would load what it measures) for sequence gaps, the share of frames
+scanned and reconstructed, and the capture -> tactor command latency end to end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import zenoh
+
+from schemas import TOPICS
+from services.cli.bench.soak import ProcessReport, Sample, Watcher
+from services.cli.up import SERVICES
+from services.runtime import zenoh_config
+
+START_TIMEOUT_S = 90.0
+# The CFS period. At the kernel's default of 100 ms, a set held to 0.5 CPU runs 50 ms, then is
+# frozen for 50 ms: every latency gets up to 50 ms that a core of half the speed would not
+# add. A 10 ms period bounds the freeze to 5 ms, nearer to a slower core.
+PERIOD_US = 10_000
+# The cgroup's CPU weight, in multiples of the default. A cgroup weighs as much as one task
+# beside it: on a machine busy with other work, the set would get far less than its quota
+# (measured here at load 20: 0.2 CPU of a 1.0 quota). Weighted up, the quota is its ceiling
+# and, nearly, its floor: the figures then measure the set, not its neighbours.
+WEIGHT = 100
+# Frame-derived topics: their frame_seq says which camera frame they came from.
+FRAME_TOPICS = ("lpc/scans", "lpc/reconstruction", "lpc/grasp/target", "lpc/aim/cue")
+CAPTURE_TOPICS = (*FRAME_TOPICS, "lpc/tactors/command")
+
+
+class _Stamp(msgspec.Struct):
+    """The header of any message, and the frame it came from when it says so."""
+
+    seq: int
+    t_ns: int
+    frame_seq: int = -1
+
+
+_STAMP = msgspec.msgpack.Decoder(_Stamp)
+
+
+# --------------------------------------------------------------------------- cgroup
+
+
+class QuotaUnavailable(Exception):
+    """No cgroup CPU controller this process may use (not root, not Linux, none mounted)."""
+
+
+@dataclass
+class CpuQuota:
+    """A fresh cgroup with a CFS quota of ``cpus`` CPUs; ``close`` removes it."""
+
+    cpus: float
+    path: Path = field(init=False)
+    version: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.path, self.version = _make_cgroup(f"lpc-footprint-{os.getpid()}")
+        quota_us = max(1000, round(self.cpus * PERIOD_US))  # the kernel's least: 1 ms
+        try:
+            if self.version == 2:
+                (self.path / "cpu.max").write_text(f"{quota_us} {PERIOD_US}")
+                (self.path / "cpu.weight").write_text(str(100 * WEIGHT))
+            else:
+                (self.path / "cpu.cfs_period_us").write_text(str(PERIOD_US))
+                (self.path / "cpu.cfs_quota_us").write_text(str(quota_us))
+                (self.path / "cpu.shares").write_text(str(1024 * WEIGHT))
+        except OSError as exc:
+            self.close()
+            raise QuotaUnavailable(f"cannot set the CPU quota in {self.path}: {exc}") from exc
+
+    def enter(self) -> None:
+        """Move the calling process into the cgroup (run in the child before exec)."""
+        (self.path / "cgroup.procs").write_text(str(os.getpid()))
+
+    def stat(self) -> dict[str, int]:
+        """The cgroup's CPU accounting: throttled periods and time, as the kernel counts it."""
+        out: dict[str, int] = {}
+        with contextlib.suppress(OSError, ValueError):
+            for line in (self.path / "cpu.stat").read_text().splitlines():
+                key, value = line.split()
+                out[key] = int(value)
+        return out
+
+    def close(self) -> None:
+        """Kill what is left inside (only processes this bench started are there), remove."""
+        procs = self.path / "cgroup.procs"
+        for _ in range(50):
+            try:
+                pids = [int(p) for p in procs.read_text().split()]
+            except OSError:
+                return  # already gone
+            if not pids:
+                break
+            for pid in pids:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            time.sleep(0.1)
+        with contextlib.suppress(OSError):
+            self.path.rmdir()
+
+
+def _make_cgroup(name: str) -> tuple[Path, int]:
+    """A new cgroup with the cpu controller: v2 if its hierarchy offers cpu, else v1's."""
+    if sys.platform != "linux":
+        raise QuotaUnavailable("CPU quotas need Linux cgroups")
+    mounts: list[tuple[str, str, set[str]]] = []
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/mounts").read_text().splitlines():
+            _, where, kind, options, *_ = line.split()
+            mounts.append((where, kind, set(options.split(","))))
+    problems = []
+    for where, kind, _ in mounts:
+        if kind != "cgroup2":
+            continue
+        root = Path(where)
+        try:
+            if "cpu" not in (root / "cgroup.controllers").read_text().split():
+                problems.append(f"{where}: cgroup v2 without the cpu controller")
+                continue
+            if "cpu" not in (root / "cgroup.subtree_control").read_text().split():
+                (root / "cgroup.subtree_control").write_text("+cpu")
+            path = root / name
+            path.mkdir()
+            return path, 2
+        except OSError as exc:
+            problems.append(f"{where}: {exc}")
+    for where, kind, options in mounts:
+        if kind == "cgroup" and "cpu" in options:
+            path = Path(where) / name
+            try:
+                path.mkdir()
+            except OSError as exc:
+                problems.append(f"{where}: {exc}")
+                continue
+            return path, 1
+    why = "; ".join(problems) or "no cgroup filesystem with the cpu controller is mounted"
+    hint = "" if os.geteuid() == 0 else " (creating a cgroup needs root)"
+    raise QuotaUnavailable(f"cannot confine the set to a CPU quota: {why}{hint}")
+
+
+# --------------------------------------------------------------------------- observers
+
+
+@dataclass
+class Captures:
+    """Per capture-derived topic: frame sequence numbers and capture -> arrival latencies."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    t_from_ns: int = 0
+    t_to_ns: int = 2**63 - 1
+    frames: dict[str, set[int]] = field(default_factory=lambda: defaultdict(set))
+    latencies_ms: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    frame_times: dict[int, int] = field(default_factory=dict)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        received = time.time_ns()
+        key = str(sample.key_expr)
+        try:
+            stamp = _STAMP.decode(sample.payload.to_bytes())
+        except (msgspec.DecodeError, ValueError):
+            return
+        if not self.t_from_ns <= stamp.t_ns <= self.t_to_ns:
+            return
+        with self.lock:
+            self.latencies_ms[key].append((received - stamp.t_ns) / 1e6)
+            if stamp.frame_seq >= 0:
+                self.frames[key].add(stamp.frame_seq)
+                self.frame_times.setdefault(stamp.frame_seq, stamp.t_ns)
+
+
+@dataclass
+class Proc:
+    """One process of the set, named after its service (workers after their parent's)."""
+
+    name: str
+    cpu_start: float
+    cpu_last: float
+    rss: list[int] = field(default_factory=list)
+
+
+def _process_name(proc: Any, names: dict[int, str]) -> str:
+    try:
+        cmdline = proc.cmdline()
+    except Exception:  # psutil.Error, and a process gone between listing and asking
+        return "?"
+    if "-m" in cmdline:
+        module = cmdline[cmdline.index("-m") + 1]
+        for name, spec in SERVICES.items():
+            if spec.module == module:
+                return name
+        if module == "services.cli":
+            return "supervisor"
+        return module.rsplit(".", 1)[-1]
+    with contextlib.suppress(Exception):
+        return names.get(proc.ppid(), "?") + " workers"
+    return "?"
+
+
+class Sampler:
+    """CPU times and RSS of every process under ``lpc up``, sampled once a second."""
+
+    def __init__(self, root_pid: int) -> None:
+        import psutil
+
+        self._psutil = psutil
+        self.root = psutil.Process(root_pid)
+        self.procs: dict[int, Proc] = {}
+        self.names: dict[int, str] = {}
+        self.totals: list[int] = []
+
+    def sample(self) -> None:
+        psutil = self._psutil
+        try:
+            tree = [self.root, *self.root.children(recursive=True)]
+        except psutil.Error:
+            return
+        total = 0
+        for proc in tree:
+            try:
+                with proc.oneshot():
+                    times = proc.cpu_times()
+                    rss = proc.memory_info().rss
+            except psutil.Error:
+                continue
+            cpu = times.user + times.system
+            if proc.pid not in self.procs:
+                self.names[proc.pid] = _process_name(proc, self.names)
+                self.procs[proc.pid] = Proc(self.names[proc.pid], cpu, cpu)
+            entry = self.procs[proc.pid]
+            entry.cpu_last = cpu
+            entry.rss.append(rss)
+            total += rss
+        self.totals.append(total)
+
+    def restart_window(self) -> None:
+        for entry in self.procs.values():
+            entry.cpu_start = entry.cpu_last
+            entry.rss.clear()
+        self.totals.clear()
+
+    def memory_detail(self) -> dict[str, int]:
+        """USS and PSS of the whole set now (shared library pages counted once)."""
+        psutil = self._psutil
+        uss = pss = 0
+        with contextlib.suppress(psutil.Error):
+            for proc in [self.root, *self.root.children(recursive=True)]:
+                with contextlib.suppress(psutil.Error):
+                    full = proc.memory_full_info()
+                    uss += full.uss
+                    pss += getattr(full, "pss", 0)
+        return {"uss": uss, "pss": pss}
+
+
+# --------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--cpus",
+        type=float,
+        metavar="C",
+        help="confine the whole set to C CPUs (a cgroup CPU quota; default: no quota)",
+    )
+    parser.add_argument(
+        "--seconds", type=float, default=30.0, metavar="S", help="measured seconds (default 30)"
+    )
+    parser.add_argument(
+        "--warmup", type=float, default=5.0, metavar="S",
+        help="seconds after every service is up that are left out (default 5)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--together", action="store_true", help="run the set as lpc up --together (one process)"
+    )
+    parser.add_argument(
+        "--record", action="store_true", help="with the recorder on (to a temporary file)"
+    )
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    parser.add_argument("--port", type=int, default=7467, help="rendezvous port (loopback)")
+    parser.add_argument("--rate", type=float, default=90.0, help="camera rate (default 90 Hz)")
+
+
+def _validate(args: argparse.Namespace) -> str | None:
+    if args.cpus is not None and not 0.1 <= args.cpus <= (os.cpu_count() or 1):
+        return f"--cpus must be in [0.1, {os.cpu_count() or 1}] (this machine's CPUs)"
+    if not 1 <= args.seconds <= 3600:
+        return "--seconds must be in [1, 3600]"
+    if not 0 <= args.warmup <= 600:
+        return "--warmup must be in [0, 600]"
+    if not 1 <= args.port <= 65535:
+        return "--port must be a TCP port number"
+    if not 0 < args.rate <= 1000:
+        return "--rate must be in (0, 1000] Hz"
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    problem = _validate(args)
+    if problem:
+        print(f"lpc bench footprint: error: {problem}", file=sys.stderr)
+        return 2
+    try:
+        import psutil  # noqa: F401
+    except ImportError:
+        print("lpc bench footprint: error: needs psutil: pip install 'lpc[bench]'", file=sys.stderr)
+        return 2
+    quota = None
+    if args.cpus is not None:
+        try:
+            quota = CpuQuota(args.cpus)
+        except QuotaUnavailable as exc:
+            print(f"lpc bench footprint: error: {exc}", file=sys.stderr)
+            return 2
+    try:
+        with tempfile.TemporaryDirectory(prefix="lpc-footprint-") as tmp:
+            result = _measure(args, quota, Path(tmp))
+    finally:
+        if quota is not None:
+            quota.close()
+    if result is None:
+        return 1
+    if args.json:
+        print(json.dumps(result, indent=1))
+    else:
+        _print(result)
+    return 0 if result["lpc_up_exit"] == 0 else 1
+
+
+def _measure(args: argparse.Namespace, quota: CpuQuota | None, tmp: Path) -> dict | None:
+    total_s = args.warmup + args.seconds
+    argv = [
+        sys.executable, "-m", "services.cli", "up", "--source", "sim",
+        "--duration", f"{total_s + 30:g}", "--port", str(args.port),
+        "--rate", f"{args.rate:g}", "--status-every", "3600",
+    ]  # fmt: skip
+    if args.together:
+        argv.append("--together")
+    if args.record:
+        argv += ["--record", str(tmp / "footprint.mcap")]
+    where = f"a quota of {args.cpus:g} CPU (cgroup v{quota.version})" if quota else "no quota"
+    note = f"lpc bench footprint: {args.seconds:g} s after {args.warmup:g} s, {where}:"
+    print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
+    up = subprocess.Popen(
+        argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True, start_new_session=True, preexec_fn=quota.enter if quota else None,
+    )  # fmt: skip
+    started = threading.Event()
+    log: list[str] = []
+
+    def read_stderr() -> None:
+        for line in up.stderr or []:
+            log.append(line.rstrip())
+            if "services up" in line:
+                started.set()
+
+    threading.Thread(target=read_stderr, daemon=True).start()
+    try:
+        observed = _observe(args, up, started, quota)
+    except KeyboardInterrupt:
+        observed = None
+    finally:
+        if up.poll() is None:
+            up.send_signal(signal.SIGINT)
+            try:
+                up.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(up.pid, signal.SIGKILL)
+                up.wait()
+    if observed is None:
+        print("lpc bench footprint: error: lpc up did not start:\n" + "\n".join(log[-20:]))
+        return None
+    return _result(args, quota, *observed, up.returncode, log)
+
+
+def _observe(
+    args: argparse.Namespace,
+    up: subprocess.Popen[str],
+    started: threading.Event,
+    quota: CpuQuota | None,
+) -> tuple[Watcher, Captures, Sampler, dict[str, ProcessReport], dict, float] | None:
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while not started.wait(0.1):
+        if up.poll() is not None or time.monotonic() > deadline:
+            return None
+    watcher, captures, sampler = Watcher(), Captures(), Sampler(up.pid)
+    services: dict[str, ProcessReport] = {}
+    keys = [t.key for t in TOPICS if t.key != "lpc/camera/depth" and "*" not in t.key]
+    conf = zenoh_config(connect=[f"tcp/127.0.0.1:{args.port}"])
+    with zenoh.open(conf) as session:
+        session.declare_subscriber("lpc/health/*", watcher.on_health)
+        for key in keys:
+            session.declare_subscriber(key, watcher.on_message)
+        for key in CAPTURE_TOPICS:
+            session.declare_subscriber(key, captures.on_sample)
+        t0 = time.monotonic()
+        window_start = t0 + args.warmup
+        captures.t_from_ns = time.time_ns() + round(args.warmup * 1e9)
+        captures.t_to_ns = captures.t_from_ns + round(args.seconds * 1e9)
+        stat_start: dict[str, int] = {}
+        in_window = False
+        next_sample = t0
+        while up.poll() is None:
+            now = time.monotonic()
+            if now >= window_start + args.seconds:
+                break
+            if not in_window and now >= window_start:
+                in_window = True
+                sampler.restart_window()
+                stat_start = quota.stat() if quota else {}
+                with watcher.lock:
+                    watcher.lost.clear()
+                    watcher.seen.clear()
+            sampler.sample()
+            if in_window:
+                with watcher.lock:
+                    latest = dict(watcher.latest)
+                for name, h in latest.items():
+                    report = services.setdefault(name, ProcessReport(name))
+                    if not report.pids or report.pids[-1] != h.pid:
+                        report.pids.append(h.pid)
+                    report.samples.append(
+                        Sample(
+                            t_s=round(now - window_start, 3),
+                            pid=h.pid,
+                            rss_mb=h.rss_bytes / 2**20,
+                            rates_hz=dict(h.rates_hz),
+                            latency_ms=dict(h.latency_ms),
+                            counters=dict(h.counters),
+                        )
+                    )
+            next_sample += 1.0
+            time.sleep(max(0.0, next_sample - time.monotonic()))
+        elapsed = time.monotonic() - window_start
+        time.sleep(0.3)  # the last frames of the window arrive
+        memory = sampler.memory_detail()
+        stat_end = quota.stat() if quota else {}
+    throttle = {k: stat_end[k] - stat_start.get(k, 0) for k in stat_end}
+    return watcher, captures, sampler, services, {"memory": memory, "cgroup": throttle}, elapsed
+
+
+def _percentiles(values: list[float]) -> dict[str, float | None]:
+    if not values:
+        return {"p50": None, "p99": None, "n": 0}
+    p50, p99 = np.percentile(values, [50, 99])
+    return {"p50": round(float(p50), 2), "p99": round(float(p99), 2), "n": len(values)}
+
+
+def _result(
+    args: argparse.Namespace,
+    quota: CpuQuota | None,
+    watcher: Watcher,
+    captures: Captures,
+    sampler: Sampler,
+    services: dict[str, ProcessReport],
+    extra: dict,
+    elapsed: float,
+    up_exit: int | None,
+    log: list[str],
+) -> dict[str, Any]:
+    window = max(elapsed, 1e-9)
+    # Processes, by name (a restarted service's processes add up).
+    cpu: dict[str, float] = defaultdict(float)
+    rss_max: dict[str, int] = defaultdict(int)
+    rss_last: dict[str, int] = defaultdict(int)
+    for entry in sampler.procs.values():
+        cpu[entry.name] += entry.cpu_last - entry.cpu_start
+        if entry.rss:
+            rss_max[entry.name] += max(entry.rss)
+            rss_last[entry.name] += entry.rss[-1]
+    summaries = {n: r.summary(0.0) for n, r in services.items()}
+    loop_cpu = {
+        n: (r.samples[-1].counters.get("cpu_ms", 0) - r.samples[0].counters.get("cpu_ms", 0))
+        / 1000.0
+        for n, r in services.items()
+        if r.samples and "cpu_ms" in r.samples[-1].counters
+    }
+    rows: dict[str, dict[str, Any]] = {}
+    for name in sorted(set(cpu) | set(summaries), key=_order):
+        s = summaries.get(name, {})
+        counters = services[name].samples[-1].counters if name in services else {}
+        first = services[name].samples[0].counters if name in services else {}
+        drops = {
+            k: counters[k] - first.get(k, 0)
+            for k in ("dropped", "dropped_frames", "late_frames", "stale_commands")
+            if counters.get(k, 0) - first.get(k, 0)
+        }
+        own_cpu = cpu.get(name, loop_cpu.get(name, 0.0))
+        rows[name] = {
+            "cpu": round(own_cpu / window, 4),
+            "cpu_from": "process" if name in cpu else ("event loop" if name in loop_cpu else "-"),
+            "rss_mb": round(rss_max[name] / 2**20, 1) if name in rss_max else None,
+            "rates_hz": s.get("rates_hz", {}),
+            "latency_ms": s.get("latency_ms", {}),
+            "drops": drops,
+            "restarts": s.get("restarts", 0),
+        }
+    with captures.lock:
+        frames = {k: set(v) for k, v in captures.frames.items()}
+        latencies = {k: _percentiles(v) for k, v in captures.latencies_ms.items()}
+        frame_times = dict(captures.frame_times)
+    seen = set().union(*frames.values()) if frames else set()
+    span = (max(seen) - min(seen) + 1) if seen else 0
+    camera_hz = None
+    if len(seen) >= 2:
+        lo, hi = min(seen), max(seen)
+        camera_hz = round((hi - lo) / ((frame_times[hi] - frame_times[lo]) / 1e9 or 1e-9), 2)
+    coverage = {
+        k: round(100.0 * len(frames.get(k, ())) / span, 2) if span else None for k in FRAME_TOPICS
+    }
+    with watcher.lock:
+        topics = {
+            k: {"rate_hz": round(watcher.seen[k] / window, 2), "lost": watcher.lost.get(k, 0)}
+            for k in sorted(watcher.seen)
+        }
+    total_cpu = sum(cpu.values())
+    return {
+        "mode": "together" if args.together else "processes",
+        "cpus": args.cpus,
+        "cgroup": f"v{quota.version}" if quota else None,
+        "record": args.record,
+        "seconds": round(elapsed, 2),
+        "services": rows,
+        "totals": {
+            "cpu": round(total_cpu / window, 4),
+            "rss_mb_max": round(max(sampler.totals, default=0) / 2**20, 1),
+            "rss_mb_last": round((sampler.totals or [0])[-1] / 2**20, 1),
+            "pss_mb": round(extra["memory"]["pss"] / 2**20, 1),
+            "uss_mb": round(extra["memory"]["uss"] / 2**20, 1),
+            "processes": len({p for p, e in sampler.procs.items() if e.rss}),
+            "throttled": extra["cgroup"],
+        },
+        "frames": {
+            "camera_hz": camera_hz,
+            "frames": span,
+            "coverage_pct": coverage,
+        },
+        "capture_latency_ms": latencies,
+        "topics": topics,
+        "lpc_up_exit": up_exit,
+        "restarts_logged": [ln for ln in log if "restart" in ln],
+    }
+
+
+def _order(name: str) -> tuple[int, str]:
+    order = ["supervisor", "together", *SERVICES]
+    base = name.removesuffix(" workers")
+    return (order.index(base) if base in order else len(order), name)
+
+
+def _print(r: dict[str, Any]) -> None:
+    quota = f"quota {r['cpus']:g} CPU (cgroup {r['cgroup']})" if r["cpus"] else "no quota"
+    print(
+        f"lpc bench footprint: {r['mode']}, {quota}, recorder {'on' if r['record'] else 'off'}, "
+        f"{r['seconds']:g} s measured"
+    )
+    print(
+        f"\n{'service':<22}{'cpu %':>7}{'rss MB':>8}{'rate Hz':>9}{'p50 ms':>8}{'p99 ms':>8}  drops"
+    )
+    for name, row in r["services"].items():
+        rate = max(row["rates_hz"].values(), default=0.0)
+        lat = row["latency_ms"]
+        rss = "-" if row["rss_mb"] is None else f"{row['rss_mb']:.0f}"
+        drops = ", ".join(f"{k} {v}" for k, v in row["drops"].items()) or "-"
+        if row["restarts"]:
+            drops += f"; restarts {row['restarts']}"
+        print(
+            f"{name:<22}{100 * row['cpu']:>7.1f}{rss:>8}{rate:>9.1f}"
+            f"{_fmt(lat.get('p50_median')):>8}{_fmt(lat.get('p99_median')):>8}  {drops}"
+        )
+    t = r["totals"]
+    throttled = t["throttled"]
+    print(
+        f"{'total':<22}{100 * t['cpu']:>7.1f}{t['rss_mb_max']:>8.0f}"
+        f"   ({t['processes']} processes; rss last {t['rss_mb_last']:.0f} MB, "
+        f"pss {t['pss_mb']:.0f} MB, uss {t['uss_mb']:.0f} MB)"
+    )
+    if throttled:
+        periods = throttled.get("nr_periods", 0)
+        share = throttled.get("nr_throttled", 0) / periods if periods else 0.0
+        print(f"throttled in {100 * share:.0f}% of the {periods} quota periods")
+    f = r["frames"]
+    cov = ", ".join(f"{k.removeprefix('lpc/')} {_fmt(v)}%" for k, v in f["coverage_pct"].items())
+    print(f"\ncamera {_fmt(f['camera_hz'])} Hz over {f['frames']} frames; of them: {cov}")
+    print(f"\n{'capture ->':<24}{'n':>7}{'p50 ms':>9}{'p99 ms':>9}")
+    for key, lat in r["capture_latency_ms"].items():
+        print(f"{key:<24}{lat['n']:>7}{_fmt(lat['p50']):>9}{_fmt(lat['p99']):>9}")
+    print(f"\n{'topic':<26}{'Hz':>8}{'lost':>7}")
+    for key, t in r["topics"].items():
+        print(f"{key:<26}{t['rate_hz']:>8.1f}{t['lost']:>7}")
+    print(f"lpc up exit: {r['lpc_up_exit']}")
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+if __name__ == "__main__":
+    _parser = argparse.ArgumentParser(prog="lpc bench footprint", description=__doc__)
+    add_arguments(_parser)
+    sys.exit(run(_parser.parse_args()))

@@ -1,0 +1,119 @@
+"""The service container (``lpc up --together``): services as tasks of one process on one Zenoh
+session, still on the bus's topics; a service that raises is restarted in place."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+
+import pytest
+import zenoh
+
+from schemas import decode
+from services.container import run_container
+from services.runtime import Bus, LoadedService, load_service
+from tests.conftest import until
+
+
+def _args(endpoint: str) -> argparse.Namespace:
+    return argparse.Namespace(mode="peer", connect=[endpoint], listen=None, config=None, quiet=True)
+
+
+def test_container_load_service_parses_the_services_own_flags() -> None:
+    loaded = load_service("services.scans", ["--band-mm", "0.8", "--quiet"])
+    assert loaded.name == "scans" and loaded.args.band_mm == 0.8
+    assert loaded.args.argv == ["--band-mm", "0.8", "--quiet"]
+    with pytest.raises(SystemExit) as exc:
+        load_service("services.scans", ["--band-mm", "nope"])
+    assert exc.value.code == 2
+
+
+def test_container_restarts_a_service_that_raises(endpoint: str, rendezvous: zenoh.Session) -> None:
+    """The first run raises, the second runs on: one restart, counted and logged; the other
+    service of the container is not disturbed."""
+    runs: list[int] = []
+    steady: list[int] = []
+    health: dict[str, list] = {}
+    logs: list[str] = []
+
+    def on_health(sample: zenoh.Sample) -> None:
+        h = decode(str(sample.key_expr), sample.payload.to_bytes())
+        health.setdefault(h.service, []).append(h)
+
+    def on_log(sample: zenoh.Sample) -> None:
+        logs.append(decode(str(sample.key_expr), sample.payload.to_bytes()).text)
+
+    async def flaky(bus: Bus, args: argparse.Namespace) -> None:
+        runs.append(len(runs))
+        await asyncio.sleep(0.05)
+        if len(runs) == 1:
+            raise RuntimeError("first run fails")
+        await asyncio.Event().wait()
+
+    async def calm(bus: Bus, args: argparse.Namespace) -> None:
+        steady.append(1)
+        await asyncio.Event().wait()
+
+    subs = [
+        rendezvous.declare_subscriber("lpc/health/*", on_health),
+        rendezvous.declare_subscriber("lpc/log/*", on_log),
+    ]
+    ns = argparse.Namespace(argv=[])
+    services = [LoadedService("flaky", flaky, ns), LoadedService("calm", calm, ns)]
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        container = asyncio.create_task(run_container(services, _args(endpoint), stop))
+        await until(lambda: len(runs) == 2, 10, "the restart")
+        await until(
+            lambda: any(h.counters.get("restarts") == 1 for h in health.get("flaky", [])),
+            10,
+            "the restart in flaky's health",
+        )
+        stop.set()
+        assert await asyncio.wait_for(container, 10) == 0
+
+    asyncio.run(main())
+    for sub in subs:
+        sub.undeclare()
+    assert steady == [1], "the other service ran once, undisturbed"
+    assert any("failed: RuntimeError: first run fails; restart #1" in t for t in logs)
+    assert {h.pid for hs in health.values() for h in hs} == {os.getpid()}
+    assert health["container"][-1].counters["restarts:flaky"] == 1
+
+
+def test_container_services_talk_over_the_bus(endpoint: str, rendezvous: zenoh.Session) -> None:
+    """Camera and scans in one container: an outside subscriber sees both topics, the scans
+    made from the frames it sees, and each service's health and liveliness token."""
+    depth: list[int] = []
+    scans: list[int] = []
+    subs = [
+        rendezvous.declare_subscriber(
+            "lpc/camera/depth",
+            lambda s: depth.append(decode("lpc/camera/depth", s.payload.to_bytes()).seq),
+        ),
+        rendezvous.declare_subscriber(
+            "lpc/scans",
+            lambda s: scans.append(decode("lpc/scans", s.payload.to_bytes()).frame_seq),
+        ),
+    ]
+    services = [
+        load_service("services.scans", ["--quiet"]),
+        load_service("services.camera", ["--quiet", "--rate", "30"]),
+    ]
+
+    async def main() -> set[str]:
+        stop = asyncio.Event()
+        container = asyncio.create_task(run_container(services, _args(endpoint), stop))
+        await until(lambda: len(scans) >= 10, 30, "scans from the container")
+        alive = {str(r.ok.key_expr) for r in rendezvous.liveliness().get("lpc/alive/*") if r.ok}
+        stop.set()
+        assert await asyncio.wait_for(container, 10) == 0
+        return alive
+
+    alive = asyncio.run(main())
+    for sub in subs:
+        sub.undeclare()
+    assert {"lpc/alive/scans", "lpc/alive/camera", "lpc/alive/container"} <= alive
+    assert set(scans) <= set(depth), "every scan comes from a frame seen on the bus"
