@@ -19,6 +19,8 @@ from services.drivers.depth import (
     ReplaySource,
     SimSource,
     SourceUnavailable,
+    add_sensor_arguments,
+    stereo_sensor,
 )
 from services.drivers.errors import OperationError
 from services.runtime import Bus, run_service, service_parser
@@ -55,7 +57,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     live = args.source == "realsense" and not args.file
     try:
         if args.source == "sim":
-            source = SimSource(seed=args.seed)
+            source = SimSource(seed=args.seed, sensor=stereo_sensor(args))
         elif args.source == "realsense":
             source = RealSenseSource(args.file, rate=round(args.rate))
         else:
@@ -68,7 +70,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         source = await _open_camera(bus, args, str(exc))
     intrinsics = intrinsics_to_message(source.intrinsics)
     depth = bus.publisher("lpc/camera/depth")
-    bus.log("info", f"source {args.source} {source.intrinsics.width}x{source.intrinsics.height}")
+    sensor = f" ({args.sensor} sensor)" if args.source == "sim" else ""
+    bus.log(
+        "info",
+        f"source {args.source}{sensor} {source.intrinsics.width}x{source.intrinsics.height}",
+    )
     period_ns = round(1e9 / args.rate)
     start_ns = bus.clock.now_ns()
     first_recorded_ns = 0
@@ -134,7 +140,12 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="look for a missing or lost live camera every S seconds (default 1)",
     )
+    add_sensor_arguments(parser)
     args = parser.parse_args(argv)
+    try:
+        stereo_sensor(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.source == "replay" and not args.file:
         parser.error("--source replay needs --file FILE.mcap")
     if not 0 < args.rate <= 1000:

@@ -122,7 +122,7 @@ class Matcher:
     speckle_window: int = 100
     speckle_range: int = 2
     disp12_max_diff: int = 1
-    pre_filter_cap: int = 31
+    pre_filter_cap: int = 63
     p1: int | None = None
     p2: int | None = None
     sgbm_mode: Literal["sgbm", "hh", "3way"] = "sgbm"

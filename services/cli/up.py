@@ -25,6 +25,7 @@ import zenoh
 
 from schemas import Health, decode
 from services.children import die_with_parent
+from services.drivers.depth import add_sensor_arguments, sensor_argv, stereo_sensor
 from services.runtime import zenoh_config
 
 STOP_GRACE_S = 2.0
@@ -48,6 +49,8 @@ def _camera_argv(args: argparse.Namespace) -> list[str]:
     argv = ["--source", args.source[0], "--rate", str(args.rate), "--seed", str(args.seed)]
     if len(args.source) > 1:
         argv += ["--file", args.source[1]]
+    if args.source[0] == "sim":
+        argv += sensor_argv(args)
     return argv
 
 
@@ -222,6 +225,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--foxglove-port", type=int, default=8765, help="Foxglove WebSocket port (default 8765)"
     )
+    add_sensor_arguments(parser)
 
 
 def _validate(args: argparse.Namespace) -> str | None:
@@ -242,6 +246,10 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--port must be a TCP port number"
     if not 0 <= getattr(args, "foxglove_port", 8765) <= 65535:
         return "--foxglove-port must be a TCP port number"
+    try:
+        stereo_sensor(args)
+    except ValueError as exc:
+        return str(exc)
     unknown = sorted(set(args.services or []) - set(SERVICES))
     if unknown:
         return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"

@@ -7,6 +7,7 @@ of a file it raises ``EndOfStream``. ``shutdown()`` may be called twice.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import threading
 import time
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.sim.stereo import MATCHERS, Matcher, StereoRig, StereoSensor
 from schemas import ObjectTruth
 from services.drivers.errors import DeviceUnavailable, OperationError
 
@@ -36,16 +38,112 @@ class DepthReading:
     t_ns: int | None = None  # the source's own capture time, when it has one
 
 
+SENSORS = ("model", "stereo")
+
+
+def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
+    """The simulated camera's sensor flags: the noise model or the stereo camera and its
+    matcher (shared by the camera service and the benchmarks)."""
+    group = parser.add_argument_group("simulated sensor")
+    group.add_argument(
+        "--sensor",
+        choices=SENSORS,
+        default="model",
+        help="model: exact depth plus D435-like noise (default); stereo: two IR images lit "
+        "by a dot projector, matched by OpenCV (needs pip install 'lpc[stereo]')",
+    )
+    group.add_argument(
+        "--matcher",
+        choices=MATCHERS,
+        default="sgbm",
+        help="stereo matcher: sgbm (semi-global, default) or bm (plain block matching)",
+    )
+    default = Matcher()
+    group.add_argument(
+        "--block-size",
+        type=int,
+        default=default.block_size,
+        metavar="N",
+        help=f"matching window, odd (default {default.block_size}; bm needs >= 5)",
+    )
+    group.add_argument(
+        "--uniqueness",
+        type=int,
+        default=default.uniqueness,
+        metavar="PCT",
+        help=f"margin of the best match over the second, percent (default {default.uniqueness})",
+    )
+    group.add_argument(
+        "--texture-threshold",
+        type=int,
+        default=default.texture_threshold,
+        metavar="N",
+        help=f"bm only: least texture a window needs (default {default.texture_threshold})",
+    )
+    group.add_argument(
+        "--dot-density",
+        type=float,
+        default=StereoRig().dot_density,
+        metavar="D",
+        help=f"projector dots per pixel² (default {StereoRig().dot_density})",
+    )
+
+
+def stereo_sensor(args: argparse.Namespace) -> StereoSensor | None:
+    """The stereo camera the flags describe, None for the noise model; ``ValueError`` naming
+    the bad setting."""
+    if getattr(args, "sensor", "model") != "stereo":
+        return None
+    matcher = Matcher(
+        kind=args.matcher,
+        block_size=args.block_size,
+        uniqueness=args.uniqueness,
+        texture_threshold=args.texture_threshold,
+    )
+    return StereoSensor(rig=StereoRig(dot_density=args.dot_density), matcher=matcher)
+
+
+def sensor_label(args: argparse.Namespace) -> str:
+    """A short description of the simulated sensor, for reports."""
+    if getattr(args, "sensor", "model") != "stereo":
+        return "noise model"
+    texture = f", texture {args.texture_threshold}" if args.matcher == "bm" else ""
+    return (
+        f"stereo, {args.matcher} block {args.block_size}, uniqueness {args.uniqueness}"
+        f"{texture}, dots {args.dot_density:g}/px²"
+    )
+
+
+def sensor_argv(args: argparse.Namespace) -> list[str]:
+    """The sensor flags again, to pass on to the camera service."""
+    if getattr(args, "sensor", "model") != "stereo":
+        return []
+    return [
+        "--sensor", "stereo", "--matcher", args.matcher,
+        "--block-size", str(args.block_size), "--uniqueness", str(args.uniqueness),
+        "--texture-threshold", str(args.texture_threshold),
+        "--dot-density", str(args.dot_density),
+    ]  # fmt: skip
+
+
 class SimSource:
-    """The built-in simulated scene (``lpc_core.sim.simcam``): a pure function of time and seed."""
+    """The built-in simulated scene (``lpc_core.sim.simcam``): a pure function of time and seed,
+    seen through the noise model or, given ``sensor``, the simulated stereo camera."""
 
     name = "sim"
     paced = True  # the service's clock paces it
 
-    def __init__(self, seed: int = 0) -> None:
+    def __init__(self, seed: int = 0, sensor: StereoSensor | None = None) -> None:
         from lpc_core.sim.simcam import SimCamera
 
-        self._camera = SimCamera(seed=seed)
+        if sensor is not None:
+            try:
+                import cv2  # type: ignore[import-not-found]  # noqa: F401
+            except ModuleNotFoundError as exc:
+                raise SourceUnavailable(
+                    "the stereo sensor needs OpenCV: pip install 'lpc[stereo]'"
+                ) from exc
+        self._camera = SimCamera(seed=seed, sensor=sensor)
         self.intrinsics: Intrinsics = self._camera.intrinsics
 
     def render(self, t_s: float, seq: int) -> DepthReading:
