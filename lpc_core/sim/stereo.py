@@ -83,6 +83,7 @@ class StereoRig:
     blur_sigma_px: float = 0.5
     electrons_per_dn: float = 10.0
     read_noise_dn: float = 1.0
+    supersample: int = 1
     left_band: bool = True
 
     def __post_init__(self) -> None:
@@ -96,6 +97,8 @@ class StereoRig:
                 raise ValueError(f"{name} must be a non-negative finite number, got {value}")
         if not 0.0 <= self.projector_x_m <= self.baseline_m:
             raise ValueError("projector_x_m must lie between the imagers, in [0, baseline_m]")
+        if not 1 <= self.supersample <= 4:
+            raise ValueError(f"supersample must be in [1, 4], got {self.supersample}")
         lo, hi = self.dot_brightness
         if not 0.0 < lo <= hi:
             raise ValueError(f"dot_brightness must be 0 < lo <= hi, got {self.dot_brightness}")
@@ -109,9 +112,13 @@ class Matcher:
     ``p1``, ``p2``: default 8 and 32 times the block's area); "bm" is plain block matching
     (``cv2.StereoBM``), noisier and without a smoothness term. ``uniqueness`` is the margin
     in percent by which the best cost must beat the second best; ``texture_threshold`` (BM
-    only) drops windows with less texture than that. ``speckle_window`` / ``speckle_range``
-    remove small disparity islands (0 turns it off). ``disp12_max_diff`` is the left-right
-    consistency check in px (-1 turns it off).
+    only, OpenCV's own) drops windows whose summed pre-filtered response is below it.
+    ``min_texture`` is the device's texture check, for both matchers: a window of the left
+    image whose mean |x-gradient| (3x3 Sobel, clipped at ``pre_filter_cap``) is below it, in
+    DN per pixel, gives no depth (sensor noise alone gives about 3); without it SGBM's
+    smoothness carries a near surface's disparity far across dark, dotless background.
+    ``speckle_window`` / ``speckle_range`` (px, for both) remove small disparity islands (0
+    turns it off). ``disp12_max_diff`` is the left-right consistency check in px (-1: off).
     """
 
     kind: MatcherKind = "sgbm"
@@ -119,6 +126,7 @@ class Matcher:
     num_disparities: int = 128
     uniqueness: int = 10
     texture_threshold: int = 10
+    min_texture: float = 4.0
     speckle_window: int = 100
     speckle_range: int = 2
     disp12_max_diff: int = 1
@@ -140,6 +148,8 @@ class Matcher:
             )
         if not 0 <= self.uniqueness <= 100:
             raise ValueError(f"uniqueness must be in [0, 100], got {self.uniqueness}")
+        if not np.isfinite(self.min_texture) or self.min_texture < 0:
+            raise ValueError(f"min_texture must be a non-negative number, got {self.min_texture}")
         if self.texture_threshold < 0 or self.speckle_window < 0 or self.speckle_range < 0:
             raise ValueError("texture_threshold, speckle_window and speckle_range must be >= 0")
         if not 1 <= self.pre_filter_cap <= 63:
@@ -173,8 +183,11 @@ class Matcher:
         bm.setTextureThreshold(self.texture_threshold)
         bm.setUniquenessRatio(self.uniqueness)
         bm.setSpeckleWindowSize(self.speckle_window)
-        bm.setSpeckleRange(self.speckle_range)
-        bm.setDisp12MaxDiff(self.disp12_max_diff)
+        # BM filters speckles on its 1/16 px output without scaling the range (SGBM scales it).
+        bm.setSpeckleRange(16 * self.speckle_range)
+        # OpenCV's own left-right check in StereoBM reads memory it has not set (a frame
+        # matched twice can differ): ``match`` runs the check itself.
+        bm.setDisp12MaxDiff(-1)
         return bm
 
 
@@ -317,6 +330,7 @@ def _radiance(
     camera_pose: np.ndarray,
     offset_x_m: float,
     rig: StereoRig,
+    pattern_f: tuple[float, float],
 ) -> np.ndarray:
     """Image of one imager (``offset_x_m`` along the left imager's x), in units of the dot
     peak on a white fronto-parallel surface at the reference range, before the imager."""
@@ -345,8 +359,8 @@ def _radiance(
     cos_p = np.clip(np.nan_to_num(cos_p), 0.0, 1.0)
     lit = _lit(scene, camera_pose @ make_pose(None, (rig.projector_x_m, 0.0, 0.0)), px, py, pz)
     pattern = _dot_pattern(
-        intrinsics.fx,
-        intrinsics.fy,
+        pattern_f[0],
+        pattern_f[1],
         rig.dot_density,
         rig.dot_sigma_px,
         tuple(rig.dot_brightness),
@@ -356,8 +370,8 @@ def _radiance(
     ph, pw = pattern.shape
     map_x = np.full(z.shape, -1.0, dtype=np.float32)
     map_y = np.full(z.shape, -1.0, dtype=np.float32)
-    map_x.reshape(-1)[idx] = (px / pz) * (intrinsics.fx * s) + 0.5 * (pw - 1)
-    map_y.reshape(-1)[idx] = (py / pz) * (intrinsics.fy * s) + 0.5 * (ph - 1)
+    map_x.reshape(-1)[idx] = (px / pz) * (pattern_f[0] * s) + 0.5 * (pw - 1)
+    map_y.reshape(-1)[idx] = (py / pz) * (pattern_f[1] * s) + 0.5 * (ph - 1)
     dots = cv2.remap(pattern, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     irradiance = dots.reshape(-1)[idx] * cos_p * (_REFERENCE_RANGE_M**2 / r2) * lit
     # Room light: diffuse, brighter on surfaces facing the viewer.
@@ -393,16 +407,63 @@ def render_ir(
     """
     check_pose(camera_pose)
     wide = _padded(intrinsics, pad)
-    left = _radiance(scene, wide, camera_pose, 0.0, rig)
-    right = _radiance(scene, wide, camera_pose, rig.baseline_m, rig)
-    return IrPair(_expose(left, rig, rng), _expose(right, rig, rng), pad)
+    k = rig.supersample
+    if k > 1:
+        # k x k samples per pixel, pixel centres kept: sample (i, j) of pixel (u, v) sits at
+        # u + (i + 0.5) / k - 0.5.
+        wide = replace(
+            wide,
+            width=wide.width * k,
+            height=wide.height * k,
+            fx=wide.fx * k,
+            fy=wide.fy * k,
+            ppx=(wide.ppx + 0.5) * k - 0.5,
+            ppy=(wide.ppy + 0.5) * k - 0.5,
+        )
+    focal = (intrinsics.fx, intrinsics.fy)
+    images = []
+    for offset in (0.0, rig.baseline_m):
+        radiance = _radiance(scene, wide, camera_pose, offset, rig, focal)
+        if k > 1:
+            radiance = radiance.reshape(radiance.shape[0] // k, k, -1, k).mean(axis=(1, 3))
+        images.append(_expose(radiance, rig, rng))
+    return IrPair(images[0], images[1], pad)
 
 
 def match(pair: IrPair, matcher: Matcher = Matcher()) -> np.ndarray:
     """Disparity of the left image, int16 in 1/16 px (OpenCV's fixed point), <= 0 where the
     matcher found none; the pad cut off."""
-    disparity = matcher.create().compute(pair.left, pair.right)
+    stereo = matcher.create()
+    disparity = stereo.compute(pair.left, pair.right)
+    if matcher.kind == "bm" and matcher.disp12_max_diff >= 0:
+        disparity = _left_right_check(disparity, stereo, pair, matcher.disp12_max_diff)
+    if matcher.min_texture > 0:
+        cv2 = _cv2()
+        cap = matcher.pre_filter_cap
+        gradient = np.abs(np.clip(cv2.Sobel(pair.left, cv2.CV_16S, 1, 0, ksize=3), -cap, cap))
+        size = (matcher.block_size, matcher.block_size)
+        texture = cv2.blur(gradient.astype(np.float32), size)
+        disparity[texture < matcher.min_texture] = -16
     return disparity[:, pair.pad :]
+
+
+def _left_right_check(disparity: np.ndarray, stereo, pair: IrPair, max_diff: int) -> np.ndarray:
+    """Drop left disparities that the right image's own match (the mirrored images matched
+    the same way) contradicts by more than ``max_diff`` px; a right pixel without a match
+    contradicts nothing."""
+    mirrored = stereo.compute(
+        np.ascontiguousarray(pair.right[:, ::-1]), np.ascontiguousarray(pair.left[:, ::-1])
+    )[:, ::-1]
+    rows, cols = np.nonzero(disparity > 0)
+    d = disparity[rows, cols]
+    at_right = cols - (d.astype(np.int64) + 8) // 16
+    inside = at_right >= 0
+    back = np.full(d.shape, -16, dtype=np.int16)
+    back[inside] = mirrored[rows[inside], at_right[inside]]
+    bad = (back > 0) & (np.abs(back.astype(np.int32) - d) > 16 * max_diff)
+    out = disparity.copy()
+    out[rows[bad], cols[bad]] = -16
+    return out
 
 
 def disparity_to_depth(
