@@ -2,7 +2,13 @@
 RealSense camera or file, or an MCAP recording. Simulated and replayed frames are paced by the
 injected clock; a live camera paces itself. A live camera that is missing at the start or lost
 mid-stream (unplugged) is looked for again every ``--reopen-every`` seconds: the service stays
-up, reports ``degraded`` and counts it, and frames resume with the next ``seq``."""
+up, reports ``degraded`` and counts it, and frames resume with the next ``seq``.
+
+A RealSense camera gets the visual preset and depth units of ``--rs-preset`` and
+``--rs-depth-units`` before it streams, and ``--rs-filters`` runs librealsense's own
+post-processing; what is in force goes into the health's ``detail`` (``rs_preset=...
+rs_depth_units=... rs_filters=...``) so that a replay knows, and a setting the device refuses
+(a recording's options are read-only) is logged, counted and skipped."""
 
 from __future__ import annotations
 
@@ -19,6 +25,7 @@ from services.drivers.depth import (
     ReplaySource,
     SimSource,
     SourceUnavailable,
+    add_realsense_arguments,
     add_sensor_arguments,
     stereo_sensor,
 )
@@ -37,6 +44,23 @@ def _frame(seq: int, t_ns: int, reading: DepthReading, intrinsics, source: str) 
     )
 
 
+def _realsense(args: argparse.Namespace, file: str | None) -> RealSenseSource:
+    return RealSenseSource(
+        file,
+        rate=round(args.rate),
+        preset=args.rs_preset,
+        depth_units=args.rs_depth_units,
+        filters=args.rs_filters,
+    )
+
+
+def _report_settings(bus: Bus, source: RealSenseSource) -> None:
+    bus.health.detail = source.settings_text()
+    for refused in source.unsupported:
+        bus.health.counters["rs_option_unsupported"] += 1
+        bus.log("warning", f"camera setting not applied, carrying on: {refused}")
+
+
 async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSenseSource:
     """The live camera, looked for every ``args.reopen_every`` seconds until it is there."""
     bus.status = "degraded"
@@ -44,10 +68,11 @@ async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSens
     while True:
         await bus.clock.sleep_until(bus.clock.now_ns() + round(args.reopen_every * 1e9))
         try:
-            source = RealSenseSource(None, rate=round(args.rate))
+            source = _realsense(args, None)
         except SourceUnavailable:
             bus.health.counters["camera_reopen_failures"] += 1
             continue
+        _report_settings(bus, source)
         bus.status = "ok"
         bus.log("info", "camera back")
         return source
@@ -59,7 +84,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         if args.source == "sim":
             source = SimSource(seed=args.seed, sensor=stereo_sensor(args))
         elif args.source == "realsense":
-            source = RealSenseSource(args.file, rate=round(args.rate))
+            source = _realsense(args, args.file)
+            _report_settings(bus, source)
         else:
             source = ReplaySource(args.file)
     except SourceUnavailable as exc:
@@ -141,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         help="look for a missing or lost live camera every S seconds (default 1)",
     )
     add_sensor_arguments(parser)
+    add_realsense_arguments(parser)
     args = parser.parse_args(argv)
     try:
         stereo_sensor(args)
@@ -150,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--source replay needs --file FILE.mcap")
     if not 0 < args.rate <= 1000:
         parser.error("--rate must be in (0, 1000]")
+    if not 1e-6 <= args.rs_depth_units <= 0.01:
+        parser.error("--rs-depth-units must be in [1e-6, 0.01] m")
     if not 0.01 <= args.reopen_every <= 60:
         parser.error("--reopen-every must be in [0.01, 60] s")
     return run_service("camera", serve, args)

@@ -25,7 +25,13 @@ import zenoh
 
 from schemas import Health, decode
 from services.children import die_with_parent
-from services.drivers.depth import add_sensor_arguments, sensor_argv, stereo_sensor
+from services.drivers.depth import (
+    add_realsense_arguments,
+    add_sensor_arguments,
+    realsense_argv,
+    sensor_argv,
+    stereo_sensor,
+)
 from services.runtime import zenoh_config
 
 STOP_GRACE_S = 2.0
@@ -51,6 +57,8 @@ def _camera_argv(args: argparse.Namespace) -> list[str]:
         argv += ["--file", args.source[1]]
     if args.source[0] == "sim":
         argv += sensor_argv(args)
+    elif args.source[0] == "realsense":
+        argv += realsense_argv(args)
     return argv
 
 
@@ -226,6 +234,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--foxglove-port", type=int, default=8765, help="Foxglove WebSocket port (default 8765)"
     )
     add_sensor_arguments(parser)
+    add_realsense_arguments(parser)
 
 
 def _validate(args: argparse.Namespace) -> str | None:
@@ -250,6 +259,8 @@ def _validate(args: argparse.Namespace) -> str | None:
         stereo_sensor(args)
     except ValueError as exc:
         return str(exc)
+    if not 1e-6 <= getattr(args, "rs_depth_units", 0.001) <= 0.01:
+        return "--rs-depth-units must be in [1e-6, 0.01] m"
     unknown = sorted(set(args.services or []) - set(SERVICES))
     if unknown:
         return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"

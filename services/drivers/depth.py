@@ -182,6 +182,86 @@ def _f32(value: float) -> float:
     return float(str(np.float32(value)))
 
 
+RS_PRESETS = (
+    "default",
+    "hand",
+    "high_accuracy",
+    "high_density",
+    "medium_density",
+    "remove_ir_pattern",
+)
+"""librealsense's built-in D400 visual presets (``rs.rs400_visual_preset``)."""
+
+RS_FILTERS = ("spatial", "temporal", "hole_filling")
+"""librealsense's post-processing filters that ``--rs-filters`` may name."""
+
+DEFAULT_RS_PRESET = "default"
+DEFAULT_RS_DEPTH_UNITS_M = 0.001
+
+
+def parse_rs_filters(text: str) -> tuple[str, ...]:
+    """``"spatial,temporal"`` -> ("spatial", "temporal"); ``ValueError`` naming an unknown one."""
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    unknown = [n for n in names if n not in RS_FILTERS]
+    if unknown:
+        raise ValueError(
+            f"unknown --rs-filters {', '.join(unknown)}; known: {', '.join(RS_FILTERS)}"
+        )
+    return names
+
+
+def add_realsense_arguments(parser: argparse.ArgumentParser) -> None:
+    """The live camera's settings (``--source realsense``): preset, depth units, filters."""
+    group = parser.add_argument_group("RealSense camera (--source realsense)")
+    group.add_argument(
+        "--rs-preset",
+        choices=RS_PRESETS,
+        default=DEFAULT_RS_PRESET,
+        help="visual preset set on the depth sensor before streaming (librealsense's D400 "
+        f"presets; default {DEFAULT_RS_PRESET}: set explicitly, since the camera keeps what the "
+        "last program set); recorded in the camera's health",
+    )
+    group.add_argument(
+        "--rs-depth-units",
+        type=float,
+        default=DEFAULT_RS_DEPTH_UNITS_M,
+        metavar="M",
+        help=f"depth unit in metres (default {DEFAULT_RS_DEPTH_UNITS_M:g}); recorded in the "
+        "camera's health and in every frame's intrinsics",
+    )
+    group.add_argument(
+        "--rs-filters",
+        type=parse_rs_filters,
+        default=(),
+        metavar="LIST",
+        help=f"librealsense post-processing filters, comma-separated, from {', '.join(RS_FILTERS)}"
+        " (applied in Intel's order: spatial and temporal on disparity, then hole filling)",
+    )
+
+
+def realsense_argv(args: argparse.Namespace) -> list[str]:
+    """The RealSense flags again, to pass on to the camera service."""
+    argv = ["--rs-preset", args.rs_preset, "--rs-depth-units", repr(args.rs_depth_units)]
+    if args.rs_filters:
+        argv += ["--rs-filters", ",".join(args.rs_filters)]
+    return argv
+
+
+def filter_chain(rs, names: tuple[str, ...]) -> list:
+    """pyrealsense2 filter objects for ``names``, in the order Intel's post-processing guide
+    gives: depth to disparity, spatial, temporal, back to depth, hole filling."""
+    chain = []
+    on_disparity = [n for n in ("spatial", "temporal") if n in names]
+    if on_disparity:
+        chain.append(rs.disparity_transform(True))
+        for name in on_disparity:
+            chain.append(rs.spatial_filter() if name == "spatial" else rs.temporal_filter())
+        chain.append(rs.disparity_transform(False))
+    if "hole_filling" in names:
+        chain.append(rs.hole_filling_filter())
+    return chain
+
+
 class RealSenseSource:
     """pyrealsense2: a live camera, or a recorded file played back as fast as it is read.
 
@@ -195,6 +275,12 @@ class RealSenseSource:
     A file plays back in non-real-time mode: playback waits for the reader, so no frame is
     dropped however slowly ``read`` is called, and ``read`` raises ``EndOfStream`` once the
     last frame has been read.
+
+    Before streaming, the depth sensor gets the visual ``preset`` and the ``depth_units``
+    (None leaves either as it is); a setting the device does not take (a recording's are
+    read-only) is reported in ``unsupported`` and the source carries on. ``settings`` says
+    what is in force, for the camera's health. ``filters`` (names from ``RS_FILTERS``) run
+    librealsense's own post-processing on every depth frame.
     """
 
     name = "realsense"
@@ -203,8 +289,21 @@ class RealSenseSource:
     _SLICE_S = 0.05  # longest single wait, so shutdown() from another thread is never held long
 
     def __init__(
-        self, file: str | Path | None = None, rate: int = 90, width: int = 424, height: int = 240
+        self,
+        file: str | Path | None = None,
+        rate: int = 90,
+        width: int = 424,
+        height: int = 240,
+        *,
+        preset: str | None = None,
+        depth_units: float | None = None,
+        filters: tuple[str, ...] = (),
     ) -> None:
+        if preset is not None and preset not in RS_PRESETS:
+            raise ValueError(f"preset must be one of {RS_PRESETS}, got {preset!r}")
+        if depth_units is not None and not 1e-6 <= depth_units <= 0.01:
+            raise ValueError(f"depth_units must be in [1e-6, 0.01] m, got {depth_units}")
+        parse_rs_filters(",".join(filters))
         self._file = str(file) if file else None
         if self._file and not Path(self._file).is_file():
             raise SourceUnavailable(f"no such RealSense recording: {self._file}")
@@ -227,15 +326,18 @@ class RealSenseSource:
                 )
             config.enable_stream(rs.stream.depth, width, height, rs.format.z16, rate)
             what = f"a RealSense camera for depth {width}x{height} Z16 at {rate} fps"
+        self.unsupported: list[str] = []
         try:
+            # The pipeline starts the device that resolve() returns: set it up before it starts
+            # (set after start, real-time playback has already dropped frames, and a live
+            # sensor may refuse new depth units while it streams).
+            device = config.resolve(rs.pipeline_wrapper(self._pipeline)).get_device()
             if self._file:
-                # The pipeline starts the device that resolve() returns. Set up playback before
-                # it starts: set after start, real-time playback has already dropped frames.
-                device = config.resolve(rs.pipeline_wrapper(self._pipeline)).get_device()
                 playback = device.as_playback()
                 playback.set_real_time(False)
                 playback.set_status_changed_callback(self._on_status)
                 self._playback = playback  # the callback lives as long as this handle
+            self._apply_options(rs, device, preset, depth_units)
             profile = self._pipeline.start(config)
         except RuntimeError as exc:
             raise SourceUnavailable(f"cannot open {what}: {exc}") from exc
@@ -258,6 +360,60 @@ class RealSenseSource:
             depth_scale=_f32(scale),
         )
         self.fps: int = stream.fps()
+        self._filters = filter_chain(rs, filters)
+        self.settings: dict[str, str] = {
+            "rs_preset": self._preset_in_force(rs, profile.get_device(), preset),
+            "rs_depth_units": f"{self.intrinsics.depth_scale:g}",
+            "rs_filters": ",".join(filters) or "none",
+        }
+
+    def _apply_options(self, rs, device, preset: str | None, depth_units: float | None) -> None:
+        """Set the preset, then the depth units, on the depth sensor; note what it refuses."""
+        try:
+            sensor = device.first_depth_sensor()
+        except RuntimeError as exc:
+            self.unsupported.append(f"no depth sensor to set options on ({exc})")
+            return
+        wanted = []
+        if preset is not None:
+            wanted.append(("visual_preset", rs.option.visual_preset, preset))
+        if depth_units is not None:
+            wanted.append(("depth_units", rs.option.depth_units, depth_units))
+        for name, option, value in wanted:
+            number = (
+                float(int(getattr(rs.rs400_visual_preset, value)))
+                if name == "visual_preset"
+                else float(value)
+            )
+            if not sensor.supports(option):
+                self.unsupported.append(f"{name} {value}: the device has no such option")
+                continue
+            if sensor.is_option_read_only(option):
+                self.unsupported.append(f"{name} {value}: read-only on this device")
+                continue
+            try:
+                sensor.set_option(option, number)
+            except RuntimeError as exc:
+                self.unsupported.append(f"{name} {value}: {exc}")
+
+    @staticmethod
+    def _preset_in_force(rs, device, preset: str | None) -> str:
+        """The preset the sensor reports, else what was asked and could not be set."""
+        try:
+            sensor = device.first_depth_sensor()
+            if sensor.supports(rs.option.visual_preset):
+                value = int(sensor.get_option(rs.option.visual_preset))
+                return str(rs.rs400_visual_preset(value)).rsplit(".", 1)[-1]
+        except (RuntimeError, ValueError):
+            pass
+        return f"{preset} (not set)" if preset is not None else "unknown"
+
+    def settings_text(self) -> str:
+        """``key=value`` pairs of ``settings``, then what the device refused."""
+        text = " ".join(f"{k}={v}" for k, v in self.settings.items())
+        if self.unsupported:
+            text += "; not applied: " + "; ".join(self.unsupported)
+        return text
 
     def _on_status(self, status: object) -> None:
         # Runs on librealsense's reading thread. A playback reports "stopped" before it starts
@@ -281,11 +437,11 @@ class RealSenseSource:
                 ok, frames = self._pipeline.try_wait_for_frames(max(1, round(wait_s * 1000)))
                 if ok:
                     depth = frames.get_depth_frame()
+                    t_ns = round(depth.get_timestamp() * 1e6)
+                    for stage in self._filters:
+                        depth = stage.process(depth)
                     # Copy: the frame's buffer goes back to librealsense's pool.
-                    return DepthReading(
-                        depth=np.asanyarray(depth.get_data()).copy(),
-                        t_ns=round(depth.get_timestamp() * 1e6),
-                    )
+                    return DepthReading(depth=np.asanyarray(depth.get_data()).copy(), t_ns=t_ns)
             except RuntimeError as exc:
                 raise OperationError(f"RealSense read failed: {exc}") from exc
             if ended:
