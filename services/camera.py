@@ -80,9 +80,10 @@ async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSens
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     live = args.source == "realsense" and not args.file
+    stereo = args.source == "sim" and getattr(args, "sensor", "model") == "stereo"
     try:
         if args.source == "sim":
-            source = SimSource(seed=args.seed, sensor=stereo_sensor(args))
+            source = SimSource(seed=args.seed, sensor=stereo_sensor(args) if stereo else None)
         elif args.source == "realsense":
             source = _realsense(args, args.file)
             _report_settings(bus, source)
@@ -96,7 +97,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         source = await _open_camera(bus, args, str(exc))
     intrinsics = intrinsics_to_message(source.intrinsics)
     depth = bus.publisher("lpc/camera/depth")
-    sensor = f" ({args.sensor} sensor)" if args.source == "sim" else ""
+    sensor = f" ({getattr(args, 'sensor', 'model')} sensor)" if args.source == "sim" else ""
     bus.log(
         "info",
         f"source {args.source}{sensor} {source.intrinsics.width}x{source.intrinsics.height}",
@@ -136,7 +137,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     due += missed * period_ns
                 if args.source == "sim":
                     await bus.clock.sleep_until(due)
-                    reading = source.render((due - start_ns) / 1e9, seq)
+                    if stereo:  # 100+ ms a frame: keep the loop (health, stop) free
+                        reading = await asyncio.to_thread(
+                            source.render, (due - start_ns) / 1e9, seq
+                        )
+                    else:
+                        reading = source.render((due - start_ns) / 1e9, seq)
                 else:  # keep the recording's own frame spacing
                     recorded_ns, reading = source.next_frame()
                     first_recorded_ns = first_recorded_ns or recorded_ns
