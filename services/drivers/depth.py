@@ -210,6 +210,14 @@ def parse_rs_filters(text: str) -> tuple[str, ...]:
     return names
 
 
+def rs_filters_arg(text: str) -> tuple[str, ...]:
+    """``parse_rs_filters`` for argparse, which shows an ``ArgumentTypeError``'s own words."""
+    try:
+        return parse_rs_filters(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
 def add_realsense_arguments(parser: argparse.ArgumentParser) -> None:
     """The live camera's settings (``--source realsense``): preset, depth units, filters."""
     group = parser.add_argument_group("RealSense camera (--source realsense)")
@@ -231,7 +239,7 @@ def add_realsense_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--rs-filters",
-        type=parse_rs_filters,
+        type=rs_filters_arg,
         default=(),
         metavar="LIST",
         help=f"librealsense post-processing filters, comma-separated, from {', '.join(RS_FILTERS)}"
@@ -260,6 +268,70 @@ def filter_chain(rs, names: tuple[str, ...]) -> list:
     if "hole_filling" in names:
         chain.append(rs.hole_filling_filter())
     return chain
+
+
+class SoftwareFilters:
+    """librealsense's post-processing filters run on depth images from anywhere (the simulated
+    camera, a bench): each image is fed to a pyrealsense2 ``software_device`` depth sensor with
+    ``intrinsics`` and its depth units, and the frame it yields goes through ``filter_chain``.
+
+    The temporal filter keeps a history: ``reset()`` starts a new sequence. ``SourceUnavailable``
+    if pyrealsense2 is missing.
+    """
+
+    def __init__(self, intrinsics: Intrinsics, names: tuple[str, ...], fps: int = 90) -> None:
+        parse_rs_filters(",".join(names))
+        rs = _import_pyrealsense2()
+        self._rs = rs
+        self._names = names
+        self._intrinsics = intrinsics
+        self._fps = fps
+        device = rs.software_device()
+        sensor = device.add_sensor("Depth")
+        ri = rs.intrinsics()
+        ri.width, ri.height = intrinsics.width, intrinsics.height
+        ri.fx, ri.fy, ri.ppx, ri.ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
+        ri.model = getattr(rs.distortion, intrinsics.model)
+        ri.coeffs = list(intrinsics.coeffs)
+        stream = rs.video_stream()
+        stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
+        stream.width, stream.height, stream.fps = intrinsics.width, intrinsics.height, fps
+        stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, ri
+        self._profile = sensor.add_video_stream(stream, True).as_video_stream_profile()
+        sensor.add_read_only_option(rs.option.depth_units, intrinsics.depth_scale)
+        self._syncer = rs.syncer()
+        sensor.open(self._profile)
+        sensor.start(self._syncer)
+        self._device, self._sensor = device, sensor
+        self._count = 0
+        self.reset()
+
+    def reset(self) -> None:
+        self._chain = filter_chain(self._rs, self._names)
+
+    def process(self, depth: np.ndarray) -> np.ndarray:
+        """The filtered copy of one uint16 depth image (``(height, width)`` of the intrinsics)."""
+        rs = self._rs
+        pixels = np.ascontiguousarray(depth, dtype=np.uint16)
+        frame = rs.software_video_frame()
+        frame.pixels = pixels
+        frame.bpp, frame.stride = 2, self._intrinsics.width * 2
+        frame.timestamp = self._count * 1000.0 / self._fps
+        frame.domain = rs.timestamp_domain.hardware_clock
+        frame.frame_number = self._count
+        frame.depth_units = self._intrinsics.depth_scale
+        frame.profile = self._profile
+        self._count += 1
+        self._sensor.on_video_frame(frame)
+        out = self._syncer.wait_for_frames(5000).get_depth_frame()
+        for stage in self._chain:
+            out = stage.process(out)
+        return np.asanyarray(out.get_data()).copy()
+
+    def close(self) -> None:
+        with contextlib.suppress(RuntimeError):
+            self._sensor.stop()
+            self._sensor.close()
 
 
 class RealSenseSource:

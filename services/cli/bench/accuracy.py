@@ -11,6 +11,9 @@ column then holds the paper's full-cloud benchmark where it has a figure).
 ``--sensor stereo`` renders the same views with the simulated stereo camera (two IR images
 matched by OpenCV, ``lpc_core.sim.stereo``) instead of the noise model; ``--matcher``,
 ``--block-size``, ``--uniqueness``, ``--texture-threshold`` and ``--dot-density`` set it.
+``--rs-filters spatial,temporal,hole_filling`` runs each frame through librealsense's own
+post-processing filters (a pyrealsense2 software device), the temporal one over each trial's
+frames in order, to show what each does to the frames.
 
     lpc bench accuracy                # every suite, 5 trials x 10 frames per object
     lpc bench accuracy --quick        # CI-sized: 1 trial x 10 frames
@@ -25,7 +28,7 @@ import math
 import sys
 import time
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -35,7 +38,14 @@ from lpc_core.perception.scans import cut_scan_lines
 from lpc_core.perception.window import WindowState, window_step
 from lpc_core.sim.stereo import StereoSensor
 from services.cli import _laser_views as lv
-from services.drivers.depth import add_sensor_arguments, sensor_label, stereo_sensor
+from services.drivers.depth import (
+    SoftwareFilters,
+    SourceUnavailable,
+    add_sensor_arguments,
+    rs_filters_arg,
+    sensor_label,
+    stereo_sensor,
+)
 
 # The paper's figures (reference/paper.tex, Results).
 PAPER_FRAME_PCT = {"sphere": 96.5, "cylinder": 95.3, "cuboid": 89.0}
@@ -82,6 +92,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--object", action="append", metavar="NAME", help="only this object, repeatable"
     )
     add_sensor_arguments(parser)
+    parser.add_argument(
+        "--rs-filters",
+        type=rs_filters_arg,
+        default=(),
+        metavar="LIST",
+        help="run the frames through librealsense's filters first (spatial, temporal, "
+        "hole_filling; needs pyrealsense2)",
+    )
 
 
 @dataclass(frozen=True)
@@ -174,6 +192,7 @@ def run_suite(
     methods: tuple[str, ...] = ("laser",),
     names: list[str] | None = None,
     sensor: StereoSensor | None = None,
+    filters: SoftwareFilters | None = None,
 ) -> dict[str, list[Outcome]]:
     """Every view of ``suite`` reconstructed by each of ``methods`` (laser, paper, cloud), all
     on the same frames: a stereo frame costs far more to render than to reconstruct."""
@@ -181,6 +200,10 @@ def run_suite(
     outcomes: dict[str, list[Outcome]] = {m: [] for m in methods}
     views = lv.views(suite, trials, frames, seed, names=names, sensor=sensor)
     for k, view in enumerate(views, start=1):
+        if filters is not None:
+            if view.frame == 0:
+                filters.reset()  # the temporal filter's history is one trial's frames
+            view = replace(view, depth=filters.process(view.depth))
         for method in methods:
             outcomes[method].append(Outcome(view, *_reconstruct(method, view)))
         _progress(suite, k, total)
@@ -399,15 +422,23 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"lpc bench accuracy: error: {exc}", file=sys.stderr)
         return 2
+    filters = None
+    if args.rs_filters:
+        try:
+            filters = SoftwareFilters(lv.INTRINSICS, args.rs_filters)
+        except SourceUnavailable as exc:
+            print(f"lpc bench accuracy: error: {exc}", file=sys.stderr)
+            return 2
     methods = tuple(dict.fromkeys(args.method or ["laser"]))
     print(
         f"lpc bench accuracy: method {', '.join(methods)}, {trials} trial(s) x {args.frames} "
-        f"frames per object, seed {args.seed}, sensor: {sensor_label(args)}; {TARGETS}"
+        f"frames per object, seed {args.seed}, sensor: {sensor_label(args)}, librealsense "
+        f"filters: {','.join(args.rs_filters) or 'none'}; {TARGETS}"
     )
     everything: dict[str, list[Outcome]] = {m: [] for m in methods}
     for suite in dict.fromkeys(suites):
         by_method = run_suite(
-            suite, trials, args.frames, args.seed, methods, args.object, sensor=sensor
+            suite, trials, args.frames, args.seed, methods, args.object, sensor, filters
         )
         for method, outcomes in by_method.items():
             if not outcomes:
@@ -421,4 +452,6 @@ def run(args: argparse.Namespace) -> int:
         for method, outcomes in everything.items():
             print()
             print("\n".join([f"all suites, method {method}:", *report_cost(outcomes)]))
+    if filters is not None:
+        filters.close()
     return 0
