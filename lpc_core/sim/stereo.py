@@ -79,7 +79,7 @@ class StereoRig:
     pattern_seed: int = 0
     albedo: float = 0.8
     ambient: float = 0.08
-    gain_dn: float = 160.0
+    gain_dn: float = 320.0
     blur_sigma_px: float = 0.5
     electrons_per_dn: float = 10.0
     read_noise_dn: float = 1.0
@@ -126,7 +126,7 @@ class Matcher:
     num_disparities: int = 128
     uniqueness: int = 10
     texture_threshold: int = 10
-    min_texture: float = 4.0
+    min_texture: float = 5.0
     speckle_window: int = 100
     speckle_range: int = 2
     disp12_max_diff: int = 1
