@@ -1490,8 +1490,9 @@ def _camera_facing(
     silhouette: the arc that faces the camera, which edge fattening and the steep rim do not
     reach. Fattened points lie beyond the true silhouette, so the first fit is too large and
     its silhouette too wide: a second pass trims against the refitted one. The solid as it
-    was when too few points remain, the refit fails, or its diameter is within
-    ``silhouette_tolerance_m`` of the refit's."""
+    was when too few points remain, the refit fails, its diameter is within
+    ``silhouette_tolerance_m`` (or 4 sd) of the refit's, or it exceeds it by more than the
+    margin on both sides."""
     margin = params.silhouette_margin_px * pixel_rad
     if margin <= 0:
         return solid
@@ -1517,6 +1518,14 @@ def _camera_facing(
     wider = full.radius - solid.radius
     if 2 * wider <= params.silhouette_tolerance_m or wider <= 4 * _radius_sd(solid, clean[keep]):
         return full
+    # Nor can the window widen it by more than the margin on each side: a larger change says
+    # the object is not that solid (a gourd taken for a cylinder), not that its rim fattened.
+    if wider > margin * float(np.median(clean[:, 2])):
+        return full
+    if isinstance(full, CylinderSolid):
+        # The axis keeps the fit on every inlier: the rims shift the radius, hardly the axis,
+        # and on an object only roughly a cylinder the facing arc alone turns it.
+        return replace(full, radius=solid.radius)
     return solid
 
 
