@@ -268,9 +268,9 @@ def test_reconstruct_laser_box_seeds_move_in_from_occluding_edges() -> None:
         # Each occluding side grows by about k px (0.94 mm a pixel at 0.2 m).
         assert _width_errors_mm(fat, 40.0, EXACT_EDGES).min() > 1.4 * k
         assert np.abs(_width_errors_mm(fat, 40.0, LaserParams(edge_fattening_px=k))).max() < 0.5
-    # The default trims 3 px: on a sensor that does not fatten, the face comes out narrower
-    # by up to 2 x 3 px (2.8 mm a side at 0.2 m, less the half sample the seeds move out).
-    narrow = _width_errors_mm(hit, 40.0, LaserParams())
+    # 3 px of trim on a sensor that does not fatten: the face comes out narrower by up to
+    # 2 x 3 px (2.8 mm a side at 0.2 m, less the half sample the seeds move out).
+    narrow = _width_errors_mm(hit, 40.0, LaserParams(edge_fattening_px=3.0))
     assert ((narrow > -5.6) & (narrow < -2.0)).all()
 
 

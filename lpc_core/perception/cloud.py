@@ -72,7 +72,7 @@ class CloudParams:
     # silhouette, and a cuboid face's side that no other face meets (an occluding edge) moves
     # in by ``edge_fattening_px``.
     silhouette_margin_px: float = 6.0
-    edge_fattening_px: float = 3.0
+    edge_fattening_px: float = 0.0
 
     def __post_init__(self) -> None:
         positive = (

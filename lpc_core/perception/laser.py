@@ -155,10 +155,11 @@ class LaserParams:
     # camera-facing fit's by more than this.
     silhouette_tolerance_m: float = 0.0015
     # A cuboid face's seed at an occluding edge moves in by this many pixels: the fattening
-    # of a matching window of 2 x edge_fattening_px + 1 pixels (7 x 7: the middle of the 5-9
-    # a D4xx-class matcher uses). 0 for a sensor that does not fatten edges (lpc's simulated
-    # noise model, scans with exact edges). See ``_collect_seeds``.
-    edge_fattening_px: float = 3.0
+    # of a matching window of 2 x edge_fattening_px + 1 pixels, 3 for a 7 x 7 window (the
+    # middle of the 5-9 a D4xx-class matcher uses). Off by default: on lpc's own noise model,
+    # which does not fatten, 3 px cost cuboid widths 0.8 -> 3.0 mm and clutter angles 1.8 ->
+    # 7.4 deg (lpc bench accuracy --quick). Set it for a stereo source. See _collect_seeds.
+    edge_fattening_px: float = 0.0
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
