@@ -2,7 +2,13 @@
 RealSense camera or file, or an MCAP recording. Simulated and replayed frames are paced by the
 injected clock; a live camera paces itself. A live camera that is missing at the start or lost
 mid-stream (unplugged) is looked for again every ``--reopen-every`` seconds: the service stays
-up, reports ``degraded`` and counts it, and frames resume with the next ``seq``."""
+up, reports ``degraded`` and counts it, and frames resume with the next ``seq``.
+
+A RealSense camera gets the visual preset and depth units of ``--rs-preset`` and
+``--rs-depth-units`` before it streams, and ``--rs-filters`` runs librealsense's own
+post-processing; what is in force goes into the health's ``detail`` (``rs_preset=...
+rs_depth_units=... rs_filters=...``) so that a replay knows, and a setting the device refuses
+(a recording's options are read-only) is logged, counted and skipped."""
 
 from __future__ import annotations
 
@@ -19,6 +25,9 @@ from services.drivers.depth import (
     ReplaySource,
     SimSource,
     SourceUnavailable,
+    add_realsense_arguments,
+    add_sensor_arguments,
+    stereo_sensor,
 )
 from services.drivers.errors import OperationError
 from services.runtime import Bus, run_service, service_parser
@@ -35,6 +44,23 @@ def _frame(seq: int, t_ns: int, reading: DepthReading, intrinsics, source: str) 
     )
 
 
+def _realsense(args: argparse.Namespace, file: str | None) -> RealSenseSource:
+    return RealSenseSource(
+        file,
+        rate=round(args.rate),
+        preset=args.rs_preset,
+        depth_units=args.rs_depth_units,
+        filters=args.rs_filters,
+    )
+
+
+def _report_settings(bus: Bus, source: RealSenseSource) -> None:
+    bus.health.detail = source.settings_text()
+    for refused in source.unsupported:
+        bus.health.counters["rs_option_unsupported"] += 1
+        bus.log("warning", f"camera setting not applied, carrying on: {refused}")
+
+
 async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSenseSource:
     """The live camera, looked for every ``args.reopen_every`` seconds until it is there."""
     bus.status = "degraded"
@@ -42,10 +68,11 @@ async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSens
     while True:
         await bus.clock.sleep_until(bus.clock.now_ns() + round(args.reopen_every * 1e9))
         try:
-            source = RealSenseSource(None, rate=round(args.rate))
+            source = _realsense(args, None)
         except SourceUnavailable:
             bus.health.counters["camera_reopen_failures"] += 1
             continue
+        _report_settings(bus, source)
         bus.status = "ok"
         bus.log("info", "camera back")
         return source
@@ -53,11 +80,13 @@ async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSens
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     live = args.source == "realsense" and not args.file
+    stereo = args.source == "sim" and getattr(args, "sensor", "model") == "stereo"
     try:
         if args.source == "sim":
-            source = SimSource(seed=args.seed)
+            source = SimSource(seed=args.seed, sensor=stereo_sensor(args) if stereo else None)
         elif args.source == "realsense":
-            source = RealSenseSource(args.file, rate=round(args.rate))
+            source = _realsense(args, args.file)
+            _report_settings(bus, source)
         else:
             source = ReplaySource(args.file)
     except SourceUnavailable as exc:
@@ -68,7 +97,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         source = await _open_camera(bus, args, str(exc))
     intrinsics = intrinsics_to_message(source.intrinsics)
     depth = bus.publisher("lpc/camera/depth")
-    bus.log("info", f"source {args.source} {source.intrinsics.width}x{source.intrinsics.height}")
+    sensor = f" ({getattr(args, 'sensor', 'model')} sensor)" if args.source == "sim" else ""
+    bus.log(
+        "info",
+        f"source {args.source}{sensor} {source.intrinsics.width}x{source.intrinsics.height}",
+    )
     period_ns = round(1e9 / args.rate)
     start_ns = bus.clock.now_ns()
     first_recorded_ns = 0
@@ -104,7 +137,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     due += missed * period_ns
                 if args.source == "sim":
                     await bus.clock.sleep_until(due)
-                    reading = source.render((due - start_ns) / 1e9, seq)
+                    if stereo:  # 100+ ms a frame: keep the loop (health, stop) free
+                        reading = await asyncio.to_thread(
+                            source.render, (due - start_ns) / 1e9, seq
+                        )
+                    else:
+                        reading = source.render((due - start_ns) / 1e9, seq)
                 else:  # keep the recording's own frame spacing
                     recorded_ns, reading = source.next_frame()
                     first_recorded_ns = first_recorded_ns or recorded_ns
@@ -134,11 +172,19 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="look for a missing or lost live camera every S seconds (default 1)",
     )
+    add_sensor_arguments(parser)
+    add_realsense_arguments(parser)
     args = parser.parse_args(argv)
+    try:
+        stereo_sensor(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.source == "replay" and not args.file:
         parser.error("--source replay needs --file FILE.mcap")
     if not 0 < args.rate <= 1000:
         parser.error("--rate must be in (0, 1000]")
+    if not 1e-6 <= args.rs_depth_units <= 0.01:
+        parser.error("--rs-depth-units must be in [1e-6, 0.01] m")
     if not 0.01 <= args.reopen_every <= 60:
         parser.error("--reopen-every must be in [0.01, 60] s")
     return run_service("camera", serve, args)

@@ -27,3 +27,23 @@ def test_bench_accuracy_one_object_prints_table(capsys: pytest.CaptureFixture[st
 def test_bench_accuracy_rejects_zero_frames(capsys: pytest.CaptureFixture[str]) -> None:
     assert _run(["--frames", "0"]) == 2
     assert "--frames" in capsys.readouterr().err
+
+
+def test_bench_accuracy_runs_frames_through_librealsense_filters(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    pytest.importorskip("pyrealsense2", reason="needs pip install 'lpc[realsense]'")
+    argv = ["--suite", "functional", "--object", "sphere_small", "--trials", "1", "--frames", "2"]
+    assert (
+        _run([*argv, "--method", "laser", "--method", "cloud", "--rs-filters", "hole_filling"]) == 0
+    )
+    out = capsys.readouterr().out
+    assert "librealsense filters: hole_filling" in out
+    assert "[method laser]" in out and "[method cloud]" in out
+    assert "98.0" in out  # the paper's full-cloud figure for spheres beside the cloud method's
+
+
+def test_bench_accuracy_rejects_an_unknown_filter(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        _run(["--rs-filters", "decimation"])
+    assert "unknown --rs-filters decimation" in capsys.readouterr().err

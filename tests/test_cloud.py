@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from lpc_core.perception.cloud import (
     CloudParams,
@@ -30,6 +31,8 @@ from lpc_core.perception.intrinsics import Intrinsics
 
 INTR = Intrinsics()
 PARAMS = CloudParams()
+# The ray caster's edges are exact (no matching window fattens them): no stereo trim.
+EXACT_EDGES = CloudParams(edge_fattening_px=0.0)
 
 # --------------------------------------------------------------------------- ray caster
 
@@ -87,6 +90,18 @@ def _frame(*hits: np.ndarray, seed: int = 0, noise_m: float = 0.0003) -> np.ndar
     z = np.minimum.reduce(hits)
     z = z + np.random.default_rng(seed).normal(0.0, noise_m, z.shape)
     return np.where(np.isfinite(z), np.rint(z / INTR.depth_scale), 0).astype(np.uint16)
+
+
+def _fattened(z: np.ndarray, k_px: int, baseline_m: float = 0.05) -> np.ndarray:
+    """Exact depth as a block matcher with a (2k+1)-pixel window sees it: a pixel within k
+    pixels of one nearer by more than a pixel of disparity (z^2 / (f B)) takes that nearer
+    depth (edge fattening, and a curved rim pulled toward its front)."""
+    offsets = np.arange(-k_px, k_px + 1)
+    disc = np.hypot(offsets[:, None], offsets[None, :]) <= k_px + 0.5
+    nearest = ndimage.minimum_filter(z, footprint=disc, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        step = z - nearest > nearest**2 / (INTR.fx * baseline_m)
+    return np.where(step, nearest, z)
 
 
 def _rotation(axis, angle: float) -> np.ndarray:
@@ -307,7 +322,7 @@ def test_reconstruct_cloud_box_reports_the_pierced_face():
         _hit_box((0.0, 0.0, 0.225), rotation, (0.12, 0.04, 0.05)),
         _hit_plane((0, 0, 1), (0, 0, 0.25)),
     )
-    result = reconstruct_cloud(depth, INTR, seed=9)
+    result = reconstruct_cloud(depth, INTR, EXACT_EDGES, seed=9)
     assert result.shape == "cuboid"
     assert abs(result.grasp_width_m - 0.04) < 0.004
     assert _angle_error_deg(result.wrist_angle_rad, np.radians(30)) < 3.0
@@ -326,7 +341,7 @@ def test_reconstruct_cloud_keeps_a_lone_face_that_looks_like_a_support():
     # Seen square on with nothing behind it, a box's face passes the support-plane test;
     # removing it would leave nothing, so it stays and is fitted.
     depth = _frame(_hit_box((0.0, 0.0, 0.22), np.eye(3), (0.05, 0.09, 0.04)))
-    result = reconstruct_cloud(depth, INTR, seed=4)
+    result = reconstruct_cloud(depth, INTR, EXACT_EDGES, seed=4)
     assert result.shape == "cuboid"
     assert abs(result.grasp_width_m - 0.05) < 0.004
     assert _angle_error_deg(result.wrist_angle_rad, np.pi / 2) < 3.0
@@ -398,3 +413,37 @@ def test_reconstruct_cloud_rejects_wrong_dtype_and_shape():
 def test_cloud_params_rejects_bad_values(field, value):
     with pytest.raises(ValueError, match=field):
         CloudParams(**{field: value})
+
+
+# --------------------------------------------------------------------------- edges
+
+
+def _width_errors_mm(hits: tuple[np.ndarray, ...], truth_m: float, params: CloudParams):
+    z = np.minimum.reduce(hits)
+    errors = []
+    for seed in range(3):
+        result = reconstruct_cloud(_frame(z, seed=seed), INTR, params, seed=seed)
+        assert result.grasp_width_m is not None, result.reason
+        errors.append(1000 * (result.grasp_width_m - truth_m))
+    return np.array(errors)
+
+
+def test_reconstruct_cloud_ball_width_from_the_part_facing_the_camera():
+    # A 3-pixel fattening (7 x 7 window) widens the fit on every inlier by several mm.
+    ball = _fattened(np.minimum(_hit_sphere((0.0, 0.0, 0.2), 0.02),
+                                _hit_plane((0, 0, 1), (0, 0, 0.3))), 3)  # fmt: skip
+    every_inlier = CloudParams(silhouette_margin_px=0.0)
+    assert _width_errors_mm((ball,), 0.04, every_inlier).min() > 3.0
+    assert np.abs(_width_errors_mm((ball,), 0.04, PARAMS)).max() < 1.0
+
+
+def test_reconstruct_cloud_box_sides_move_in_from_occluding_edges():
+    # Front face 40 x 120 mm, 30 degrees in the image, the table 75 mm behind it: the two
+    # long sides occlude the table, and each grows by k px (0.94 mm a pixel at 0.225 m).
+    box = _hit_box((0.0, 0.0, 0.225), _rotation((0, 0, 1), np.radians(30)), (0.12, 0.04, 0.05))
+    table = _hit_plane((0, 0, 1), (0, 0, 0.3))
+    for k in (2, 3, 4):
+        fat = _fattened(np.minimum(box, table), k)
+        assert _width_errors_mm((fat,), 0.04, EXACT_EDGES).min() > 1.5 * k
+        trimmed = CloudParams(edge_fattening_px=float(k))
+        assert np.abs(_width_errors_mm((fat,), 0.04, trimmed)).max() < 1.5

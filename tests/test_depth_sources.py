@@ -200,3 +200,84 @@ def test_camera_service_publishes_every_frame_of_a_realsense_file(
         assert message.source == "realsense"
         assert intrinsics_from_message(message.intrinsics) == D435_424X240
         np.testing.assert_array_equal(depth_image(message), frame)
+
+
+def test_realsense_source_runs_librealsense_filters_and_reports_refused_settings(
+    tmp_path: Path,
+) -> None:
+    path, frames = recording(tmp_path, 6, D435_424X240)
+    plain = RealSenseSource(path, filters=("hole_filling",))
+    try:
+        filled = read_all(plain)
+    finally:
+        plain.shutdown()
+    smoothed_source = RealSenseSource(
+        path, preset="high_accuracy", depth_units=0.0001, filters=("spatial", "temporal")
+    )
+    try:
+        smoothed = read_all(smoothed_source)
+    finally:
+        smoothed_source.shutdown()
+    # A recording's sensor has no visual preset and read-only depth units: both are reported,
+    # the recorded unit stays in force, and the frames still come.
+    assert smoothed_source.settings["rs_preset"] == "high_accuracy (not set)"
+    assert smoothed_source.settings["rs_depth_units"] == "0.001"
+    assert smoothed_source.settings["rs_filters"] == "spatial,temporal"
+    assert [u.split(":")[0] for u in smoothed_source.unsupported] == [
+        "visual_preset high_accuracy",
+        "depth_units 0.0001",
+    ]
+    assert "not applied: visual_preset high_accuracy" in smoothed_source.settings_text()
+    assert plain.settings == {
+        "rs_preset": "unknown",
+        "rs_depth_units": "0.001",
+        "rs_filters": "hole_filling",
+    }
+    assert plain.unsupported == []
+    assert len(filled) == len(smoothed) == len(frames)
+    for reading, frame in zip(filled, frames, strict=True):
+        holes = frame == 0
+        assert holes.mean() > 0.01
+        # Hole filling fills every hole and leaves every measured pixel as it was.
+        assert np.count_nonzero(reading.depth == 0) <= 0.001 * frame.size
+        np.testing.assert_array_equal(reading.depth[~holes], frame[~holes])
+    for reading, frame in zip(smoothed[1:], frames[1:], strict=True):
+        # Smoothing over time on a plane that comes 1 mm closer each frame: the filtered
+        # plane lags behind, a few mm farther than the frame, never nearer.
+        inner = (frame > 0) & (frame < 65535)
+        lag = np.median(reading.depth[inner].astype(int) - frame[inner])
+        assert 1 <= lag <= 6
+
+
+def test_camera_service_records_the_realsense_settings_in_its_health(
+    rendezvous: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    path, _ = recording(tmp_path, 10, D435_424X240)
+    received: list = []
+    health: list = []
+    subs = [
+        rendezvous.declare_subscriber(
+            "lpc/camera/depth",
+            lambda s: received.append(decode("lpc/camera/depth", s.payload.to_bytes())),
+        ),
+        rendezvous.declare_subscriber(
+            "lpc/health/camera",
+            lambda s: health.append(decode("lpc/health/camera", s.payload.to_bytes())),
+        ),
+    ]
+    args = ["--source", "realsense", "--file", str(path), "--rs-preset", "high_density"]
+    process = spawn_service("services.camera", endpoint, *args, "--rs-filters", "hole_filling")
+    try:
+        wait_for(lambda: len(received) >= 10 and health, 60.0, "10 frames and a health report")
+    finally:
+        process.send_signal(signal.SIGTERM)
+        process.communicate(timeout=10)
+        for sub in subs:
+            sub.undeclare()
+    last = health[-1]
+    assert "rs_preset=high_density (not set)" in last.detail
+    assert "rs_depth_units=0.001 rs_filters=hole_filling" in last.detail
+    assert "not applied: visual_preset high_density" in last.detail
+    assert last.counters["rs_option_unsupported"] == 2  # the preset and the depth units
+    assert "--rs-preset" in last.argv
+    assert all(np.count_nonzero(depth_image(m) == 0) <= 0.001 * 424 * 240 for m in received)

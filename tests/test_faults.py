@@ -545,8 +545,11 @@ class UnpluggedCamera:
 
     SCRIPT: ClassVar[list[int | None]] = []
 
-    def __init__(self, file: str | None, rate: int = 90) -> None:
+    unsupported: ClassVar[list[str]] = []
+
+    def __init__(self, file: str | None, rate: int = 90, **settings: object) -> None:
         assert file is None
+        assert settings == {"preset": "default", "depth_units": 0.001, "filters": ()}
         frames = self.SCRIPT.pop(0)
         if frames is None:
             raise SourceUnavailable("no RealSense camera found: is it plugged in (USB 3)?")
@@ -561,6 +564,9 @@ class UnpluggedCamera:
         self.left -= 1
         time.sleep(self.period_s)
         return DepthReading(depth=np.full((240, 424), 200, np.uint16))
+
+    def settings_text(self) -> str:
+        return "rs_preset=default rs_depth_units=0.001 rs_filters=none"
 
     def shutdown(self) -> None:
         self.shut = True
@@ -578,7 +584,16 @@ def test_faults_camera_unplugged_and_plugged_back(
         "lpc/camera/depth",
         lambda s: seqs.append(decode("lpc/camera/depth", s.payload.to_bytes()).seq),
     )
-    args = argparse.Namespace(source="realsense", file=None, rate=200.0, seed=0, reopen_every=0.05)
+    args = argparse.Namespace(
+        source="realsense",
+        file=None,
+        rate=200.0,
+        seed=0,
+        reopen_every=0.05,
+        rs_preset="default",
+        rs_depth_units=0.001,
+        rs_filters=(),
+    )
 
     async def main() -> Bus:
         loop = asyncio.get_running_loop()
@@ -598,6 +613,7 @@ def test_faults_camera_unplugged_and_plugged_back(
     counters = bus.health.counters
     assert (counters["camera_missing"], counters["camera_lost"]) == (1, 1)
     assert counters["camera_reopen_failures"] == 2
+    assert bus.health.detail == "rs_preset=default rs_depth_units=0.001 rs_filters=none"
     # Nothing lost on the bus, nothing repeated: seq goes on across the reconnection.
     assert seqs == list(range(len(seqs)))
 

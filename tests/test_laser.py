@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -28,6 +28,9 @@ Hit = Callable[[np.ndarray], np.ndarray]  # (n, 3) ray directions with z = 1 -> 
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
 WIDTH_TOL_MM = 2.0
 ANGLE_TOL_DEG = 2.0
+# The scans here have exact edges (no matching window fattens them): a box's occluding edges
+# are where its last samples are, so the default stereo trim of LaserParams is turned off.
+EXACT_EDGES = LaserParams(edge_fattening_px=0.0)
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,24 @@ def scan(hit: Hit, seed: int = 0, noise_m: float = 0.0003, f: float = 213.0) -> 
         )
         points.append(p[keep])
     return Lines(np.radians(ANGLES_DEG), tuple(points))
+
+
+def fattened(hit: Hit, k_px: float, f: float = 213.0, baseline_m: float = 0.05) -> Hit:
+    """``hit`` as a block matcher sees it: a sample within ``k_px`` pixels of one nearer by
+    more than a pixel of disparity (z^2 / (f B)) takes that nearer depth, as a matching
+    window straddling the two would give it (edge fattening, and the rim of a curved surface
+    pulled toward its front)."""
+
+    def fat(dirs: np.ndarray) -> np.ndarray:
+        z = hit(dirs)
+        z = np.where(np.isfinite(z), z, np.inf)
+        apart = np.hypot(*(dirs[:, None, :2] - dirs[None, :, :2]).transpose(2, 0, 1)) * f
+        nearest = np.where(apart <= k_px + 1e-9, z[None, :], np.inf).min(axis=1)
+        with np.errstate(invalid="ignore"):
+            step = z - nearest > nearest**2 / (f * baseline_m)
+        return np.where(step, nearest, z)
+
+    return fat
 
 
 def sphere(center: tuple[float, float, float], radius: float) -> Hit:
@@ -201,9 +222,56 @@ def test_reconstruct_laser_ignores_neighbouring_cylinder() -> None:
         box((0.0, 0.0, 0.2), rotation_z(0.0), (0.04, 0.12, 0.03)),
         cylinder((0.045, 0.0, 0.215), (0.0, 1.0, 0.0), 0.015),
     )
-    result = reconstruct_laser(scan(scene, 4), seed=4)
+    result = reconstruct_laser(scan(scene, 4), EXACT_EDGES, seed=4)
     assert result.shape == "cuboid", result.reason
     assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
+
+
+def _width_errors_mm(hit: Hit, truth_mm: float, params: LaserParams) -> np.ndarray:
+    errors = []
+    for seed in range(4):
+        result = reconstruct_laser(scan(hit, seed), params, seed=seed)
+        assert result.grasp_width_m is not None, result.reason
+        errors.append(result.grasp_width_mm - truth_mm)
+    return np.array(errors)
+
+
+_TABLE = plane((0.0, 0.0, 0.3), (0.0, 0.0, -1.0))
+
+
+@pytest.mark.parametrize(
+    "hit",
+    [
+        sphere((0.0, 0.0, 0.2), 0.02),
+        union(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), _TABLE),
+    ],
+    ids=["sphere", "cylinder"],
+)
+def test_reconstruct_laser_curved_width_fits_the_arc_facing_the_camera(hit: Hit) -> None:
+    # A 7 x 7 window (3 px each way) widens the fit on every inlier by 4-9 mm.
+    every_inlier = replace(EXACT_EDGES, silhouette_margin_px=0.0)
+    fat = fattened(hit, 3.0)
+    assert np.abs(_width_errors_mm(fat, 40.0, every_inlier)).min() > 3.5
+    assert np.abs(_width_errors_mm(fat, 40.0, EXACT_EDGES)).max() < 1.0
+    # Without fattening the fit on every inlier stands: the camera-facing fit is within
+    # silhouette_tolerance_m of it.
+    plain = _width_errors_mm(hit, 40.0, EXACT_EDGES)
+    np.testing.assert_array_equal(plain, _width_errors_mm(hit, 40.0, every_inlier))
+    assert np.abs(plain).max() < 0.5
+
+
+def test_reconstruct_laser_box_seeds_move_in_from_occluding_edges() -> None:
+    # Box face 40 mm wide, turned 20 degrees, the table 100 mm behind: both sides occlude.
+    hit = union(box((0.0, 0.0, 0.2), rotation_z(20.0), (0.04, 0.12, 0.03)), _TABLE)
+    for k in (2.0, 3.0, 4.0):
+        fat = fattened(hit, k)
+        # Each occluding side grows by about k px (0.94 mm a pixel at 0.2 m).
+        assert _width_errors_mm(fat, 40.0, EXACT_EDGES).min() > 1.4 * k
+        assert np.abs(_width_errors_mm(fat, 40.0, LaserParams(edge_fattening_px=k))).max() < 0.5
+    # 3 px of trim on a sensor that does not fatten: the face comes out narrower by up to
+    # 2 x 3 px (2.8 mm a side at 0.2 m, less the half sample the seeds move out).
+    narrow = _width_errors_mm(hit, 40.0, LaserParams(edge_fattening_px=3.0))
+    assert ((narrow > -5.6) & (narrow < -2.0)).all()
 
 
 def test_reconstruct_laser_reports_too_few_points_on_a_line() -> None:
@@ -250,7 +318,7 @@ def test_reconstruct_laser_fits_no_sphere_or_cylinder_on_straight_pieces() -> No
     # The axis pierces near the crease: the runs lie on two faces, no one plane holds them.
     rotation = rotation_x(45.0) @ rotation_z(30.0)
     lines = scan(box((0.0, 0.02, 0.215), rotation, (0.040, 0.120, 0.040)), 1)
-    result = reconstruct_laser(lines, seed=1)
+    result = reconstruct_laser(lines, EXACT_EDGES, seed=1)
     assert result.shape == "cuboid", result.reason
     assert result.grasp_width_mm == pytest.approx(40.0, abs=WIDTH_TOL_MM)
     assert result.extra["f_cuboid"] < 0.9

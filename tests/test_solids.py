@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -128,3 +130,26 @@ def test_hemisphere_directions_are_unit_and_face_forward() -> None:
     assert (dirs[:, 2] >= 0).all()
     with pytest.raises(ValueError, match="count"):
         hemisphere_directions(0)
+
+
+def test_silhouette_distance_sphere_and_cylinder() -> None:
+    centre, r = np.array([0.0, 0.0, 0.2]), 0.02
+    half = math.asin(r / 0.2)  # the silhouette cone's half angle
+    sphere = SphereSolid(center=centre, radius=r)
+    front = np.array([[0.0, 0.0, 0.18]])
+    rim = np.array([[math.sin(half), 0.0, math.cos(half)]]) * math.sqrt(0.2**2 - r**2)
+    beyond = np.array([[math.tan(half + 0.01), 0.0, 1.0]]) * 0.19
+    got = sphere.silhouette_distance(np.concatenate([front, rim, beyond]))
+    np.testing.assert_allclose(got, [half, 0.0, -0.01], atol=1e-9)
+    # A cylinder along y: the same in every cross-section, scaled by the point's distance
+    # across the axis over its range (the angle it subtends in view).
+    cylinder = CylinderSolid(point=centre, axis=np.array([0.0, 1.0, 0.0]), radius=r)
+    up = np.array([0.0, 0.05, 0.0])
+    np.testing.assert_allclose(cylinder.silhouette_distance(rim + up), [0.0], atol=1e-9)
+    np.testing.assert_allclose(
+        cylinder.silhouette_distance(front + up),
+        [half * 0.18 / math.hypot(0.18, 0.05)],
+        atol=1e-9,
+    )
+    # A camera inside the solid sees no silhouette.
+    assert np.isinf(SphereSolid(center=centre, radius=0.3).silhouette_distance(front)).all()

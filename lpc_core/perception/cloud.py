@@ -25,6 +25,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.reconstruction import Reconstruction, wrap_half_turn
+from lpc_core.perception.solids import CylinderSolid, SphereSolid
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -66,6 +67,12 @@ class CloudParams:
     refine_iterations: int = 2
     min_face_fraction: float = 0.05
     min_inlier_fraction: float = 0.3
+    # Edges (see ``lpc_core.perception.laser.LaserParams``, which has the same two): a sphere's
+    # or cylinder's width comes from its inliers at least ``silhouette_margin_px`` inside its
+    # silhouette, and a cuboid face's side that no other face meets (an occluding edge) moves
+    # in by ``edge_fattening_px``.
+    silhouette_margin_px: float = 6.0
+    edge_fattening_px: float = 0.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -92,6 +99,10 @@ class CloudParams:
             raise ValueError("crop_z_max_m must be greater than crop_z_min_m")
         if self.radius_max_m <= self.radius_min_m:
             raise ValueError("radius_max_m must be greater than radius_min_m")
+        for name in ("silhouette_margin_px", "edge_fattening_px"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}")
         for name in ("support_max_behind_fraction", "min_face_fraction", "min_inlier_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be within [0, 1], got {getattr(self, name)}")
@@ -844,8 +855,48 @@ def _min_area_rectangle(uv: np.ndarray) -> np.ndarray:
     return edges[int(np.argmin(along_extent * across_extent))]
 
 
+def _camera_facing(
+    points: np.ndarray, model: SphereModel | CylinderModel, params: CloudParams, pixel_rad: float
+) -> SphereModel | CylinderModel:
+    """The model refitted (geometrically) on the points within ``fit_threshold_m`` of it and
+    at least ``silhouette_margin_px`` inside its silhouette: the part that faces the camera,
+    which edge fattening and the steep rim do not reach. Twice, since fattened points widen
+    the first fit's silhouette. The model as it was when too few points remain."""
+    margin = params.silhouette_margin_px * pixel_rad
+    if margin <= 0:
+        return model
+    sphere = isinstance(model, SphereModel)
+    solid: SphereSolid | CylinderSolid
+    if sphere:
+        solid = SphereSolid(center=model.center, radius=model.radius)
+    else:
+        solid = CylinderSolid(point=model.center, axis=model.axis, radius=model.radius)
+    need = max(10, len(points) // 8)
+    for _ in range(2):
+        keep = (solid.residuals(points) <= params.fit_threshold_m) & (
+            solid.silhouette_distance(points) >= margin
+        )
+        if np.count_nonzero(keep) < need:
+            break
+        refit = (
+            SphereSolid.estimate(points[keep], init=(solid.center, solid.radius))
+            if isinstance(solid, SphereSolid)
+            else CylinderSolid.estimate(points[keep], solid.axis, iterations=2)
+        )
+        if not refit or not params.radius_min_m <= refit.radius <= params.radius_max_m:
+            break
+        solid = refit
+    if isinstance(solid, SphereSolid):
+        return SphereModel(solid.center, solid.radius)
+    return CylinderModel(solid.point, solid.axis, solid.radius)
+
+
 def _cuboid_geometry(
-    points: np.ndarray, whole: np.ndarray, fit: _CuboidFit, params: CloudParams
+    points: np.ndarray,
+    whole: np.ndarray,
+    fit: _CuboidFit,
+    params: CloudParams,
+    pixel_rad: float = 0.0,
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Grasp width, principal axis and centre of the face the optical axis pierces.
 
@@ -856,7 +907,9 @@ def _cuboid_geometry(
     axis. Its edges follow the other faces' normals when there are any, else its smallest
     bounding rectangle; the principal axis runs along its longer side and the grasp width is
     its shorter side, measured on the whole segment (``whole``), not only on the subset the
-    faces were fitted on, so that the extreme points are not lost to sampling.
+    faces were fitted on, so that the extreme points are not lost to sampling. A side that no
+    other face's points reach is an occluding edge: it moves in by ``edge_fattening_px``
+    (stereo matching's fattening lies on the face's own plane there).
     """
     tolerance_m = params.pierce_tolerance_m
     ranking = []
@@ -895,10 +948,27 @@ def _cuboid_geometry(
         & (w2 <= s2.max() + margin)
     )
     s1, s2 = w1[on_face], w2[on_face]
-    extent1, extent2 = float(np.ptp(s1)), float(np.ptp(s2))
-    center = (
-        (s1.min() + s1.max()) / 2 * e1 + (s2.min() + s2.max()) / 2 * e2 - face.offset * face.normal
-    )
+    lo1, hi1, lo2, hi2 = float(s1.min()), float(s1.max()), float(s2.min()), float(s2.max())
+    trim = params.edge_fattening_px * pixel_rad
+    if trim > 0:
+        # In metres on the face: the fattening's angle times the face's depth.
+        trim *= float(np.median(whole[on_face, 2]))
+        near = 2 * params.voxel_m
+        met = np.zeros(len(points), dtype=bool)
+        for i, inliers in enumerate(fit.face_inliers):
+            if i != index:
+                met |= inliers
+        o1, o2 = points[met] @ e1, points[met] @ e2
+        sides = []
+        for edge, o, step in ((lo1, o1, trim), (hi1, o1, -trim), (lo2, o2, trim), (hi2, o2, -trim)):
+            sides.append(edge if np.any(np.abs(o - edge) <= near) else edge + step)
+        lo1, hi1, lo2, hi2 = sides
+        if hi1 < lo1:
+            lo1 = hi1 = (lo1 + hi1) / 2
+        if hi2 < lo2:
+            lo2 = hi2 = (lo2 + hi2) / 2
+    extent1, extent2 = hi1 - lo1, hi2 - lo2
+    center = (lo1 + hi1) / 2 * e1 + (lo2 + hi2) / 2 * e2 - face.offset * face.normal
     if extent1 >= extent2:
         return extent2, e1, center
     return extent1, e2, center
@@ -993,23 +1063,26 @@ def reconstruct_cloud(
     if confidence < params.min_inlier_fraction:
         return _none(f"best model ({shape}) explains {confidence:.0%} of the segment", used, extra)
     fit = fits[shape]
+    pixel_rad = 1.0 / intrinsics.fx
     if isinstance(fit, _Fit) and isinstance(fit.model, SphereModel):
+        sphere = _camera_facing(segment, fit.model, params, pixel_rad)
         return Reconstruction(
-            shape="sphere", method="cloud", grasp_width_m=2 * fit.model.radius,
-            center_m=tuple(map(float, fit.model.center)), confidence=confidence,
+            shape="sphere", method="cloud", grasp_width_m=2 * sphere.radius,
+            center_m=tuple(map(float, sphere.center)), confidence=confidence,
             points=used, extra=extra,
         )  # fmt: skip
     if isinstance(fit, _Fit) and isinstance(fit.model, CylinderModel):
-        axis = _canonical_axis(fit.model.axis)
-        on_axis = segment[fit.inliers] - fit.model.center
-        middle = fit.model.center + float(np.median(on_axis @ axis)) * axis
+        cylinder = _camera_facing(segment, fit.model, params, pixel_rad)
+        axis = _canonical_axis(cylinder.axis)
+        on_axis = segment[fit.inliers] - cylinder.center
+        middle = cylinder.center + float(np.median(on_axis @ axis)) * axis
         return Reconstruction(
-            shape="cylinder", method="cloud", grasp_width_m=2 * fit.model.radius,
+            shape="cylinder", method="cloud", grasp_width_m=2 * cylinder.radius,
             wrist_angle_rad=_axis_angle(axis), center_m=tuple(map(float, middle)),
             axis=tuple(map(float, axis)), confidence=confidence, points=used, extra=extra,
         )  # fmt: skip
     assert isinstance(fit, _CuboidFit)
-    width, axis, center = _cuboid_geometry(segment, whole, fit, params)
+    width, axis, center = _cuboid_geometry(segment, whole, fit, params, pixel_rad)
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))
     return Reconstruction(

@@ -1558,7 +1558,7 @@ def fit_ellipses(
     segments: Segments | Sequence[np.ndarray],
     threshold: float,
     *,
-    axis_limits: tuple[float, float] | None = AXIS_LIMITS_M,
+    axis_limits: tuple[float, float] | None = None,
     max_trials: int = ELLIPSE_TRIALS[1],
     min_trials: int = ELLIPSE_TRIALS[0],
     confidence: float = CONFIDENCE,
@@ -1568,10 +1568,6 @@ def fit_ellipses(
 ) -> list[EllipseFit | FailedFit]:
     """:func:`fit_ellipse` on several scan lines at once, one result per line (see
     :func:`fit_lines`, also for ``min_inliers``).
-
-    Unlike :func:`fit_ellipse`, ``axis_limits`` defaults to the paper's ``AXIS_LIMITS_M``:
-    the laser method (``laser.py``) relies on that default today; once it passes its limits,
-    as it does its radius limits, this default becomes None too.
     """
     trials = (min_trials, max_trials)
     seg, threshold, goals = checked(segments, threshold, trials, confidence, min_inliers)

@@ -93,7 +93,8 @@ class LaserParams:
     variant: Literal["lpc", "paper"] = "lpc"
     # 2-D fits on each scan line.
     threshold_m: float = 0.001
-    radius_limits_m: tuple[float, float] = (0.005, 0.05)
+    radius_limits_m: tuple[float, float] = fit.RADIUS_LIMITS_M
+    axis_limits_m: tuple[float, float] = fit.AXIS_LIMITS_M
     line_trials: tuple[int, int] = fit.LINE_TRIALS
     circle_trials: tuple[int, int] = (16, 200)
     ellipse_trials: tuple[int, int] = (32, 128)
@@ -142,6 +143,24 @@ class LaserParams:
     axis_grid_points: int = 120
     axis_good_fraction: float = 0.9
     cylinder_iterations: int = 3
+    # A sphere's or cylinder's width comes from the points at least this many pixels inside
+    # its silhouette. A matching window straddling an occluding edge corrupts depth on both
+    # sides of it: half the window beyond (fattening) and half inside (the rim pulled toward
+    # the front), 2 x 3 px for a 7 x 7 window; on a curved surface those pixels hold a wide
+    # arc and leaving them out costs only points. 0 fits all the inliers. The pixel's angle
+    # comes from the lines' sample spacing unless ``pixel_rad`` (1 / fx) is given.
+    silhouette_margin_px: float = 6.0
+    pixel_rad: float | None = None
+    # Fattening only ever widens a fit, and the rim pins the radius far better than the cap
+    # under 1 mm depth steps: the fit on all inliers stands unless its diameter exceeds the
+    # camera-facing fit's by more than this.
+    silhouette_tolerance_m: float = 0.0015
+    # A cuboid face's seed at an occluding edge moves in by this many pixels: the fattening
+    # of a matching window of 2 x edge_fattening_px + 1 pixels, 3 for a 7 x 7 window (the
+    # middle of the 5-9 a D4xx-class matcher uses). Off by default: on lpc's own noise model,
+    # which does not fatten, 3 px cost cuboid widths 0.8 -> 3.0 mm and clutter angles 1.8 ->
+    # 7.4 deg (lpc bench accuracy --quick). Set it for a stereo source. See _collect_seeds.
+    edge_fattening_px: float = 0.0
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
@@ -173,9 +192,10 @@ class LaserParams:
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be positive, got {value}")
-        lo, hi = self.radius_limits_m
-        if not 0 < lo < hi:
-            raise ValueError(f"radius_limits_m must satisfy 0 < min < max, got {(lo, hi)}")
+        for name in ("radius_limits_m", "axis_limits_m"):
+            lo, hi = getattr(self, name)
+            if not 0 < lo < hi:
+                raise ValueError(f"{name} must satisfy 0 < min < max, got {(lo, hi)}")
         zlo, zhi = self.capture_z_m
         if not 0 < zlo < zhi:
             raise ValueError(f"capture_z_m must satisfy 0 < near < far, got {(zlo, zhi)}")
@@ -191,9 +211,16 @@ class LaserParams:
             "paper_ellipse_margin",
             "bevel_free_depth_m",
             "max_outlier_run",
+            "silhouette_margin_px",
+            "edge_fattening_px",
+            "silhouette_tolerance_m",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.pixel_rad is not None and not (
+            math.isfinite(self.pixel_rad) and self.pixel_rad > 0
+        ):
+            raise ValueError(f"pixel_rad must be positive, got {self.pixel_rad}")
         for name in ("min_solid_fraction", "axis_good_fraction"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -440,8 +467,10 @@ def _fit_batch(
             seed=rng, min_inliers=goals, geometric=params.geometric_2d,
         )  # fmt: skip
     lo, hi = params.ellipse_trials
-    return fit.fit_ellipses(segments, thr, min_trials=lo, max_trials=hi, seed=rng,
-                            min_inliers=goals, geometric=params.geometric_2d)  # fmt: skip
+    return fit.fit_ellipses(
+        segments, thr, axis_limits=params.axis_limits_m, min_trials=lo, max_trials=hi,
+        seed=rng, min_inliers=goals, geometric=params.geometric_2d,
+    )  # fmt: skip
 
 
 def _second_lines(
@@ -711,9 +740,24 @@ class _Seeds:
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
 
 
-def _collect_seeds(lines: list[LineModels], params: LaserParams, *, extend: bool) -> _Seeds:
+def _collect_seeds(
+    lines: list[LineModels],
+    params: LaserParams,
+    *,
+    extend: bool,
+    face: PlaneSolid | None = None,
+    pixel_rad: float = 0.0,
+) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
-    by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge)."""
+    by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge).
+
+    With a ``face``, a seed at an occluding edge (its run ends where its segment does: the
+    depth jumps away or the data stops) is moved in by ``edge_fattening_px`` as well, onto
+    the face's plane: stereo matching gives the foreground's depth to the background pixels
+    within about half its window of the edge, and on a flat face those fattened pixels lie
+    on the face's own plane, so nothing in the line itself tells them apart.
+    """
+    trim = params.edge_fattening_px * pixel_rad if face is not None else 0.0
     pts, cropped = [], []
     hw, margin = params.capture_half_width_m, params.crop_margin_m
     zlo, zhi = params.capture_z_m
@@ -731,7 +775,12 @@ def _collect_seeds(lines: list[LineModels], params: LaserParams, *, extend: bool
                 or p[2] <= zlo + margin
                 or p[2] >= zhi - margin
             )
-            if extend and not at_crop and params.edge_extension > 0 and line.step > 0:
+            occluding = run[-k] == (len(line.points) - 1) * k  # run[0] == 0 or run[-1] == last
+            if extend and not at_crop and trim > 0 and occluding and line.step > 0:
+                q = (p[0] * c + p[1] * s_) / p[2]
+                q += sign * (params.edge_extension * line.step - trim)
+                p = _on_plane(p, (q * c, q * s_, 1.0), face)  # type: ignore[arg-type]
+            elif extend and not at_crop and params.edge_extension > 0 and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
                 if ends_sz is not None:
                     p = _extend_seed(p, ends_sz[2 * k], ends_sz[2 * k + 1], c, s_,
@@ -739,6 +788,17 @@ def _collect_seeds(lines: list[LineModels], params: LaserParams, *, extend: bool
             pts.append(p)
             cropped.append(at_crop)
     return _Seeds(points=np.array(pts), cropped=np.array(cropped, dtype=bool))
+
+
+def _on_plane(end: list[float], ray: tuple[float, float, float], plane: PlaneSolid) -> list[float]:
+    """Where the ray from the camera along ``ray`` meets ``plane`` (``end`` when it runs
+    along the plane)."""
+    n, p0 = plane.normal.tolist(), plane.point.tolist()
+    along = n[0] * ray[0] + n[1] * ray[1] + n[2] * ray[2]
+    if abs(along) < 1e-9:
+        return end
+    t = (n[0] * p0[0] + n[1] * p0[1] + n[2] * p0[2]) / along
+    return [t * ray[0], t * ray[1], t * ray[2]]
 
 
 def _extend_seed(
@@ -987,10 +1047,15 @@ def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float
     return max(min(p - alo, ahi - p, q - blo, bhi - q) for p, q in zip(a, b, strict=True))
 
 
-def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
+def _beyond_edges(
+    lines: list[LineModels], plane: PlaneSolid, params: LaserParams, pixel_rad: float = 0.0
+) -> np.ndarray:
     """Points of the object past the face's edges: from each end of a line's run, outward
     through its segment, while the surface falls away from the face (a bevel, a rounded edge,
-    a prism's next face) and before it turns parallel to the face again (a table)."""
+    a prism's next face) and before it turns parallel to the face again (a table). A walk
+    that reaches the segment's end stops ``edge_fattening_px`` short of it: that end is an
+    occluding edge (see ``_collect_seeds``)."""
+    trim = params.edge_fattening_px * pixel_rad
     out = []
     n = plane.normal
     slope, free = math.tan(params.bevel_min_rad), params.bevel_free_depth_m
@@ -1011,6 +1076,9 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
             )
             bad = (~ok).nonzero()[0]
             k = int(bad[0]) if len(bad) else len(ok)
+            if k > 0 and trim > 0 and last + k == m - 1:
+                q = line.sz[last:, 0] / line.sz[last:, 1]
+                k = int(np.count_nonzero(q <= q[-1] - trim)) - 1
             if k > 0:
                 out.append(pts[last + k])
         if first > 0:
@@ -1020,6 +1088,9 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
             )
             bad = (~ok).nonzero()[0]
             k = first - 1 - int(bad[-1]) if len(bad) else first
+            if k > 0 and trim > 0 and first - k == 0:
+                q = line.sz[: first + 1, 0] / line.sz[: first + 1, 1]
+                k = int(np.count_nonzero(q >= q[0] + trim)) - 1
             if k > 0:
                 out.append(pts[first - k])
     return plane.project(np.array(out)) if out else np.empty((0, 3))
@@ -1334,6 +1405,8 @@ def _decide(
         )
         return _none(f"no solid explains the scan lines ({details})", summaries, total, extra)
     solid = candidates[shape].solid
+    if shape in ("sphere", "cylinder"):
+        solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
@@ -1362,9 +1435,10 @@ def _decide(
     on_face = [ln for ln in (_face_run(ln, solid, params) for ln in lines) if ln is not None]
     if len(on_face) < 2:
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
-    seeds = _collect_seeds(on_face, params, extend=True)
+    pixel_rad = _pixel_rad(lines, params)
+    seeds = _collect_seeds(on_face, params, extend=True, face=solid, pixel_rad=pixel_rad)
     seeds = _Seeds(points=solid.project(seeds.points), cropped=seeds.cropped)
-    beyond = _beyond_edges(on_face, solid, params) if params.bevels else None
+    beyond = _beyond_edges(on_face, solid, params, pixel_rad) if params.bevels else None
     face = _face_geometry(solid, seeds, params, paper=False, beyond=beyond)
     if isinstance(face, str):
         return _none(face, summaries, total, extra)
@@ -1403,6 +1477,76 @@ def _decide(
         points=total,
         extra=extra,
     )
+
+
+def _pixel_rad(lines: list[LineModels], params: LaserParams) -> float:
+    """The angle of one pixel: ``params.pixel_rad``, else the finest sample spacing along a
+    line (s/z steps by 1/fx between the pixels of a line along a row or a column)."""
+    if params.pixel_rad is not None:
+        return params.pixel_rad
+    steps = [ln.step for ln in lines if ln.step > 0]
+    return min(steps) if steps else 0.0
+
+
+def _camera_facing(
+    solid: SphereSolid | CylinderSolid, clean: np.ndarray, params: LaserParams, pixel_rad: float
+) -> SphereSolid | CylinderSolid:
+    """The solid refitted on its inliers at least ``silhouette_margin_px`` inside its
+    silhouette: the arc that faces the camera, which edge fattening and the steep rim do not
+    reach. Fattened points lie beyond the true silhouette, so the first fit is too large and
+    its silhouette too wide: a second pass trims against the refitted one. The solid as it
+    was when too few points remain, the refit fails, its diameter is within
+    ``silhouette_tolerance_m`` (or 4 sd) of the refit's, or it exceeds it by more than the
+    margin on both sides."""
+    margin = params.silhouette_margin_px * pixel_rad
+    if margin <= 0:
+        return solid
+    full = solid
+    thr = params.solid_threshold_m
+    lo, hi = params.radius_limits_m
+    need = max(params.min_points_per_line, len(clean) // 4)
+    keep = np.zeros(len(clean), dtype=bool)
+    for _ in range(3):
+        trusted = (solid.residuals(clean) <= thr) & (solid.silhouette_distance(clean) >= margin)
+        if np.count_nonzero(trusted) < need:
+            break
+        keep = trusted
+        if isinstance(solid, SphereSolid):
+            refit = SphereSolid.estimate(clean[keep], init=(solid.center, solid.radius))
+        else:
+            refit = CylinderSolid.estimate(clean[keep], solid.axis, iterations=2)
+        if not refit or not lo <= refit.radius <= hi:
+            break
+        solid = refit
+    if solid is full:
+        return full
+    wider = full.radius - solid.radius
+    if 2 * wider <= params.silhouette_tolerance_m or wider <= 4 * _radius_sd(solid, clean[keep]):
+        return full
+    # Nor can the window widen it by more than the margin on each side: a larger change says
+    # the object is not that solid (a gourd taken for a cylinder), not that its rim fattened.
+    if wider > margin * float(np.median(clean[:, 2])):
+        return full
+    if isinstance(full, CylinderSolid):
+        # The axis keeps the fit on every inlier: the rims shift the radius, hardly the axis,
+        # and on an object only roughly a cylinder the facing arc alone turns it.
+        return replace(full, radius=solid.radius)
+    return solid
+
+
+def _radius_sd(solid: SphereSolid | CylinderSolid, points: np.ndarray) -> float:
+    """Standard deviation of a least-squares radius from its points' residuals: the
+    Gauss-Newton covariance s^2 (J'J)^-1, J's rows (surface normal, 1) (the normal lies
+    across a cylinder's axis, so its J'J is singular along the axis: pseudo-inverse)."""
+    if isinstance(solid, SphereSolid):
+        normal = points - solid.center
+    else:
+        w = points - solid.point
+        normal = w - (w @ solid.axis)[:, None] * solid.axis
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    jac = np.column_stack([normal, np.ones(len(points))])
+    s2 = float(np.mean(solid.residuals(points) ** 2)) * len(points) / max(len(points) - 4, 1)
+    return math.sqrt(s2 * float(np.linalg.pinv(jac.T @ jac)[3, 3]))
 
 
 def _polyhedral(lines: list[LineModels]) -> bool:

@@ -258,6 +258,12 @@ class SphereSolid:
         w = np.asarray(points, dtype=np.float64) - self.center
         return np.abs(np.sqrt((w * w).sum(axis=1)) - self.radius)
 
+    def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
+        """View angle (radians) from each point's ray, seen from the camera at the origin, in
+        to the sphere's silhouette: positive inside it, negative beyond (where no point of
+        the sphere can be seen). Times the focal length in pixels, the distance in pixels."""
+        return silhouette_distance(points, self.center, self.radius)
+
 
 # --------------------------------------------------------------------------- cylinder
 
@@ -341,6 +347,50 @@ class CylinderSolid:
         w = np.asarray(points, dtype=np.float64) - self.point
         q = w - (w @ self.axis)[:, None] * self.axis
         return np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - self.radius)
+
+    def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
+        """View angle (radians) from each point's ray in to the cylinder's silhouette (its two
+        outermost generators as seen from the origin): positive inside, negative beyond.
+
+        Measured in the cross-section through the point (across the axis), then scaled by
+        the point's distance across the axis over its range: the angle it subtends in view.
+        """
+        return silhouette_distance(points, self.point, self.radius, self.axis)
+
+
+def silhouette_distance(
+    points: np.ndarray, centre: np.ndarray, radius: float, axis: np.ndarray | None = None
+) -> np.ndarray:
+    """View angle (radians) from each of the (N, 3) points' rays, seen from the camera at the
+    origin, in to the silhouette of the sphere (``axis`` None) or of the cylinder along
+    ``axis`` through ``centre``: positive inside it, negative beyond, where no point of the
+    solid can be seen. Times the focal length in pixels, a distance in pixels.
+
+    For a sphere, asin(r / |c|) less the angle between the point and the centre. For a
+    cylinder, the same in the cross-section through the point (across the axis), scaled by
+    the point's distance across the axis over its range: the angle that subtends in view. A
+    camera inside the solid sees no silhouette: every point is then infinitely far inside.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    c = np.asarray(centre, dtype=np.float64)
+    if axis is None:
+        return _tangent_angle(p, c, radius)
+    a = np.asarray(axis, dtype=np.float64)
+    across = p - (p @ a)[:, None] * a
+    angle = _tangent_angle(across, c - (c @ a) * a, radius)
+    return angle * np.sqrt(np.einsum("ij,ij->i", across, across) / np.einsum("ij,ij->i", p, p))
+
+
+def _tangent_angle(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Angle at the origin from each point in to the tangents from the origin to the ball of
+    ``radius`` about ``centre``."""
+    d = math.sqrt(float(centre @ centre))
+    if not d > radius:
+        return np.full(len(points), np.inf)
+    half = math.asin(radius / d)
+    cross = np.cross(points, centre)
+    off = np.arctan2(np.sqrt(np.einsum("ij,ij->i", cross, cross)), points @ centre)
+    return half - off
 
 
 def _cylinder_normal_equations(
@@ -430,4 +480,5 @@ __all__ = [
     "fit_circle_2d",
     "hemisphere_directions",
     "orthonormal_basis",
+    "silhouette_distance",
 ]

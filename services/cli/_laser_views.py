@@ -26,6 +26,7 @@ import numpy as np
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.sim import scene
+from lpc_core.sim.stereo import StereoSensor
 
 SUITES = ("rotation", "functional", "irregular", "clutter")
 ROTATION_ANGLES_DEG = (0, 30, 60, 90, 120, 150)
@@ -199,9 +200,11 @@ def views(
     seed: int,
     subjects: list[Subject] | None = None,
     names: Collection[str] | None = None,
+    sensor: StereoSensor | None = None,
 ) -> Iterator[View]:
     """``trials`` approaches of ``frames`` frames to each subject of ``suite`` (or only to
-    those called ``names``: the others' views are skipped, not changed)."""
+    those called ``names``: the others' views are skipped, not changed), seen through the
+    noise model or, given ``sensor``, the simulated stereo camera (same poses either way)."""
     if suite not in SUBJECTS:
         raise ValueError(f"suite must be one of {SUITES}, got {suite!r}")
     subjects = SUBJECTS[suite]() if subjects is None else subjects
@@ -233,7 +236,10 @@ def views(
                     roll_rad=roll + rng.uniform(-jitter, jitter),
                     aim_point=target + offset + rng.uniform(-0.001, 0.001, 3),
                 )
-                depth = scene.render_depth(subject.world, INTRINSICS, pose, rng)
+                if sensor is None:
+                    depth = scene.render_depth(subject.world, INTRINSICS, pose, rng)
+                else:
+                    depth = sensor.render_depth(subject.world, INTRINSICS, pose, rng)
                 yield View(
                     suite, subject.name, subject.detail, trial, frame, seq, depth,
                     subject.obj.truth(pose), _square_face(subject.obj, pose),

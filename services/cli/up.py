@@ -25,6 +25,13 @@ import zenoh
 
 from schemas import Health, decode
 from services.children import die_with_parent
+from services.drivers.depth import (
+    add_realsense_arguments,
+    add_sensor_arguments,
+    realsense_argv,
+    sensor_argv,
+    stereo_sensor,
+)
 from services.runtime import zenoh_config
 
 STOP_GRACE_S = 2.0
@@ -49,6 +56,10 @@ def _camera_argv(args: argparse.Namespace) -> list[str]:
     argv = ["--source", args.source[0], "--rate", str(args.rate), "--seed", str(args.seed)]
     if len(args.source) > 1:
         argv += ["--file", args.source[1]]
+    if args.source[0] == "sim":
+        argv += sensor_argv(args)
+    elif args.source[0] == "realsense":
+        argv += realsense_argv(args)
     return argv
 
 
@@ -344,6 +355,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"boards; same topics); {', '.join(APART)} keeps its own process for the hand's "
         "watchdog, the reconstructor its worker processes",
     )
+    add_sensor_arguments(parser)
+    add_realsense_arguments(parser)
 
 
 def _validate(args: argparse.Namespace) -> str | None:
@@ -366,6 +379,12 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--foxglove-port must be a TCP port number"
     if getattr(args, "hand_port", None) and getattr(args, "hand", "can") != "ability":
         return "--hand-port is for --hand ability"
+    try:
+        stereo_sensor(args)
+    except ValueError as exc:
+        return str(exc)
+    if not 1e-6 <= getattr(args, "rs_depth_units", 0.001) <= 0.01:
+        return "--rs-depth-units must be in [1e-6, 0.01] m"
     unknown = sorted(set(args.services or []) - set(SERVICES))
     if unknown:
         return f"unknown service(s) {', '.join(unknown)}; known: {', '.join(SERVICES)}"

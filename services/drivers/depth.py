@@ -7,6 +7,7 @@ of a file it raises ``EndOfStream``. ``shutdown()`` may be called twice.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import threading
 import time
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.sim.stereo import MATCHERS, Matcher, StereoRig, StereoSensor
 from schemas import ObjectTruth
 from services.drivers.errors import DeviceUnavailable, OperationError
 
@@ -36,16 +38,112 @@ class DepthReading:
     t_ns: int | None = None  # the source's own capture time, when it has one
 
 
+SENSORS = ("model", "stereo")
+
+
+def add_sensor_arguments(parser: argparse.ArgumentParser) -> None:
+    """The simulated camera's sensor flags: the noise model or the stereo camera and its
+    matcher (shared by the camera service and the benchmarks)."""
+    group = parser.add_argument_group("simulated sensor")
+    group.add_argument(
+        "--sensor",
+        choices=SENSORS,
+        default="model",
+        help="model: exact depth plus D435-like noise (default); stereo: two IR images lit "
+        "by a dot projector, matched by OpenCV (needs pip install 'lpc[stereo]')",
+    )
+    group.add_argument(
+        "--matcher",
+        choices=MATCHERS,
+        default="sgbm",
+        help="stereo matcher: sgbm (semi-global, default) or bm (plain block matching)",
+    )
+    default = Matcher()
+    group.add_argument(
+        "--block-size",
+        type=int,
+        default=default.block_size,
+        metavar="N",
+        help=f"matching window, odd (default {default.block_size}; bm needs >= 5)",
+    )
+    group.add_argument(
+        "--uniqueness",
+        type=int,
+        default=default.uniqueness,
+        metavar="PCT",
+        help=f"margin of the best match over the second, percent (default {default.uniqueness})",
+    )
+    group.add_argument(
+        "--texture-threshold",
+        type=int,
+        default=default.texture_threshold,
+        metavar="N",
+        help=f"bm only: least texture a window needs (default {default.texture_threshold})",
+    )
+    group.add_argument(
+        "--dot-density",
+        type=float,
+        default=StereoRig().dot_density,
+        metavar="D",
+        help=f"projector dots per pixel² (default {StereoRig().dot_density})",
+    )
+
+
+def stereo_sensor(args: argparse.Namespace) -> StereoSensor | None:
+    """The stereo camera the flags describe, None for the noise model; ``ValueError`` naming
+    the bad setting."""
+    if getattr(args, "sensor", "model") != "stereo":
+        return None
+    matcher = Matcher(
+        kind=args.matcher,
+        block_size=args.block_size,
+        uniqueness=args.uniqueness,
+        texture_threshold=args.texture_threshold,
+    )
+    return StereoSensor(rig=StereoRig(dot_density=args.dot_density), matcher=matcher)
+
+
+def sensor_label(args: argparse.Namespace) -> str:
+    """A short description of the simulated sensor, for reports."""
+    if getattr(args, "sensor", "model") != "stereo":
+        return "noise model"
+    texture = f", texture {args.texture_threshold}" if args.matcher == "bm" else ""
+    return (
+        f"stereo, {args.matcher} block {args.block_size}, uniqueness {args.uniqueness}"
+        f"{texture}, dots {args.dot_density:g}/px²"
+    )
+
+
+def sensor_argv(args: argparse.Namespace) -> list[str]:
+    """The sensor flags again, to pass on to the camera service."""
+    if getattr(args, "sensor", "model") != "stereo":
+        return []
+    return [
+        "--sensor", "stereo", "--matcher", args.matcher,
+        "--block-size", str(args.block_size), "--uniqueness", str(args.uniqueness),
+        "--texture-threshold", str(args.texture_threshold),
+        "--dot-density", str(args.dot_density),
+    ]  # fmt: skip
+
+
 class SimSource:
-    """The built-in simulated scene (``lpc_core.sim.simcam``): a pure function of time and seed."""
+    """The built-in simulated scene (``lpc_core.sim.simcam``): a pure function of time and seed,
+    seen through the noise model or, given ``sensor``, the simulated stereo camera."""
 
     name = "sim"
     paced = True  # the service's clock paces it
 
-    def __init__(self, seed: int = 0) -> None:
+    def __init__(self, seed: int = 0, sensor: StereoSensor | None = None) -> None:
         from lpc_core.sim.simcam import SimCamera
 
-        self._camera = SimCamera(seed=seed)
+        if sensor is not None:
+            try:
+                import cv2  # type: ignore[import-not-found]  # noqa: F401
+            except ModuleNotFoundError as exc:
+                raise SourceUnavailable(
+                    "the stereo sensor needs OpenCV: pip install 'lpc[stereo]'"
+                ) from exc
+        self._camera = SimCamera(seed=seed, sensor=sensor)
         self.intrinsics: Intrinsics = self._camera.intrinsics
 
     def render(self, t_s: float, seq: int) -> DepthReading:
@@ -84,6 +182,158 @@ def _f32(value: float) -> float:
     return float(str(np.float32(value)))
 
 
+RS_PRESETS = (
+    "default",
+    "hand",
+    "high_accuracy",
+    "high_density",
+    "medium_density",
+    "remove_ir_pattern",
+)
+"""librealsense's built-in D400 visual presets (``rs.rs400_visual_preset``)."""
+
+RS_FILTERS = ("spatial", "temporal", "hole_filling")
+"""librealsense's post-processing filters that ``--rs-filters`` may name."""
+
+DEFAULT_RS_PRESET = "default"
+DEFAULT_RS_DEPTH_UNITS_M = 0.001
+
+
+def parse_rs_filters(text: str) -> tuple[str, ...]:
+    """``"spatial,temporal"`` -> ("spatial", "temporal"); ``ValueError`` naming an unknown one."""
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    unknown = [n for n in names if n not in RS_FILTERS]
+    if unknown:
+        raise ValueError(
+            f"unknown --rs-filters {', '.join(unknown)}; known: {', '.join(RS_FILTERS)}"
+        )
+    return names
+
+
+def rs_filters_arg(text: str) -> tuple[str, ...]:
+    """``parse_rs_filters`` for argparse, which shows an ``ArgumentTypeError``'s own words."""
+    try:
+        return parse_rs_filters(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
+def add_realsense_arguments(parser: argparse.ArgumentParser) -> None:
+    """The live camera's settings (``--source realsense``): preset, depth units, filters."""
+    group = parser.add_argument_group("RealSense camera (--source realsense)")
+    group.add_argument(
+        "--rs-preset",
+        choices=RS_PRESETS,
+        default=DEFAULT_RS_PRESET,
+        help="visual preset set on the depth sensor before streaming (librealsense's D400 "
+        f"presets; default {DEFAULT_RS_PRESET}: set explicitly, since the camera keeps what the "
+        "last program set); recorded in the camera's health",
+    )
+    group.add_argument(
+        "--rs-depth-units",
+        type=float,
+        default=DEFAULT_RS_DEPTH_UNITS_M,
+        metavar="M",
+        help=f"depth unit in metres (default {DEFAULT_RS_DEPTH_UNITS_M:g}); recorded in the "
+        "camera's health and in every frame's intrinsics",
+    )
+    group.add_argument(
+        "--rs-filters",
+        type=rs_filters_arg,
+        default=(),
+        metavar="LIST",
+        help=f"librealsense post-processing filters, comma-separated, from {', '.join(RS_FILTERS)}"
+        " (applied in Intel's order: spatial and temporal on disparity, then hole filling)",
+    )
+
+
+def realsense_argv(args: argparse.Namespace) -> list[str]:
+    """The RealSense flags again, to pass on to the camera service."""
+    argv = ["--rs-preset", args.rs_preset, "--rs-depth-units", repr(args.rs_depth_units)]
+    if args.rs_filters:
+        argv += ["--rs-filters", ",".join(args.rs_filters)]
+    return argv
+
+
+def filter_chain(rs, names: tuple[str, ...]) -> list:
+    """pyrealsense2 filter objects for ``names``, in the order Intel's post-processing guide
+    gives: depth to disparity, spatial, temporal, back to depth, hole filling."""
+    chain = []
+    on_disparity = [n for n in ("spatial", "temporal") if n in names]
+    if on_disparity:
+        chain.append(rs.disparity_transform(True))
+        for name in on_disparity:
+            chain.append(rs.spatial_filter() if name == "spatial" else rs.temporal_filter())
+        chain.append(rs.disparity_transform(False))
+    if "hole_filling" in names:
+        chain.append(rs.hole_filling_filter())
+    return chain
+
+
+class SoftwareFilters:
+    """librealsense's post-processing filters run on depth images from anywhere (the simulated
+    camera, a bench): each image is fed to a pyrealsense2 ``software_device`` depth sensor with
+    ``intrinsics`` and its depth units, and the frame it yields goes through ``filter_chain``.
+
+    The temporal filter keeps a history: ``reset()`` starts a new sequence. ``SourceUnavailable``
+    if pyrealsense2 is missing.
+    """
+
+    def __init__(self, intrinsics: Intrinsics, names: tuple[str, ...], fps: int = 90) -> None:
+        parse_rs_filters(",".join(names))
+        rs = _import_pyrealsense2()
+        self._rs = rs
+        self._names = names
+        self._intrinsics = intrinsics
+        self._fps = fps
+        device = rs.software_device()
+        sensor = device.add_sensor("Depth")
+        ri = rs.intrinsics()
+        ri.width, ri.height = intrinsics.width, intrinsics.height
+        ri.fx, ri.fy, ri.ppx, ri.ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
+        ri.model = getattr(rs.distortion, intrinsics.model)
+        ri.coeffs = list(intrinsics.coeffs)
+        stream = rs.video_stream()
+        stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
+        stream.width, stream.height, stream.fps = intrinsics.width, intrinsics.height, fps
+        stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, ri
+        self._profile = sensor.add_video_stream(stream, True).as_video_stream_profile()
+        sensor.add_read_only_option(rs.option.depth_units, intrinsics.depth_scale)
+        self._syncer = rs.syncer()
+        sensor.open(self._profile)
+        sensor.start(self._syncer)
+        self._device, self._sensor = device, sensor
+        self._count = 0
+        self.reset()
+
+    def reset(self) -> None:
+        self._chain = filter_chain(self._rs, self._names)
+
+    def process(self, depth: np.ndarray) -> np.ndarray:
+        """The filtered copy of one uint16 depth image (``(height, width)`` of the intrinsics)."""
+        rs = self._rs
+        pixels = np.ascontiguousarray(depth, dtype=np.uint16)
+        frame = rs.software_video_frame()
+        frame.pixels = pixels
+        frame.bpp, frame.stride = 2, self._intrinsics.width * 2
+        frame.timestamp = self._count * 1000.0 / self._fps
+        frame.domain = rs.timestamp_domain.hardware_clock
+        frame.frame_number = self._count
+        frame.depth_units = self._intrinsics.depth_scale
+        frame.profile = self._profile
+        self._count += 1
+        self._sensor.on_video_frame(frame)
+        out = self._syncer.wait_for_frames(5000).get_depth_frame()
+        for stage in self._chain:
+            out = stage.process(out)
+        return np.asanyarray(out.get_data()).copy()
+
+    def close(self) -> None:
+        with contextlib.suppress(RuntimeError):
+            self._sensor.stop()
+            self._sensor.close()
+
+
 class RealSenseSource:
     """pyrealsense2: a live camera, or a recorded file played back as fast as it is read.
 
@@ -97,6 +347,12 @@ class RealSenseSource:
     A file plays back in non-real-time mode: playback waits for the reader, so no frame is
     dropped however slowly ``read`` is called, and ``read`` raises ``EndOfStream`` once the
     last frame has been read.
+
+    Before streaming, the depth sensor gets the visual ``preset`` and the ``depth_units``
+    (None leaves either as it is); a setting the device does not take (a recording's are
+    read-only) is reported in ``unsupported`` and the source carries on. ``settings`` says
+    what is in force, for the camera's health. ``filters`` (names from ``RS_FILTERS``) run
+    librealsense's own post-processing on every depth frame.
     """
 
     name = "realsense"
@@ -105,8 +361,21 @@ class RealSenseSource:
     _SLICE_S = 0.05  # longest single wait, so shutdown() from another thread is never held long
 
     def __init__(
-        self, file: str | Path | None = None, rate: int = 90, width: int = 424, height: int = 240
+        self,
+        file: str | Path | None = None,
+        rate: int = 90,
+        width: int = 424,
+        height: int = 240,
+        *,
+        preset: str | None = None,
+        depth_units: float | None = None,
+        filters: tuple[str, ...] = (),
     ) -> None:
+        if preset is not None and preset not in RS_PRESETS:
+            raise ValueError(f"preset must be one of {RS_PRESETS}, got {preset!r}")
+        if depth_units is not None and not 1e-6 <= depth_units <= 0.01:
+            raise ValueError(f"depth_units must be in [1e-6, 0.01] m, got {depth_units}")
+        parse_rs_filters(",".join(filters))
         self._file = str(file) if file else None
         if self._file and not Path(self._file).is_file():
             raise SourceUnavailable(f"no such RealSense recording: {self._file}")
@@ -129,15 +398,18 @@ class RealSenseSource:
                 )
             config.enable_stream(rs.stream.depth, width, height, rs.format.z16, rate)
             what = f"a RealSense camera for depth {width}x{height} Z16 at {rate} fps"
+        self.unsupported: list[str] = []
         try:
+            # The pipeline starts the device that resolve() returns: set it up before it starts
+            # (set after start, real-time playback has already dropped frames, and a live
+            # sensor may refuse new depth units while it streams).
+            device = config.resolve(rs.pipeline_wrapper(self._pipeline)).get_device()
             if self._file:
-                # The pipeline starts the device that resolve() returns. Set up playback before
-                # it starts: set after start, real-time playback has already dropped frames.
-                device = config.resolve(rs.pipeline_wrapper(self._pipeline)).get_device()
                 playback = device.as_playback()
                 playback.set_real_time(False)
                 playback.set_status_changed_callback(self._on_status)
                 self._playback = playback  # the callback lives as long as this handle
+            self._apply_options(rs, device, preset, depth_units)
             profile = self._pipeline.start(config)
         except RuntimeError as exc:
             raise SourceUnavailable(f"cannot open {what}: {exc}") from exc
@@ -160,6 +432,60 @@ class RealSenseSource:
             depth_scale=_f32(scale),
         )
         self.fps: int = stream.fps()
+        self._filters = filter_chain(rs, filters)
+        self.settings: dict[str, str] = {
+            "rs_preset": self._preset_in_force(rs, profile.get_device(), preset),
+            "rs_depth_units": f"{self.intrinsics.depth_scale:g}",
+            "rs_filters": ",".join(filters) or "none",
+        }
+
+    def _apply_options(self, rs, device, preset: str | None, depth_units: float | None) -> None:
+        """Set the preset, then the depth units, on the depth sensor; note what it refuses."""
+        try:
+            sensor = device.first_depth_sensor()
+        except RuntimeError as exc:
+            self.unsupported.append(f"no depth sensor to set options on ({exc})")
+            return
+        wanted = []
+        if preset is not None:
+            wanted.append(("visual_preset", rs.option.visual_preset, preset))
+        if depth_units is not None:
+            wanted.append(("depth_units", rs.option.depth_units, depth_units))
+        for name, option, value in wanted:
+            number = (
+                float(int(getattr(rs.rs400_visual_preset, value)))
+                if name == "visual_preset"
+                else float(value)
+            )
+            if not sensor.supports(option):
+                self.unsupported.append(f"{name} {value}: the device has no such option")
+                continue
+            if sensor.is_option_read_only(option):
+                self.unsupported.append(f"{name} {value}: read-only on this device")
+                continue
+            try:
+                sensor.set_option(option, number)
+            except RuntimeError as exc:
+                self.unsupported.append(f"{name} {value}: {exc}")
+
+    @staticmethod
+    def _preset_in_force(rs, device, preset: str | None) -> str:
+        """The preset the sensor reports, else what was asked and could not be set."""
+        try:
+            sensor = device.first_depth_sensor()
+            if sensor.supports(rs.option.visual_preset):
+                value = int(sensor.get_option(rs.option.visual_preset))
+                return str(rs.rs400_visual_preset(value)).rsplit(".", 1)[-1]
+        except (RuntimeError, ValueError):
+            pass
+        return f"{preset} (not set)" if preset is not None else "unknown"
+
+    def settings_text(self) -> str:
+        """``key=value`` pairs of ``settings``, then what the device refused."""
+        text = " ".join(f"{k}={v}" for k, v in self.settings.items())
+        if self.unsupported:
+            text += "; not applied: " + "; ".join(self.unsupported)
+        return text
 
     def _on_status(self, status: object) -> None:
         # Runs on librealsense's reading thread. A playback reports "stopped" before it starts
@@ -183,11 +509,11 @@ class RealSenseSource:
                 ok, frames = self._pipeline.try_wait_for_frames(max(1, round(wait_s * 1000)))
                 if ok:
                     depth = frames.get_depth_frame()
+                    t_ns = round(depth.get_timestamp() * 1e6)
+                    for stage in self._filters:
+                        depth = stage.process(depth)
                     # Copy: the frame's buffer goes back to librealsense's pool.
-                    return DepthReading(
-                        depth=np.asanyarray(depth.get_data()).copy(),
-                        t_ns=round(depth.get_timestamp() * 1e6),
-                    )
+                    return DepthReading(depth=np.asanyarray(depth.get_data()).copy(), t_ns=t_ns)
             except RuntimeError as exc:
                 raise OperationError(f"RealSense read failed: {exc}") from exc
             if ended:

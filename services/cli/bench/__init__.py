@@ -19,6 +19,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "compare": ("services.cli.bench.compare", "the four-line method against the full cloud"),
     "recorder": ("services.cli.bench.recorder", "MCAP write cost, recorder loss, replay speed"),
     "render": ("services.cli.bench.render", "simulated camera and scan-cut speed"),
+    "stereo": ("services.cli.bench.stereo", "the stereo camera's artifacts and cost per frame"),
     "foxglove": ("services.cli.bench.foxglove", "Foxglove conversion, export and bridge figures"),
     "emg": ("services.cli.bench.emg", "lpc/emg rate from LSL or BrainFlow raw EMG; an outage"),
     "footprint": (

@@ -4,11 +4,21 @@ Runs the suites of ``services/cli/_laser_views.py`` (rotation test, the ten func
 the irregular objects, clutter) through the scan-line cut and ``reconstruct_laser`` and prints,
 beside the paper's figures: per-frame and windowed shape accuracy per shape, grasp width and
 wrist angle errors (mean absolute, SD), compute time per frame (p50, p99) and points per frame.
-Progress goes to stderr. ``--method paper`` runs the paper's own decision rules instead.
+Progress goes to stderr. ``--method paper`` runs the paper's own decision rules instead,
+``--method cloud`` the full-cloud method (``reconstruct_cloud`` on the whole frame; the paper
+column then holds the paper's full-cloud benchmark where it has a figure).
+
+``--sensor stereo`` renders the same views with the simulated stereo camera (two IR images
+matched by OpenCV, ``lpc_core.sim.stereo``) instead of the noise model; ``--matcher``,
+``--block-size``, ``--uniqueness``, ``--texture-threshold`` and ``--dot-density`` set it.
+``--rs-filters spatial,temporal,hole_filling`` runs each frame through librealsense's own
+post-processing filters (a pyrealsense2 software device), the temporal one over each trial's
+frames in order, to show what each does to the frames.
 
     lpc bench accuracy                # every suite, 5 trials x 10 frames per object
     lpc bench accuracy --quick        # CI-sized: 1 trial x 10 frames
     lpc bench accuracy --suite functional --trials 20
+    lpc bench accuracy --quick --sensor stereo --matcher bm --block-size 9
 """
 
 from __future__ import annotations
@@ -18,7 +28,7 @@ import math
 import sys
 import time
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -26,7 +36,16 @@ from lpc_core.perception.laser import LaserParams, reconstruct_laser
 from lpc_core.perception.reconstruction import SHAPES, Reconstruction, wrap_half_turn
 from lpc_core.perception.scans import cut_scan_lines
 from lpc_core.perception.window import WindowState, window_step
+from lpc_core.sim.stereo import StereoSensor
 from services.cli import _laser_views as lv
+from services.drivers.depth import (
+    SoftwareFilters,
+    SourceUnavailable,
+    add_sensor_arguments,
+    rs_filters_arg,
+    sensor_label,
+    stereo_sensor,
+)
 
 # The paper's figures (reference/paper.tex, Results).
 PAPER_FRAME_PCT = {"sphere": 96.5, "cylinder": 95.3, "cuboid": 89.0}
@@ -40,6 +59,9 @@ PAPER_ROTATION = {
     "cylinder_40": "60.3 ± 4.5",
     "cylinder_75": "65.4 ± 3.8",
 }
+# The paper's full-point-cloud benchmark (Castro et al. 2022), per frame only.
+PAPER_CLOUD_FRAME_PCT = {"sphere": 98.0, "cylinder": 93.0, "cuboid": 100.0}
+PAPER_CLOUD_WIDTH = "4 ± 3"
 PAPER_IRREGULAR_FAILED = ("horse_toy", "banana", "jar_cap")
 IRREGULAR_WIDTH_MM, IRREGULAR_ANGLE_DEG, IRREGULAR_SD_DEG = 20.0, 10.0, 15.0
 TARGETS = "targets: shape >= 99% per frame and 100% windowed, width MAE <= 3 mm, angle <= 2 deg"
@@ -56,7 +78,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=10, help="frames per trial (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of poses and noise")
     parser.add_argument(
-        "--method", choices=("laser", "paper"), default="laser", help="lpc's method or the paper's"
+        "--method",
+        action="append",
+        choices=("laser", "paper", "cloud"),
+        help="lpc's four-line method (default), the paper's rules, or lpc's full-cloud method; "
+        "repeatable: each runs on the same frames",
     )
     parser.add_argument("--quick", action="store_true", help="1 trial per object (CI-sized)")
     parser.add_argument(
@@ -64,6 +90,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--object", action="append", metavar="NAME", help="only this object, repeatable"
+    )
+    add_sensor_arguments(parser)
+    parser.add_argument(
+        "--rs-filters",
+        type=rs_filters_arg,
+        default=(),
+        metavar="LIST",
+        help="run the frames through librealsense's filters first (spatial, temporal, "
+        "hole_filling; needs pyrealsense2)",
     )
 
 
@@ -132,23 +167,45 @@ def _progress(suite: str, done: int, total: int) -> None:
         print(f"{suite}: {done}/{total} frames", file=sys.stderr, flush=True)
 
 
+def _reconstruct(method: str, view: lv.View) -> tuple[Reconstruction, float, float]:
+    """(result, CPU ms of the reconstruction, CPU ms of the scan cut) of one method."""
+    start = time.process_time()
+    if method == "cloud":
+        from lpc_core.perception.cloud import reconstruct_cloud
+
+        middle = start
+        result = reconstruct_cloud(view.depth, lv.INTRINSICS, seed=view.seq)
+    else:
+        lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+        middle = time.process_time()
+        params = LaserParams(variant="lpc" if method == "laser" else "paper")
+        result = reconstruct_laser(lines, params, seed=view.seq)
+    end = time.process_time()
+    return result, 1000 * (end - middle), 1000 * (middle - start)
+
+
 def run_suite(
     suite: str,
     trials: int,
     frames: int,
     seed: int,
-    params: LaserParams,
+    methods: tuple[str, ...] = ("laser",),
     names: list[str] | None = None,
-) -> list[Outcome]:
+    sensor: StereoSensor | None = None,
+    filters: SoftwareFilters | None = None,
+) -> dict[str, list[Outcome]]:
+    """Every view of ``suite`` reconstructed by each of ``methods`` (laser, paper, cloud), all
+    on the same frames: a stereo frame costs far more to render than to reconstruct."""
     total = lv.count(suite, trials, frames, names)
-    outcomes = []
-    for k, view in enumerate(lv.views(suite, trials, frames, seed, names=names), start=1):
-        start = time.process_time()
-        lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-        middle = time.process_time()
-        result = reconstruct_laser(lines, params, seed=view.seq)
-        end = time.process_time()
-        outcomes.append(Outcome(view, result, 1000 * (end - middle), 1000 * (middle - start)))
+    outcomes: dict[str, list[Outcome]] = {m: [] for m in methods}
+    views = lv.views(suite, trials, frames, seed, names=names, sensor=sensor)
+    for k, view in enumerate(views, start=1):
+        if filters is not None:
+            if view.frame == 0:
+                filters.reset()  # the temporal filter's history is one trial's frames
+            view = replace(view, depth=filters.process(view.depth))
+        for method in methods:
+            outcomes[method].append(Outcome(view, *_reconstruct(method, view)))
         _progress(suite, k, total)
     return outcomes
 
@@ -180,7 +237,9 @@ def _windowed(trial: list[Outcome]) -> tuple[bool, float | None, float | None, b
     return correct, width, angle, window.reconstructed
 
 
-def report_shapes(title: str, outcomes: list[Outcome], show_objects: bool = True) -> list[str]:
+def report_shapes(
+    title: str, outcomes: list[Outcome], show_objects: bool = True, cloud: bool = False
+) -> list[str]:
     per_frame = {s: Tally() for s in SHAPES}
     per_window = {s: Tally() for s in SHAPES}
     per_object: dict[str, Tally] = defaultdict(Tally)
@@ -201,9 +260,11 @@ def report_shapes(title: str, outcomes: list[Outcome], show_objects: bool = True
         f, w = per_frame[shape], per_window[shape]
         if not f.frames:
             continue
+        paper_frame = (PAPER_CLOUD_FRAME_PCT if cloud else PAPER_FRAME_PCT)[shape]
+        paper_window = "-" if cloud else f"{PAPER_WINDOW_PCT[shape]:.1f}"
         lines.append(
-            f"{shape:10}{f.frames:7d} {f.pct:7.1f} {PAPER_FRAME_PCT[shape]:8.1f} "
-            f"{w.pct:7.1f} {PAPER_WINDOW_PCT[shape]:8.1f} {_mae_sd(f.width_mm):>11} "
+            f"{shape:10}{f.frames:7d} {f.pct:7.1f} {paper_frame:8.1f} "
+            f"{w.pct:7.1f} {paper_window:>8} {_mae_sd(f.width_mm):>11} "
             f"{_mae_sd(w.width_mm):>10} {_mae_sd(f.angle_deg):>11} {_mae_sd(w.angle_deg):>10}"
         )
     all_f, all_w = Tally(), Tally()
@@ -221,7 +282,8 @@ def report_shapes(title: str, outcomes: list[Outcome], show_objects: bool = True
         f"{_mae_sd(all_f.angle_deg):>11} {_mae_sd(all_w.angle_deg):>10}"
     )
     lines.append(
-        f"{'paper':10}{'':7} {'':7} {'':8} {'':7} {'':8} {PAPER_WIDTH:>11} {'':>10} "
+        f"{'paper':10}{'':7} {'':7} {'':8} {'':7} {'':8} "
+        f"{PAPER_CLOUD_WIDTH if cloud else PAPER_WIDTH:>11} {'':>10} "
         f"{PAPER_ANGLE:>11}"
     )
     lines.append(f"  windows flagged reconstructed: {flagged}/{len(trials)}")
@@ -309,7 +371,7 @@ def report_cost(outcomes: list[Outcome]) -> list[str]:
     cut = np.array([o.cut_ms for o in outcomes])
     pts = np.array([o.result.points for o in outcomes])
     return [
-        f"  CPU per frame from the scan lines: p50 {np.percentile(ms, 50):.2f} ms, "
+        f"  CPU per frame of the reconstruction: p50 {np.percentile(ms, 50):.2f} ms, "
         f"p99 {np.percentile(ms, 99):.2f} ms (paper {PAPER_MS} ms, C++); scan cut p50 "
         f"{np.percentile(cut, 50):.2f} ms",
         f"  points per frame: {pts.mean():.0f} ± {pts.std():.0f} (paper {PAPER_POINTS})",
@@ -328,6 +390,25 @@ def _failures(outcomes: list[Outcome]) -> list[str]:
     return lines
 
 
+def _suite_report(suite: str, method: str, outcomes: list[Outcome], failures: bool) -> list[str]:
+    if suite == "rotation":
+        lines = report_rotation(outcomes)
+    elif suite == "irregular":
+        lines = report_irregular(outcomes)
+    else:
+        title = {
+            "functional": "functional set: the paper's ten objects (upright, lying, tilted)",
+            "clutter": "clutter: the table inside the capture volume, or a neighbouring object",
+        }[suite]
+        lines = report_shapes(
+            title, outcomes, show_objects=suite == "functional", cloud=method == "cloud"
+        )
+    lines += report_cost(outcomes)
+    if failures:
+        lines += _failures(outcomes)
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     suites = args.suite or ["all"]
     if "all" in suites:
@@ -336,33 +417,41 @@ def run(args: argparse.Namespace) -> int:
     if trials < 1 or args.frames < 1:
         print("lpc bench accuracy: error: --trials and --frames must be >= 1", file=sys.stderr)
         return 2
-    params = LaserParams(variant="lpc" if args.method == "laser" else "paper")
+    try:
+        sensor = stereo_sensor(args)
+    except ValueError as exc:
+        print(f"lpc bench accuracy: error: {exc}", file=sys.stderr)
+        return 2
+    filters = None
+    if args.rs_filters:
+        try:
+            filters = SoftwareFilters(lv.INTRINSICS, args.rs_filters)
+        except SourceUnavailable as exc:
+            print(f"lpc bench accuracy: error: {exc}", file=sys.stderr)
+            return 2
+    methods = tuple(dict.fromkeys(args.method or ["laser"]))
     print(
-        f"lpc bench accuracy: method {args.method}, {trials} trial(s) x {args.frames} frames per "
-        f"object, seed {args.seed}; {TARGETS}"
+        f"lpc bench accuracy: method {', '.join(methods)}, {trials} trial(s) x {args.frames} "
+        f"frames per object, seed {args.seed}, sensor: {sensor_label(args)}, librealsense "
+        f"filters: {','.join(args.rs_filters) or 'none'}; {TARGETS}"
     )
-    everything: list[Outcome] = []
+    everything: dict[str, list[Outcome]] = {m: [] for m in methods}
     for suite in dict.fromkeys(suites):
-        outcomes = run_suite(suite, trials, args.frames, args.seed, params, args.object)
-        if not outcomes:
-            continue
-        everything += outcomes
-        print()
-        if suite == "rotation":
-            lines = report_rotation(outcomes)
-        elif suite == "irregular":
-            lines = report_irregular(outcomes)
-        else:
-            title = {
-                "functional": "functional set: the paper's ten objects (upright, lying, tilted)",
-                "clutter": "clutter: the table inside the capture volume, or a neighbouring object",
-            }[suite]
-            lines = report_shapes(title, outcomes, show_objects=suite == "functional")
-        lines += report_cost(outcomes)
-        if args.failures:
-            lines += _failures(outcomes)
-        print("\n".join(lines), flush=True)
+        by_method = run_suite(
+            suite, trials, args.frames, args.seed, methods, args.object, sensor, filters
+        )
+        for method, outcomes in by_method.items():
+            if not outcomes:
+                continue
+            everything[method] += outcomes
+            print()
+            if len(methods) > 1:
+                print(f"[method {method}]")
+            print("\n".join(_suite_report(suite, method, outcomes, args.failures)), flush=True)
     if len(suites) > 1:
-        print()
-        print("\n".join(["all suites:", *report_cost(everything)]))
+        for method, outcomes in everything.items():
+            print()
+            print("\n".join([f"all suites, method {method}:", *report_cost(outcomes)]))
+    if filters is not None:
+        filters.close()
     return 0

@@ -28,6 +28,8 @@ import numpy as np
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.reconstruction import SHAPES, Reconstruction
+from lpc_core.sim.stereo import StereoSensor
+from services.drivers.depth import add_sensor_arguments, sensor_label, stereo_sensor
 
 # The paper's figures (Results), for the printout.
 PAPER = {
@@ -62,6 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help=f"one object per shape ({', '.join(QUICK_OBJECTS)}) and 2 frames each",
     )
+    add_sensor_arguments(parser)
 
 
 @dataclass(frozen=True)
@@ -76,8 +79,14 @@ class View:
     wrist_angle_rad: float | None
 
 
-def simulated_views(names: tuple[str, ...] | None, frames: int, seed: int) -> Iterator[View]:
-    """``frames`` views of each functional object on a table.
+def simulated_views(
+    names: tuple[str, ...] | None,
+    frames: int,
+    seed: int,
+    sensor: StereoSensor | None = None,
+) -> Iterator[View]:
+    """``frames`` views of each functional object on a table, through the noise model or,
+    given ``sensor``, the simulated stereo camera.
 
     The surface the optical axis pierces is 160-220 mm ahead (inside the laser method's
     capture volume, 150-250 mm), seen from up to 30 degrees either side, 10-45 degrees above
@@ -102,7 +111,10 @@ def simulated_views(names: tuple[str, ...] | None, frames: int, seed: int) -> It
                 aim_point=obj.center + rng.uniform(-0.005, 0.005, 3),
             )
             truth = obj.truth(pose)
-            depth = scene.render_depth(world, intrinsics, pose, rng)
+            if sensor is None:
+                depth = scene.render_depth(world, intrinsics, pose, rng)
+            else:
+                depth = sensor.render_depth(world, intrinsics, pose, rng)
             yield View(seq, name, depth, truth.shape, truth.grasp_width_m, truth.wrist_angle_rad)
             seq += 1
 
@@ -188,6 +200,11 @@ def run(args: argparse.Namespace) -> int:
     if args.repeat < 1:
         print("lpc bench compare: --repeat must be at least 1", file=sys.stderr)
         return 2
+    try:
+        sensor = stereo_sensor(args)
+    except ValueError as exc:
+        print(f"lpc bench compare: {exc}", file=sys.stderr)
+        return 2
     frames = args.frames if args.frames is not None else (2 if args.quick else 20)
     names = QUICK_OBJECTS if args.quick else None
     intrinsics = Intrinsics()
@@ -197,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
     warm = False
     started = time.perf_counter()
     last_name = None
-    for view in simulated_views(names, frames, args.seed):
+    for view in simulated_views(names, frames, args.seed, sensor):
         if not warm:  # first calls fill caches and import modules: keep them out of the times
             _laser(view, intrinsics)
             _cloud(view, intrinsics)
@@ -216,7 +233,8 @@ def run(args: argparse.Namespace) -> int:
                 f"{time.perf_counter() - started:.1f} s)",
                 file=sys.stderr,
             )
-    print(_report(tallies, cut_ms, cloud_counts, frames, args.seed, args.repeat))
+    label = sensor_label(args)
+    print(_report(tallies, cut_ms, cloud_counts, frames, args.seed, args.repeat, label))
     return 0
 
 
@@ -227,11 +245,13 @@ def _report(
     frames: int,
     seed: int,
     repeat: int = 1,
+    sensor: str = "noise model",
 ) -> str:
     total = sum(t.frames for t in tallies["laser"].values())
     out = [
         f"lpc bench compare: {total} frames ({frames} per object), seed {seed}, "
-        f"simulated D435 424x240, CPU time on one process (least of {repeat} per frame)",
+        f"simulated D435 424x240 ({sensor}), CPU time on one process (least of {repeat} "
+        "per frame)",
         "",
         f"{'shape':<9} {'method':<6} {'frames':>6} {'accuracy':>9} {'paper':>6} "
         f"{'width err mm':>14} {'angle err deg':>14} {'points/frame':>15} {'CPU ms p50':>10}",
