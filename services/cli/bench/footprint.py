@@ -40,7 +40,7 @@ import numpy as np
 import zenoh
 
 from schemas import TOPICS
-from services.cli.bench.soak import ProcessReport, Sample, Watcher
+from services.cli.bench.soak import ProcessReport, Watcher
 from services.cli.up import SERVICES
 from services.runtime import zenoh_config
 
@@ -444,22 +444,7 @@ def _observe(
                     watcher.seen.clear()
             sampler.sample()
             if in_window:
-                with watcher.lock:
-                    latest = dict(watcher.latest)
-                for name, h in latest.items():
-                    report = services.setdefault(name, ProcessReport(name))
-                    if not report.pids or report.pids[-1] != h.pid:
-                        report.pids.append(h.pid)
-                    report.samples.append(
-                        Sample(
-                            t_s=round(now - window_start, 3),
-                            pid=h.pid,
-                            rss_mb=h.rss_bytes / 2**20,
-                            rates_hz=dict(h.rates_hz),
-                            latency_ms=dict(h.latency_ms),
-                            counters=dict(h.counters),
-                        )
-                    )
+                watcher.sample_into(services, now - window_start)
             next_sample += 1.0
             time.sleep(max(0.0, next_sample - time.monotonic()))
         elapsed = time.monotonic() - window_start

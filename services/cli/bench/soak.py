@@ -143,6 +143,25 @@ class Watcher:
                 self.lost[key] += seq - previous - 1
             self.last_seq[key] = seq  # a restart (seq going back) starts afresh
 
+    def sample_into(self, reports: dict[str, ProcessReport], t_s: float) -> None:
+        """Append each service's latest health to its report, noting a new pid (a restart)."""
+        with self.lock:
+            latest = dict(self.latest)
+        for name, h in latest.items():
+            report = reports.setdefault(name, ProcessReport(name))
+            if not report.pids or report.pids[-1] != h.pid:
+                report.pids.append(h.pid)
+            report.samples.append(
+                Sample(
+                    t_s=round(t_s, 3),
+                    pid=h.pid,
+                    rss_mb=h.rss_bytes / 2**20,
+                    rates_hz=dict(h.rates_hz),
+                    latency_ms=dict(h.latency_ms),
+                    counters=dict(h.counters),
+                )
+            )
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -256,26 +275,11 @@ def _soak(
             if now < next_sample:
                 continue
             next_sample += args.sample_every
-            with watcher.lock:
-                latest = dict(watcher.latest)
-            for name, h in latest.items():
-                proc = processes.setdefault(name, ProcessReport(name))
-                if not proc.pids or proc.pids[-1] != h.pid:
-                    proc.pids.append(h.pid)
-                proc.samples.append(
-                    Sample(
-                        t_s=round(now - t0, 3),
-                        pid=h.pid,
-                        rss_mb=h.rss_bytes / 2**20,
-                        rates_hz=dict(h.rates_hz),
-                        latency_ms=dict(h.latency_ms),
-                        counters=dict(h.counters),
-                    )
-                )
+            watcher.sample_into(processes, now - t0)
             elapsed = now - t0
             total = sum(p.samples[-1].rss_mb for p in processes.values() if p.samples)
             print(
-                f"t = {elapsed:7.1f} s  processes {len(latest)}  rss total {total:7.1f} MB  "
+                f"t = {elapsed:7.1f} s  processes {len(processes)}  rss total {total:7.1f} MB  "
                 f"lost {sum(watcher.lost.values())}",
                 flush=True,
             )
