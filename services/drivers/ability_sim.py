@@ -11,13 +11,9 @@ reply. A driver opens ``sim.port`` as it would ``/dev/ttyUSB0``. ``close()`` han
 from __future__ import annotations
 
 import collections
-import contextlib
 import dataclasses
-import os
-import select
 import threading
 import time
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -29,6 +25,7 @@ from lpc_core.sim.ability_hand import (
     ability_reply,
     ability_step,
 )
+from services.drivers.pty_device import PtyDevice
 
 
 @dataclass(frozen=True)
@@ -40,7 +37,7 @@ class Received:
     values: tuple[int, ...]
 
 
-class AbilitySim:
+class AbilitySim(PtyDevice):
     """The hand's end of a pty; see the module docstring."""
 
     def __init__(
@@ -55,13 +52,9 @@ class AbilitySim:
         self.address = address
         self._clock = clock
         self._state = AbilityState(params=params or AbilityParams(), object_mm=object_mm)
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        tty.setraw(self._master)
         # A hand's UART transmits whether or not the host reads: a reply the host's full buffer
         # cannot take is lost (counted), it never stalls the hand.
-        os.set_blocking(self._master, False)
-        self.port = os.ttyname(self._slave)
+        self._open_pty("ability-sim", drop_unread=True)
         self._parser = ab.FrameParser()
         self.received: collections.deque[Received] = collections.deque(maxlen=history)
         self.replies: collections.deque[bytes] = collections.deque(maxlen=history)
@@ -69,10 +62,7 @@ class AbilitySim:
         self.commands = 0
         self.silenced = False  # tests: stop answering (a hand that went quiet)
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._closed = False
-        self._thread = threading.Thread(target=self._run, name="ability-sim", daemon=True)
-        self._thread.start()
+        self._start()
 
     @property
     def state(self) -> AbilityState:
@@ -88,27 +78,11 @@ class AbilitySim:
         with self._lock:
             self._state = dataclasses.replace(self._state, object_mm=value)
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select([self._master], [], [], 0.05)
-                if not ready:
-                    continue
-                data = os.read(self._master, 4096)
-            except BlockingIOError:
-                continue
-            except OSError:  # closed under us
-                return
-            arrival = self._clock()
-            for event in self._parser.feed(data):
-                reply = self._apply(event, arrival)
-                if reply and not self.silenced:
-                    try:
-                        os.write(self._master, reply)
-                    except BlockingIOError:
-                        self.errors["replies_lost"] += 1
-                    except OSError:
-                        pass
+    def _received(self, data: bytes, arrival_ns: int) -> None:
+        for event in self._parser.feed(data):
+            reply = self._apply(event, arrival_ns)
+            if reply and not self.silenced and not self._send(reply):
+                self.errors["replies_lost"] += 1
 
     def _apply(self, event: bytes | ab.FrameError, arrival: int) -> bytes:
         if isinstance(event, ab.FrameError):
@@ -128,20 +102,3 @@ class AbilitySim:
             self.received.append(Received(arrival, command.header, command.values))
             self.replies.append(reply)
         return reply
-
-    def close(self) -> None:
-        """Hang up: the port disappears. Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-    def __enter__(self) -> AbilitySim:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

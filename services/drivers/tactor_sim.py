@@ -11,17 +11,14 @@ byte path. ``close()`` hangs the line up, as unplugging the adapter would.
 from __future__ import annotations
 
 import collections
-import contextlib
-import os
-import select
 import threading
 import time
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from lpc_core.devices import tactor_protocol as tp
 from lpc_core.devices.tactor_protocol import N_TACTORS, Command, EaiCommand, FrameError, NakCode
+from services.drivers.pty_device import PtyDevice
 
 # Data length each EAI command must carry (firmware version and all off carry none).
 _EAI_LENGTHS = {
@@ -50,7 +47,7 @@ class SimEvent:
     levels: tuple[float, ...]
 
 
-class TactorSim:
+class TactorSim(PtyDevice):
     """The controller end of a pty; see the module docstring."""
 
     def __init__(
@@ -66,10 +63,7 @@ class TactorSim:
         self.protocol = protocol
         self.firmware = firmware
         self._clock = clock
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)  # a serial line, not a terminal: no echo, no CR/LF mapping
-        tty.setraw(self._master)
-        self.port = os.ttyname(self._slave)
+        self._open_pty("tactor-sim")
         self._parser: tp.EaiParser | tp.LineParser = (
             tp.EaiParser("controller") if protocol == "eai" else tp.LineParser("controller")
         )
@@ -82,10 +76,7 @@ class TactorSim:
         self.events: collections.deque[SimEvent] = collections.deque(maxlen=history)
         self.bytes_received = 0
         self._cond = threading.Condition()
-        self._stop = threading.Event()
-        self._closed = False
-        self._thread = threading.Thread(target=self._run, name="tactor-sim", daemon=True)
-        self._thread.start()
+        self._start()
 
     # ------------------------------------------------------------------ observation
 
@@ -103,23 +94,12 @@ class TactorSim:
 
     # ------------------------------------------------------------------ controller
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select([self._master], [], [], 0.05)
-                if not ready:
-                    continue
-                data = os.read(self._master, 4096)
-            except OSError:  # closed under us
-                return
-            arrival = self._clock()
-            with self._cond:
-                self.bytes_received += len(data)
-                for event in self._parser.feed(data):
-                    reply = self._apply(event, arrival)
-                    with contextlib.suppress(OSError):
-                        os.write(self._master, reply)
-                self._cond.notify_all()
+    def _received(self, data: bytes, arrival_ns: int) -> None:
+        with self._cond:
+            self.bytes_received += len(data)
+            for event in self._parser.feed(data):
+                self._send(self._apply(event, arrival_ns))
+            self._cond.notify_all()
 
     def _record(self, arrival: int, command: int | str, ok: bool) -> None:
         self.events.append(SimEvent(arrival, command, ok, self.mask, self.levels))
@@ -165,22 +145,3 @@ class TactorSim:
         self.mask = sum(1 << k for k, d in enumerate(parsed) if d > 0)
         self._record(arrival, "T", True)
         return b"OK\n"
-
-    # ------------------------------------------------------------------ lifetime
-
-    def close(self) -> None:
-        """Hang up: the port disappears and writes to it fail. Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-    def __enter__(self) -> TactorSim:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
