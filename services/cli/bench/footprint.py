@@ -40,7 +40,7 @@ import numpy as np
 import zenoh
 
 from schemas import TOPICS
-from services.cli.bench.soak import ProcessReport, Watcher
+from services.cli.bench.soak import ProcessReport, Watcher, lpc_up
 from services.cli.up import SERVICES
 from services.runtime import zenoh_config
 
@@ -371,33 +371,11 @@ def _measure(args: argparse.Namespace, quota: CpuQuota | None, tmp: Path) -> dic
     where = f"a quota of {args.cpus:g} CPU (cgroup v{quota.version})" if quota else "no quota"
     note = f"lpc bench footprint: {args.seconds:g} s after {args.warmup:g} s, {where}:"
     print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
-    up = subprocess.Popen(
-        argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        text=True, start_new_session=True, preexec_fn=quota.enter if quota else None,
-    )  # fmt: skip
-    started = threading.Event()
-    log: list[str] = []
-
-    def read_stderr() -> None:
-        for line in up.stderr or []:
-            log.append(line.rstrip())
-            if "services up" in line:
-                started.set()
-
-    threading.Thread(target=read_stderr, daemon=True).start()
-    try:
-        observed = _observe(args, up, started, quota)
-    except KeyboardInterrupt:
-        observed = None
-    finally:
-        if up.poll() is None:
-            up.send_signal(signal.SIGINT)
-            try:
-                up.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(up.pid, signal.SIGKILL)
-                up.wait()
+    with lpc_up(argv, quota.enter if quota else None) as (up, started, log):
+        try:
+            observed = _observe(args, up, started, quota)
+        except KeyboardInterrupt:
+            observed = None
     if observed is None:
         print("lpc bench footprint: error: lpc up did not start:\n" + "\n".join(log[-20:]))
         return None

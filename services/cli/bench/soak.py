@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -163,6 +164,40 @@ class Watcher:
             )
 
 
+@contextlib.contextmanager
+def lpc_up(
+    argv: list[str], preexec_fn: Callable[[], None] | None = None
+) -> Iterator[tuple[subprocess.Popen[str], threading.Event, list[str]]]:
+    """``lpc up`` (``argv``) in a session of its own: its stderr lines gathered in ``log``,
+    ``started`` set once its services are up. On leaving it gets SIGINT, as a person's ^C,
+    and is killed if it has not stopped 30 s later."""
+    up = subprocess.Popen(
+        argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True, start_new_session=True, preexec_fn=preexec_fn,
+    )  # fmt: skip
+    started = threading.Event()
+    log: list[str] = []
+
+    def read_stderr() -> None:
+        for line in up.stderr or []:
+            log.append(line.rstrip())
+            if "services up" in line:
+                started.set()
+
+    threading.Thread(target=read_stderr, daemon=True).start()
+    try:
+        yield up, started, log
+    finally:
+        if up.poll() is None:
+            up.send_signal(signal.SIGINT)
+            try:
+                up.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(up.pid, signal.SIGKILL)
+                up.wait()
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--minutes", type=float, default=30.0, help="soak duration (default 30 minutes)"
@@ -211,33 +246,11 @@ def run(args: argparse.Namespace) -> int:
     if args.record:
         argv += ["--record", args.record]
     print(f"lpc bench soak: {args.minutes:g} min at {args.rate:g} Hz: {' '.join(argv[2:])}")
-    up = subprocess.Popen(
-        argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        text=True, start_new_session=True,
-    )  # fmt: skip
-    started = threading.Event()
-    log: list[str] = []
-
-    def read_stderr() -> None:
-        for line in up.stderr or []:
-            log.append(line.rstrip())
-            if "services up" in line:
-                started.set()
-
-    threading.Thread(target=read_stderr, daemon=True).start()
-    try:
-        report = _soak(args, up, started, log, duration_s)
-    except KeyboardInterrupt:
-        report = None
-    finally:
-        if up.poll() is None:
-            up.send_signal(signal.SIGINT)
-            try:
-                up.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(up.pid, signal.SIGKILL)
-                up.wait()
+    with lpc_up(argv) as (up, started, log):
+        try:
+            report = _soak(args, up, started, log, duration_s)
+        except KeyboardInterrupt:
+            report = None
     if report is None:
         print("lpc bench soak: error: lpc up did not start:\n" + "\n".join(log[-20:]))
         return 1
