@@ -137,7 +137,10 @@ async def _raw_device(bus: Bus, args: argparse.Namespace) -> None:
     try:
         while True:
             try:
-                samples, t_ns, rate_hz = await asyncio.wait_for(inbox.get(), args.outage_ms / 1e3)
+                # Not asyncio.wait_for: before Python 3.12 it swallows a cancel (SIGINT) that
+                # lands as the queue yields, and the service would never stop.
+                async with asyncio.timeout(args.outage_ms / 1e3):
+                    samples, t_ns, rate_hz = await inbox.get()
             except TimeoutError:
                 if bus.status != "degraded":
                     bus.status = "degraded"

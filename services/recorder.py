@@ -57,7 +57,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         end = time.monotonic() + DRAIN_MAX_S
         with contextlib.suppress(TimeoutError):
             while time.monotonic() < end:
-                key, payload, received_ns = await asyncio.wait_for(sub.receive(), DRAIN_IDLE_S)
+                async with asyncio.timeout(DRAIN_IDLE_S):
+                    key, payload, received_ns = await sub.receive()
                 gaps = _record(bus, writer, gaps, key, payload, received_ns)
         writer.finish()
         dropped = sum(s.dropped for s in bus.health.received.values())

@@ -75,7 +75,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             wake = [t for t in (state.wake_ns, None if link.up else link.retry_at_ns) if t]
             timeout = (min(wake) - bus.clock.now_ns()) / 1e9 if wake else 1.0
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(arrived.wait(), max(timeout, 0.0))
+                async with asyncio.timeout(max(timeout, 0.0)):
+                    await arrived.wait()
             arrived.clear()
     finally:
         pumping.cancel()

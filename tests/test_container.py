@@ -72,7 +72,8 @@ def test_container_restarts_a_service_that_raises(endpoint: str, rendezvous: zen
             "the restart in flaky's health",
         )
         stop.set()
-        assert await asyncio.wait_for(container, 10) == 0
+        async with asyncio.timeout(10):
+            assert await container == 0
 
     asyncio.run(main())
     for sub in subs:
@@ -109,7 +110,8 @@ def test_container_services_talk_over_the_bus(endpoint: str, rendezvous: zenoh.S
         await until(lambda: len(scans) >= 10, 30, "scans from the container")
         alive = {str(r.ok.key_expr) for r in rendezvous.liveliness().get("lpc/alive/*") if r.ok}
         stop.set()
-        assert await asyncio.wait_for(container, 10) == 0
+        async with asyncio.timeout(10):
+            assert await container == 0
         return alive
 
     alive = asyncio.run(main())

@@ -98,7 +98,8 @@ async def collect(
                 if missing:
                     pytest.fail(f"no message on {sorted(missing)} within {DEADLINE_S} s")
                 pytest.fail(f"timed out after {DEADLINE_S} s waiting for {what or until}")
-            await asyncio.wait_for(client.step(), timeout=remaining)
+            async with asyncio.timeout(remaining):
+                await client.step()
         return client
 
 

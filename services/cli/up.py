@@ -598,7 +598,8 @@ async def _run_children(
             _print_status(children, now - started, live)
             next_status += every
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(stop.wait(), timeout=0.1)
+            async with asyncio.timeout(0.1):
+                await stop.wait()
     return 0
 
 
@@ -637,7 +638,8 @@ async def _stop_all(children: list[Child]) -> None:
         with contextlib.suppress(ProcessLookupError):
             process.send_signal(signal.SIGTERM)
         try:
-            await asyncio.wait_for(process.wait(), timeout=child.spec.stop_grace_s)
+            async with asyncio.timeout(child.spec.stop_grace_s):
+                await process.wait()
         except TimeoutError:
             print(
                 f"lpc up: {child.name} did not stop in {child.spec.stop_grace_s} s; killing it",

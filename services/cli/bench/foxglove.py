@@ -166,7 +166,8 @@ async def _watch(port: int, seconds: float) -> list[float]:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             try:
-                frame = await asyncio.wait_for(ws.recv(), timeout=1.0)
+                async with asyncio.timeout(1.0):
+                    frame = await ws.recv()
             except TimeoutError:
                 continue
             arrived = time.time_ns()
