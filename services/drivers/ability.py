@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import os
 import select
 import threading
 import time
@@ -36,11 +35,11 @@ from services.drivers.ability_sim import AbilitySim
 from services.drivers.errors import (
     DeviceUnavailable,
     DriverError,
-    DriverTimeout,
     InitialisationError,
     OperationError,
 )
 from services.drivers.hand import HandDriver
+from services.drivers.serial_io import write_all
 
 MIN_WRITE_TIMEOUT_S = 0.1
 
@@ -199,28 +198,12 @@ class AbilityHand:
     # ------------------------------------------------------------------ bytes
 
     def _write(self, data: bytes, timeout: float | None) -> None:
-        """Write all of ``data``; ``DriverTimeout`` only when the port stays unwritable for
-        ``timeout`` (at least ``MIN_WRITE_TIMEOUT_S``: a frame is 0.4 ms of line at 460800
-        baud). pyserial's own write timeout is not used: it checks the clock after a write
-        that succeeded, so a thread descheduled for that long on a loaded machine fails."""
+        """Write all of ``data``, waiting at least ``MIN_WRITE_TIMEOUT_S`` for a full port (a
+        frame is 0.4 ms of line at 460800 baud)."""
         if self._closed:
             raise OperationError(f"Ability Hand port {self.port} is shut down")
         wait = None if timeout is None else max(timeout, MIN_WRITE_TIMEOUT_S)
-        view = memoryview(data)
-        try:
-            fd = self._serial.fileno()
-            while view:
-                try:
-                    view = view[os.write(fd, view) :]
-                    continue
-                except BlockingIOError:
-                    pass
-                _, ready, _ = select.select([], [fd], [], wait)
-                if not ready:
-                    raise DriverTimeout(f"write to {self.port} blocked for {wait} s")
-        except (serial.SerialException, OSError, TypeError, ValueError) as exc:
-            # TypeError, ValueError: the port was closed by another thread meanwhile.
-            raise OperationError(f"write to {self.port} failed: {exc}") from exc
+        write_all(self._serial, data, wait, name=self.port)
 
     def _read(self, timeout: float) -> None:
         """Wait up to ``timeout`` for bytes; queue the good replies, count the bad frames."""

@@ -39,10 +39,10 @@ from lpc_core.devices.tactor_protocol import OFF, Reply, TactorOutput
 from services.drivers.errors import (
     DeviceUnavailable,
     DriverError,
-    DriverTimeout,
     InitialisationError,
     OperationError,
 )
+from services.drivers.serial_io import write_all
 from services.drivers.tactor_sim import TactorSim
 
 DEFAULT_PROFILE = Path("~/.config/lpc/profile.json")
@@ -124,14 +124,7 @@ class TactorDriver:
     def _write(self, data: bytes, timeout: float | None) -> None:
         if self._closed:
             raise OperationError(f"tactor port {self.port} is shut down")
-        try:
-            if self._serial.write_timeout != timeout:
-                self._serial.write_timeout = timeout
-            self._serial.write(data)
-        except serial.SerialTimeoutException as exc:
-            raise DriverTimeout(f"write to {self.port} timed out after {timeout} s") from exc
-        except (serial.SerialException, OSError) as exc:
-            raise OperationError(f"write to {self.port} failed: {exc}") from exc
+        write_all(self._serial, data, timeout, name=self.port)
 
     def _read(self, timeout: float | None) -> bytes:
         if self._closed:
