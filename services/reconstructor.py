@@ -1,8 +1,8 @@
 """Reconstructor service: ``lpc/scans`` (``--method laser``) or ``lpc/camera/depth``
 (``--method cloud``) in; ``lpc/reconstruction`` and ``lpc/grasp/target`` out.
 
-Frames are reconstructed in a process pool (spawn: forking after the Zenoh session is open
-hangs), one frame per task, and published in ``seq`` order. At most ``--max-pending`` frames
+Frames are reconstructed in worker processes fed through pipes (``services.pipe_pool``), one
+frame per job, and published in ``seq`` order. At most ``--max-pending`` frames
 wait for a worker; when another arrives the oldest waiting frame is dropped and counted
 (``dropped_frames``). The ordering is ``lpc_core.perception.reconstructor``'s pure bookkeeping. Each
 worker reconstructs one synthetic frame before the service subscribes, so start-up costs
@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import multiprocessing
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
 
 import msgspec
 
@@ -41,22 +40,21 @@ from lpc_core.perception.reconstructor import (
 )
 from lpc_core.perception.window import WindowState
 from schemas import BadMessage, decode, encode
-from services.children import die_with_parent
 from services.mcap_log import read_header
+from services.pipe_pool import PipePool
 from services.runtime import Bus, service_main, service_parser
 
 _METHOD = "laser"
 _PARAMS = LaserParams()
 
 
-def _init_worker(method: str, params: LaserParams) -> None:
+def _init_worker(method: str, params: LaserParams) -> Callable[[bytes], bytes | str]:
     global _METHOD, _PARAMS
-    # A service killed with SIGKILL cannot stop its pool: the workers go with it.
-    die_with_parent()
     _METHOD, _PARAMS = method, params
     # Pay the imports and first calls now, before the service subscribes.
     frame = warmup_frame()
     work(encode(frame if method == "cloud" else scans_step(ScansState(), frame, 0)[1]))
+    return work
 
 
 def work(payload: bytes) -> bytes | str:
@@ -76,17 +74,18 @@ def work(payload: bytes) -> bytes | str:
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # workers import numpy after this
-    loop = asyncio.get_running_loop()
     inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
     state = PoolState(params=PoolParams(workers=args.workers, max_pending=args.max_pending))
     window = WindowState()
     reconstructions = bus.publisher("lpc/reconstruction")
     targets = bus.publisher("lpc/grasp/target")
     topic = INPUT_TOPICS[args.method]
-    spawn = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        args.workers, spawn, _init_worker, (args.method, initial_state(args).params)
-    )
+
+    def finished(seq: int, result: bytes | str) -> None:
+        inbox.put_nowait(("done", seq, result))
+
+    started = time.monotonic()
+    pool = PipePool(args.workers, _init_worker, (args.method, initial_state(args).params), finished)
 
     async def pump() -> None:
         # Depth frames are big: keep the newest only. Scans all queue, for in-order release.
@@ -100,18 +99,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 continue
             inbox.put_nowait(("frame", header[0], payload))
 
-    def finished(seq: int, future: asyncio.Future[bytes | str]) -> None:
-        if future.cancelled():
-            return
-        error = future.exception()
-        inbox.put_nowait(("done", seq, f"worker failed: {error!r}" if error else future.result()))
-
     reader: asyncio.Task[None] | None = None
     try:
-        # A submission starts a worker while none is idle, so all of them warm up at once;
-        # subscribing only then keeps the start-up out of the drop count.
-        started = time.monotonic()
-        await asyncio.gather(*(loop.run_in_executor(pool, os.getpid) for _ in range(args.workers)))
+        # Subscribing only once every worker is warm keeps the start-up out of the drop count.
+        await pool.ready()
         ready_s = time.monotonic() - started
         bus.log("info", f"{args.workers} {args.method} worker(s) ready in {ready_s:.1f} s")
         reader = asyncio.create_task(pump())
@@ -121,10 +112,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 state, outputs = frame_arrived(state, seq, item)
             else:
                 state, outputs = frame_done(state, seq, item)
+            bus.health.counters["worker_restarts"] = pool.restarts
             for out in outputs:
                 if isinstance(out, Submit):
-                    task = loop.run_in_executor(pool, work, out.job)
-                    task.add_done_callback(lambda f, s=out.seq: finished(s, f))
+                    pool.submit(out.seq, out.job)
                 elif isinstance(out, Dropped):
                     bus.health.counters["dropped_frames"] += 1
                 elif isinstance(out, Release) and isinstance(out.result, bytes):
@@ -137,11 +128,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     finally:
         if reader is not None:
             reader.cancel()
-        pool.shutdown(wait=False, cancel_futures=True)
         # A worker still importing or reconstructing would hold the exit past the 2 s that
         # every service has to stop in; its frame is lost anyway.
-        for child in multiprocessing.active_children():
-            child.terminate()
+        pool.close()
 
 
 def parser() -> argparse.ArgumentParser:

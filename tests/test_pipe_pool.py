@@ -1,0 +1,95 @@
+"""PipePool with real spawned workers: results, failures and a worker killed mid-job."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from services.pipe_pool import PipePool
+from tests.pipe_pool_work import make_work
+
+
+async def _collect(pool_size: int, jobs: list[bytes]) -> tuple[dict[int, bytes | str], PipePool]:
+    done: dict[int, bytes | str] = {}
+    finished = asyncio.Event()
+
+    def on_done(tag: int, result: bytes | str) -> None:
+        done[tag] = result
+        if len(done) == len(jobs):
+            finished.set()
+
+    pool = PipePool(pool_size, make_work, (b"ok:",), on_done)
+    try:
+        async with asyncio.timeout(60):
+            await pool.ready()
+            for tag, job in enumerate(jobs):
+                pool.submit(tag, job)
+            await finished.wait()
+    finally:
+        pool.close()
+    return done, pool
+
+
+def test_every_job_comes_back_with_its_tag_spread_over_the_workers() -> None:
+    jobs = [f"job{i}".encode() for i in range(40)]
+    done, pool = asyncio.run(_collect(2, jobs))
+    assert sorted(done) == list(range(40))
+    for tag, result in done.items():
+        assert isinstance(result, bytes) and result.startswith(b"ok:" + jobs[tag] + b"@")
+    pids = {r.split(b"@")[1] for r in done.values() if isinstance(r, bytes)}
+    assert len(pids) == 2  # both workers took jobs
+    assert pool.restarts == 0
+
+
+def test_a_refused_job_is_reported_as_its_reason() -> None:
+    done, _ = asyncio.run(_collect(1, [b"a", b"fail", b"b"]))
+    assert done[1] == "cannot do 'fail'"
+    assert isinstance(done[0], bytes) and isinstance(done[2], bytes)
+
+
+def test_a_dead_worker_is_reported_for_its_job_and_replaced() -> None:
+    async def run() -> tuple[dict[int, bytes | str], int]:
+        done: dict[int, bytes | str] = {}
+        arrived = asyncio.Event()
+
+        def on_done(tag: int, result: bytes | str) -> None:
+            done[tag] = result
+            arrived.set()
+
+        pool = PipePool(1, make_work, (b"ok:",), on_done)
+        try:
+            async with asyncio.timeout(60):
+                await pool.ready()
+                # Sent together, both wait on the one worker: 'die' kills it with 'b' unread.
+                pool.submit(0, b"a")
+                pool.submit(1, b"die")
+                pool.submit(2, b"b")
+                while len(done) < 3:
+                    arrived.clear()
+                    await arrived.wait()
+                pool.submit(3, b"c")
+                while len(done) < 4:
+                    arrived.clear()
+                    await arrived.wait()
+        finally:
+            pool.close()
+        return done, pool.restarts
+
+    done, restarts = asyncio.run(run())
+    assert isinstance(done[0], bytes) and done[0].startswith(b"ok:a@")
+    # The job that killed it and the one queued behind it are reported, not lost.
+    assert isinstance(done[1], str) and "died (exit code 3)" in done[1]
+    assert isinstance(done[2], str) and "died" in done[2]
+    assert restarts == 1
+    # The replacement works, in another process.
+    assert isinstance(done[3], bytes) and done[3].startswith(b"ok:c@")
+    assert done[3].split(b"@")[1] != done[0].split(b"@")[1]
+
+
+def test_bad_size() -> None:
+    async def make() -> None:
+        PipePool(0, make_work, (b"",), lambda tag, result: None)
+
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        asyncio.run(make())
