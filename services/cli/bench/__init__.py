@@ -22,6 +22,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "stereo": ("services.cli.bench.stereo", "the stereo camera's artifacts and cost per frame"),
     "foxglove": ("services.cli.bench.foxglove", "Foxglove conversion, export and bridge figures"),
     "emg": ("services.cli.bench.emg", "lpc/emg rate from LSL or BrainFlow raw EMG; an outage"),
+    "pool": ("services.cli.bench.pool", "the reconstructor's pipe-fed workers against an executor"),
     "footprint": (
         "services.cli.bench.footprint",
         "the whole set under a CPU quota: CPU, memory, rates, drops, latency per service",
