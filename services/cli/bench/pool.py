@@ -73,7 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.jobs < 1 or args.rounds < 1 or args.bytes < 1 or args.interval_ms < 0:
-        raise SystemExit("lpc bench pool: --jobs, --rounds and --bytes must be >= 1, --interval-ms >= 0")
+        raise SystemExit(
+            "lpc bench pool: --jobs, --rounds and --bytes must be >= 1, --interval-ms >= 0"
+        )
     payload = os.urandom(args.bytes)
     ways = {"pipes (PipePool)": _through_pipes, "ProcessPoolExecutor": _through_executor}
     cpu = {name: 0.0 for name in ways}
