@@ -741,6 +741,7 @@ def _median_step(sz: np.ndarray) -> float:
 class _Seeds:
     points: np.ndarray  # (K, 3)
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
+    occluding: np.ndarray | None = None  # (K,) bool: its run ends where its segment does
 
 
 def _collect_seeds(
@@ -749,7 +750,6 @@ def _collect_seeds(
     *,
     extend: bool,
     face: PlaneSolid | None = None,
-    edges: dict[tuple[int, int], float] | None = None,
 ) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
     by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge).
@@ -758,12 +758,11 @@ def _collect_seeds(
     depth jumps away or the data stops) is moved in by ``edge_fattening_px`` as well, onto
     the face's plane: stereo matching gives the foreground's depth to the background pixels
     within about half its window of the edge, and on a flat face those fattened pixels lie
-    on the face's own plane, so nothing in the line itself tells them apart. An end whose edge
-    was seen (``edges``: s/z by line index and end, see ``_fattening``) goes to that edge.
+    on the face's own plane, so nothing in the line itself tells them apart.
     """
     # In samples: a sample is a pixel along x or y, as far as a window's half reaches.
     trim = params.edge_fattening_px if face is not None else 0.0
-    pts, cropped = [], []
+    pts, cropped, occludes = [], [], []
     hw, margin = params.capture_half_width_m, params.crop_margin_m
     zlo, zhi = params.capture_z_m
     for line in lines:
@@ -781,12 +780,7 @@ def _collect_seeds(
                 or p[2] >= zhi - margin
             )
             occluding = run[-k] == (len(line.points) - 1) * k  # run[0] == 0 or run[-1] == last
-            edge = edges.get((line.index, k)) if edges and face is not None else None
-            if extend and not at_crop and edge is not None:
-                # The plateau holds the last face pixel's depth: the edge is half a sample on.
-                edge += sign * params.edge_extension * line.step
-                p = _on_plane(p, (edge * c, edge * s_, 1.0), face)  # type: ignore[arg-type]
-            elif extend and not at_crop and trim > 0 and occluding and line.step > 0:
+            if extend and not at_crop and trim > 0 and occluding and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
                 q += sign * (params.edge_extension - trim) * line.step
                 p = _on_plane(p, (q * c, q * s_, 1.0), face)  # type: ignore[arg-type]
@@ -797,7 +791,12 @@ def _collect_seeds(
                                      q + sign * params.edge_extension * line.step)  # fmt: skip
             pts.append(p)
             cropped.append(at_crop)
-    return _Seeds(points=np.array(pts), cropped=np.array(cropped, dtype=bool))
+            occludes.append(bool(occluding))
+    return _Seeds(
+        points=np.array(pts),
+        cropped=np.array(cropped, dtype=bool),
+        occluding=np.array(occludes, dtype=bool),
+    )
 
 
 def _on_plane(end: list[float], ray: tuple[float, float, float], plane: PlaneSolid) -> list[float]:
@@ -987,6 +986,8 @@ def _face_geometry(
     *,
     paper: bool,
     beyond: np.ndarray | None = None,
+    trim_px: float = 0.0,
+    pixel_rad: float = 0.0,
 ) -> _Face | str:
     """Grasp width, principal axis (3-D, unit) and centre of a face or longitudinal plane.
 
@@ -1026,6 +1027,11 @@ def _face_geometry(
     a = [x * ux + y * uy for x, y in pts_all]
     b = [y * ux - x * uy for x, y in pts_all]
     alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
+    if not paper and trim_px > 0 and pixel_rad > 0 and seeds.occluding is not None:
+        alo, ahi, blo, bhi = _trimmed_sides(
+            plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order], (alo, ahi, blo, bhi),
+            trim_px * pixel_rad, params,
+        )  # fmt: skip
     if paper:
         principal, width = (ux, uy), bhi - blo
     else:
@@ -1045,6 +1051,50 @@ def _face_geometry(
     centre = origin + (a_mid * ux - b_mid * uy) * e1 + (a_mid * uy + b_mid * ux) * e2
     axis = principal[0] * e1 + principal[1] * e2
     return _Face(width, axis / math.sqrt(axis @ axis), centre, residual, disc)
+
+
+def _trimmed_sides(
+    plane: PlaneSolid,
+    basis: tuple[np.ndarray, np.ndarray],
+    u: tuple[float, float],
+    uv: np.ndarray,
+    cropped: np.ndarray,
+    occluding: np.ndarray,
+    sides: tuple[float, float, float, float],
+    trim_rad: float,
+    params: LaserParams,
+) -> tuple[float, float, float, float]:
+    """The rectangle's sides ``(alo, ahi, blo, bhi)`` (along ``u`` and across it), each side
+    that an occluding seed lies on moved in by the fattening ``trim_rad`` (an angle): a
+    fattened edge moves the whole side out across the edge, so the side moves back, not each
+    seed along its own line (which would turn the rectangle). On the face the angle spans its
+    depth times it over the in-image part of the side's normal; and the fattened pixels keep
+    the edge's depth, so on a face turned away only those within ``solid_threshold_m`` of it
+    (the run's inliers) widened it."""
+    ux, uy = u
+    e1, e2 = basis
+    z = float(plane.point[2])
+    a = uv @ np.array([ux, uy])
+    b = uv @ np.array([-uy, ux])
+    out = list(sides)
+    tol = params.edge_tolerance_m
+    for k, (coords, normal2) in enumerate(((a, (ux, uy)), (b, (-uy, ux)))):
+        normal = normal2[0] * e1 + normal2[1] * e2
+        lateral = max(math.hypot(normal[0], normal[1]), 1e-6)
+        rise = abs(plane.normal[2]) * z * trim_rad * abs(normal[2]) / lateral  # at the trim
+        counted = min(1.0, params.solid_threshold_m / rise) if rise > 0 else 1.0
+        trim = counted * z * trim_rad / lateral
+        lo, hi = out[2 * k], out[2 * k + 1]
+        on_lo = (coords - lo <= tol) & occluding & ~cropped
+        on_hi = (hi - coords <= tol) & occluding & ~cropped
+        if on_lo.any():
+            lo += trim
+        if on_hi.any():
+            hi -= trim
+        if hi < lo:
+            lo = hi = (lo + hi) / 2
+        out[2 * k], out[2 * k + 1] = lo, hi
+    return out[0], out[1], out[2], out[3]
 
 
 def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
@@ -1443,15 +1493,18 @@ def _decide(
     on_face = [ln for ln in (_face_run(ln, solid, params) for ln in lines) if ln is not None]
     if len(on_face) < 2:
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
-    edges: dict[tuple[int, int], float] = {}
+    measured = 0.0
     if params.edge_fattening_px == 0 and params.measure_fattening:
-        edges, fattening = _fattening(on_face)
-        extra["fattening_px"] = fattening
-        params = replace(params, edge_fattening_px=fattening)
-    seeds = _collect_seeds(on_face, params, extend=True, face=solid, edges=edges)
-    seeds = _Seeds(points=solid.project(seeds.points), cropped=seeds.cropped)
-    beyond = _beyond_edges(on_face, solid, params) if params.bevels else None
-    face = _face_geometry(solid, seeds, params, paper=False, beyond=beyond)
+        measured = _fattening(on_face)
+        extra["fattening_px"] = measured
+    seeds = _collect_seeds(on_face, params, extend=True, face=solid)
+    seeds = replace(seeds, points=solid.project(seeds.points))
+    walk = replace(params, edge_fattening_px=measured) if measured else params
+    beyond = _beyond_edges(on_face, solid, walk) if params.bevels else None
+    face = _face_geometry(
+        solid, seeds, params, paper=False, beyond=beyond,
+        trim_px=measured, pixel_rad=_pixel_rad(lines, params),
+    )  # fmt: skip
     if isinstance(face, str):
         return _none(face, summaries, total, extra)
     if face.disc is not None:
@@ -1586,10 +1639,9 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
     return moved
 
 
-def _fattening(lines: list[LineModels]) -> tuple[dict[tuple[int, int], float], float]:
-    """Where the edge fattening can be seen at the face runs' ends: each such end's edge
-    (s/z, keyed by line index and end: 0 first, 1 last) and the median fattening in pixels
-    (0 where it cannot be seen anywhere).
+def _fattening(lines: list[LineModels]) -> float:
+    """The edge fattening (pixels) the face runs' ends show: the median over the ends where
+    it can be seen, 0 where it cannot be seen anywhere.
 
     A matcher gives the background pixels within about half its window of an occluding edge
     the disparity at the edge: depth stays constant past the edge (a plateau). Along a line
@@ -1598,7 +1650,6 @@ def _fattening(lines: list[LineModels]) -> tuple[dict[tuple[int, int], float], f
     the edge is where the prediction reaches the plateau's depth. Where the face keeps its
     depth along the line, the plateau is the face and shows nothing.
     """
-    edges: dict[tuple[int, int], float] = {}
     found = []
     for ln in lines:
         run, last = ln.run, len(ln.points) - 1
@@ -1611,7 +1662,7 @@ def _fattening(lines: list[LineModels]) -> tuple[dict[tuple[int, int], float], f
         a, b = np.polyfit(q[inner], inv[inner], 1)
         if a == 0:
             continue
-        for k, (end, inward, first) in enumerate(((0, 1, run[0]), (last, -1, run[-1]))):
+        for end, inward, first in ((0, 1, run[0]), (last, -1, run[-1])):
             # The plateau: the segment's last samples at its end sample's depth. It must
             # reach the face's run: past it the segment is no plateau but more object.
             z_end = ln.sz[end, 1]
@@ -1626,12 +1677,11 @@ def _fattening(lines: list[LineModels]) -> tuple[dict[tuple[int, int], float], f
             inside = min(q[j], q[end]) <= q_cross <= max(q[j], q[end])
             gap = abs(1.0 / (a * q[end] + b) - z_end)
             if inside and gap > _PARTED_M:
-                edges[(ln.index, k)] = float(q_cross)
                 # In samples: a diagonal line's samples are a pixel apart along x and y, as
                 # far as a fattening along rows or columns reaches.
                 # The plateau's first sample is the face's last: the edge lies half a sample on.
                 found.append(abs(q[end] - q_cross) / ln.step - 0.5)
-    return edges, float(np.median(found)) if found else 0.0
+    return float(np.median(found)) if found else 0.0
 
 
 def measured_fattening_px(
@@ -1649,7 +1699,7 @@ def measured_fattening_px(
         moved = _face_run(ln, plane, params)
         if moved is not None:
             on_face.append(moved)
-    return _fattening(on_face)[1]
+    return _fattening(on_face)
 
 
 _PLATEAU_M = 0.0006
