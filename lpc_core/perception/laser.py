@@ -1703,7 +1703,7 @@ def measured_fattening_px(
 
 
 _PLATEAU_M = 0.0006
-_PARTED_M = 0.0012
+_PARTED_M = 0.0014
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:
