@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import pytest
 
 from services.cli.bench import accuracy as bench_accuracy
@@ -47,3 +48,28 @@ def test_bench_accuracy_rejects_an_unknown_filter(capsys: pytest.CaptureFixture[
     with pytest.raises(SystemExit):
         _run(["--rs-filters", "decimation"])
     assert "unknown --rs-filters decimation" in capsys.readouterr().err
+
+
+def test_bench_accuracy_reads_stereo_frames_back_from_its_cache(tmp_path, monkeypatch) -> None:
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor()
+    first = list(lv.views("functional", 1, 2, 0, names=["sphere_small"], sensor=sensor,
+                          cache=tmp_path))  # fmt: skip
+    assert len(list(tmp_path.glob("*.npy"))) == 2
+    rendered = []
+    real = StereoSensor.render_depth
+    monkeypatch.setattr(
+        StereoSensor, "render_depth", lambda self, *a: rendered.append(1) or real(self, *a)
+    )
+    again = list(lv.views("functional", 1, 2, 0, names=["sphere_small"], sensor=sensor,
+                          cache=tmp_path))  # fmt: skip
+    assert not rendered  # both frames came from the cache, equal to the rendered ones
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a.depth, b.depth)
+    # Another seed is another frame, never the cached one.
+    other = next(lv.views("functional", 1, 1, 1, names=["sphere_small"], sensor=sensor,
+                          cache=tmp_path))  # fmt: skip
+    assert rendered and not np.array_equal(other.depth, first[0].depth)

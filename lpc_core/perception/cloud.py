@@ -15,7 +15,8 @@ random subset of the points; only the winner is refined by least squares on all 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Protocol, Self
 
@@ -73,6 +74,9 @@ class CloudParams:
     # in by ``edge_fattening_px``.
     silhouette_margin_px: float = 6.0
     edge_fattening_px: float = 0.0
+    # With edge_fattening_px 0, measure it on each frame's scan lines (see
+    # lpc_core.perception.laser.measured_fattening_px).
+    measure_fattening: bool = True
 
     def __post_init__(self) -> None:
         positive = (
@@ -891,6 +895,25 @@ def _camera_facing(
     return CylinderModel(solid.point, solid.axis, solid.radius)
 
 
+def _pierced_face(
+    points: np.ndarray, fit: _CuboidFit, params: CloudParams
+) -> tuple[PlaneModel, np.ndarray, int]:
+    """The face the optical axis pierces (see ``_cuboid_geometry``), its points, its index."""
+    ranking = []
+    for face, inliers in zip(fit.faces, fit.face_inliers, strict=True):
+        face_points = points[inliers]
+        radial = float(np.hypot(face_points[:, 0], face_points[:, 1]).min())
+        missed = True
+        t = 0.0
+        if abs(face.normal[2]) > 1e-6:
+            t = -face.offset / face.normal[2]  # where the optical axis meets the face's plane
+            gap = np.linalg.norm(face_points - (0.0, 0.0, t), axis=1).min()
+            missed = not (t > 0 and gap <= params.pierce_tolerance_m)
+        ranking.append((missed, -t if not missed else radial))
+    index = min(range(len(fit.faces)), key=ranking.__getitem__)
+    return fit.faces[index], points[fit.face_inliers[index]], index
+
+
 def _cuboid_geometry(
     points: np.ndarray,
     whole: np.ndarray,
@@ -911,20 +934,7 @@ def _cuboid_geometry(
     other face's points reach is an occluding edge: it moves in by ``edge_fattening_px``
     (stereo matching's fattening lies on the face's own plane there).
     """
-    tolerance_m = params.pierce_tolerance_m
-    ranking = []
-    for face, inliers in zip(fit.faces, fit.face_inliers, strict=True):
-        face_points = points[inliers]
-        radial = float(np.hypot(face_points[:, 0], face_points[:, 1]).min())
-        missed = True
-        t = 0.0
-        if abs(face.normal[2]) > 1e-6:
-            t = -face.offset / face.normal[2]  # where the optical axis meets the face's plane
-            gap = np.linalg.norm(face_points - (0.0, 0.0, t), axis=1).min()
-            missed = not (t > 0 and gap <= tolerance_m)
-        ranking.append((missed, -t if not missed else radial))
-    index = min(range(len(fit.faces)), key=ranking.__getitem__)
-    face, face_points = fit.faces[index], points[fit.face_inliers[index]]
+    face, face_points, index = _pierced_face(points, fit, params)
     others = [f.normal for i, f in enumerate(fit.faces) if i != index]
     if others:
         e1 = others[0] - (others[0] @ face.normal) * face.normal
@@ -949,10 +959,19 @@ def _cuboid_geometry(
     )
     s1, s2 = w1[on_face], w2[on_face]
     lo1, hi1, lo2, hi2 = float(s1.min()), float(s1.max()), float(s2.min()), float(s2.max())
-    trim = params.edge_fattening_px * pixel_rad
-    if trim > 0:
-        # In metres on the face: the fattening's angle times the face's depth.
-        trim *= float(np.median(whole[on_face, 2]))
+    if params.edge_fattening_px > 0 and pixel_rad > 0:
+        # A pixel is depth x pixel_rad across the line of sight, longer along a face that
+        # turns away (1 / the in-image part of the edge's direction). The fattened pixels keep
+        # the edge's depth, so they part from a slanted face, and only those within
+        # fit_threshold_m of it were counted: the trim is that part of the fattening.
+        z = float(np.median(whole[on_face, 2]))
+        trims = []
+        for e in (e1, e2):
+            lateral = max(float(np.hypot(e[0], e[1])), 1e-6)
+            rise = abs(face.normal[2]) * z * pixel_rad * abs(e[2]) / lateral  # per pixel
+            counted = params.fit_threshold_m / rise if rise > 0 else math.inf
+            trims.append(min(params.edge_fattening_px, counted) * z * pixel_rad / lateral)
+        trim1, trim2 = trims
         near = 2 * params.voxel_m
         met = np.zeros(len(points), dtype=bool)
         for i, inliers in enumerate(fit.face_inliers):
@@ -960,7 +979,8 @@ def _cuboid_geometry(
                 met |= inliers
         o1, o2 = points[met] @ e1, points[met] @ e2
         sides = []
-        for edge, o, step in ((lo1, o1, trim), (hi1, o1, -trim), (lo2, o2, trim), (hi2, o2, -trim)):
+        for edge, o, step in ((lo1, o1, trim1), (hi1, o1, -trim1), (lo2, o2, trim2),
+                              (hi2, o2, -trim2)):  # fmt: skip
             sides.append(edge if np.any(np.abs(o - edge) <= near) else edge + step)
         lo1, hi1, lo2, hi2 = sides
         if hi1 < lo1:
@@ -972,6 +992,27 @@ def _cuboid_geometry(
     if extent1 >= extent2:
         return extent2, e1, center
     return extent1, e2, center
+
+
+def _measured_fattening(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    points: np.ndarray,
+    whole: np.ndarray,
+    fit: _CuboidFit,
+    params: CloudParams,
+) -> float:
+    """The edge fattening (pixels) the frame shows at the pierced face's edges, measured on
+    the four scan lines as the four-line method measures it
+    (``lpc_core.perception.laser.measured_fattening_px``)."""
+    from lpc_core.perception.laser import measured_fattening_px
+    from lpc_core.perception.scans import cut_scan_lines
+    from lpc_core.perception.solids import PlaneSolid
+
+    face, _, _ = _pierced_face(points, fit, params)
+    # PlaneModel's normal points away from the camera, PlaneSolid's toward it.
+    plane = PlaneSolid(point=-face.offset * face.normal, normal=-face.normal)
+    return measured_fattening_px(cut_scan_lines(depth, intrinsics), plane)
 
 
 def _canonical_axis(axis: np.ndarray) -> np.ndarray:
@@ -1082,6 +1123,10 @@ def reconstruct_cloud(
             axis=tuple(map(float, axis)), confidence=confidence, points=used, extra=extra,
         )  # fmt: skip
     assert isinstance(fit, _CuboidFit)
+    if params.edge_fattening_px == 0 and params.measure_fattening:
+        fattening = _measured_fattening(depth, intrinsics, segment, whole, fit, params)
+        extra["fattening_px"] = fattening
+        params = replace(params, edge_fattening_px=fattening)
     width, axis, center = _cuboid_geometry(segment, whole, fit, params, pixel_rad)
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))

@@ -155,12 +155,15 @@ class LaserParams:
     # under 1 mm depth steps: the fit on all inliers stands unless its diameter exceeds the
     # camera-facing fit's by more than this.
     silhouette_tolerance_m: float = 0.0015
-    # A cuboid face's seed at an occluding edge moves in by this many pixels: the fattening
-    # of a matching window of 2 x edge_fattening_px + 1 pixels, 3 for a 7 x 7 window (the
-    # middle of the 5-9 a D4xx-class matcher uses). Off by default: on lpc's own noise model,
-    # which does not fatten, 3 px cost cuboid widths 0.8 -> 3.0 mm and clutter angles 1.8 ->
-    # 7.4 deg (lpc bench accuracy --quick). Set it for a stereo source. See _collect_seeds.
+    # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
+    # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
+    # for a 7 x 7 window. Fixed, it cost lpc's own noise model, which does not fatten, cuboid
+    # widths 0.8 -> 3.0 mm and clutter angles 1.8 -> 7.4 deg at 3 px (lpc bench accuracy
+    # --quick). See _collect_seeds.
     edge_fattening_px: float = 0.0
+    # With edge_fattening_px 0, each frame's fattening is measured where its face runs show
+    # it, and ends where it does not show take the frame's median (see _fattening).
+    measure_fattening: bool = True
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
@@ -738,6 +741,7 @@ def _median_step(sz: np.ndarray) -> float:
 class _Seeds:
     points: np.ndarray  # (K, 3)
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
+    occluding: np.ndarray | None = None  # (K,) bool: its run ends where its segment does
 
 
 def _collect_seeds(
@@ -746,7 +750,6 @@ def _collect_seeds(
     *,
     extend: bool,
     face: PlaneSolid | None = None,
-    pixel_rad: float = 0.0,
 ) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
     by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge).
@@ -757,8 +760,9 @@ def _collect_seeds(
     within about half its window of the edge, and on a flat face those fattened pixels lie
     on the face's own plane, so nothing in the line itself tells them apart.
     """
-    trim = params.edge_fattening_px * pixel_rad if face is not None else 0.0
-    pts, cropped = [], []
+    # In samples: a sample is a pixel along x or y, as far as a window's half reaches.
+    trim = params.edge_fattening_px if face is not None else 0.0
+    pts, cropped, occludes = [], [], []
     hw, margin = params.capture_half_width_m, params.crop_margin_m
     zlo, zhi = params.capture_z_m
     for line in lines:
@@ -778,7 +782,7 @@ def _collect_seeds(
             occluding = run[-k] == (len(line.points) - 1) * k  # run[0] == 0 or run[-1] == last
             if extend and not at_crop and trim > 0 and occluding and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
-                q += sign * (params.edge_extension * line.step - trim)
+                q += sign * (params.edge_extension - trim) * line.step
                 p = _on_plane(p, (q * c, q * s_, 1.0), face)  # type: ignore[arg-type]
             elif extend and not at_crop and params.edge_extension > 0 and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
@@ -787,7 +791,12 @@ def _collect_seeds(
                                      q + sign * params.edge_extension * line.step)  # fmt: skip
             pts.append(p)
             cropped.append(at_crop)
-    return _Seeds(points=np.array(pts), cropped=np.array(cropped, dtype=bool))
+            occludes.append(bool(occluding))
+    return _Seeds(
+        points=np.array(pts),
+        cropped=np.array(cropped, dtype=bool),
+        occluding=np.array(occludes, dtype=bool),
+    )
 
 
 def _on_plane(end: list[float], ray: tuple[float, float, float], plane: PlaneSolid) -> list[float]:
@@ -977,6 +986,8 @@ def _face_geometry(
     *,
     paper: bool,
     beyond: np.ndarray | None = None,
+    trim_px: float = 0.0,
+    pixel_rad: float = 0.0,
 ) -> _Face | str:
     """Grasp width, principal axis (3-D, unit) and centre of a face or longitudinal plane.
 
@@ -1016,6 +1027,11 @@ def _face_geometry(
     a = [x * ux + y * uy for x, y in pts_all]
     b = [y * ux - x * uy for x, y in pts_all]
     alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
+    if not paper and trim_px > 0 and pixel_rad > 0 and seeds.occluding is not None:
+        alo, ahi, blo, bhi = _trimmed_sides(
+            plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order], (alo, ahi, blo, bhi),
+            trim_px * pixel_rad, params,
+        )  # fmt: skip
     if paper:
         principal, width = (ux, uy), bhi - blo
     else:
@@ -1037,6 +1053,50 @@ def _face_geometry(
     return _Face(width, axis / math.sqrt(axis @ axis), centre, residual, disc)
 
 
+def _trimmed_sides(
+    plane: PlaneSolid,
+    basis: tuple[np.ndarray, np.ndarray],
+    u: tuple[float, float],
+    uv: np.ndarray,
+    cropped: np.ndarray,
+    occluding: np.ndarray,
+    sides: tuple[float, float, float, float],
+    trim_rad: float,
+    params: LaserParams,
+) -> tuple[float, float, float, float]:
+    """The rectangle's sides ``(alo, ahi, blo, bhi)`` (along ``u`` and across it), each side
+    that an occluding seed lies on moved in by the fattening ``trim_rad`` (an angle): a
+    fattened edge moves the whole side out across the edge, so the side moves back, not each
+    seed along its own line (which would turn the rectangle). On the face the angle spans its
+    depth times it over the in-image part of the side's normal; and the fattened pixels keep
+    the edge's depth, so on a face turned away only those within ``solid_threshold_m`` of it
+    (the run's inliers) widened it."""
+    ux, uy = u
+    e1, e2 = basis
+    z = float(plane.point[2])
+    a = uv @ np.array([ux, uy])
+    b = uv @ np.array([-uy, ux])
+    out = list(sides)
+    tol = params.edge_tolerance_m
+    for k, (coords, normal2) in enumerate(((a, (ux, uy)), (b, (-uy, ux)))):
+        normal = normal2[0] * e1 + normal2[1] * e2
+        lateral = max(math.hypot(normal[0], normal[1]), 1e-6)
+        rise = abs(plane.normal[2]) * z * trim_rad * abs(normal[2]) / lateral  # at the trim
+        counted = min(1.0, params.solid_threshold_m / rise) if rise > 0 else 1.0
+        trim = counted * z * trim_rad / lateral
+        lo, hi = out[2 * k], out[2 * k + 1]
+        on_lo = (coords - lo <= tol) & occluding & ~cropped
+        on_hi = (hi - coords <= tol) & occluding & ~cropped
+        if on_lo.any():
+            lo += trim
+        if on_hi.any():
+            hi -= trim
+        if hi < lo:
+            lo = hi = (lo + hi) / 2
+        out[2 * k], out[2 * k + 1] = lo, hi
+    return out[0], out[1], out[2], out[3]
+
+
 def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
     """Largest distance of the points ``pts`` to the nearest side of their bounding rectangle
     along the unit direction ``u``."""
@@ -1047,15 +1107,13 @@ def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float
     return max(min(p - alo, ahi - p, q - blo, bhi - q) for p, q in zip(a, b, strict=True))
 
 
-def _beyond_edges(
-    lines: list[LineModels], plane: PlaneSolid, params: LaserParams, pixel_rad: float = 0.0
-) -> np.ndarray:
+def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
     """Points of the object past the face's edges: from each end of a line's run, outward
     through its segment, while the surface falls away from the face (a bevel, a rounded edge,
     a prism's next face) and before it turns parallel to the face again (a table). A walk
     that reaches the segment's end stops ``edge_fattening_px`` short of it: that end is an
     occluding edge (see ``_collect_seeds``)."""
-    trim = params.edge_fattening_px * pixel_rad
+    trim = params.edge_fattening_px  # in samples, as in _collect_seeds
     out = []
     n = plane.normal
     slope, free = math.tan(params.bevel_min_rad), params.bevel_free_depth_m
@@ -1078,7 +1136,7 @@ def _beyond_edges(
             k = int(bad[0]) if len(bad) else len(ok)
             if k > 0 and trim > 0 and last + k == m - 1:
                 q = line.sz[last:, 0] / line.sz[last:, 1]
-                k = int(np.count_nonzero(q <= q[-1] - trim)) - 1
+                k = int(np.count_nonzero(q <= q[-1] - trim * line.step)) - 1
             if k > 0:
                 out.append(pts[last + k])
         if first > 0:
@@ -1090,7 +1148,7 @@ def _beyond_edges(
             k = first - 1 - int(bad[-1]) if len(bad) else first
             if k > 0 and trim > 0 and first - k == 0:
                 q = line.sz[: first + 1, 0] / line.sz[: first + 1, 1]
-                k = int(np.count_nonzero(q >= q[0] + trim)) - 1
+                k = int(np.count_nonzero(q >= q[0] + trim * line.step)) - 1
             if k > 0:
                 out.append(pts[first - k])
     return plane.project(np.array(out)) if out else np.empty((0, 3))
@@ -1435,11 +1493,18 @@ def _decide(
     on_face = [ln for ln in (_face_run(ln, solid, params) for ln in lines) if ln is not None]
     if len(on_face) < 2:
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
-    pixel_rad = _pixel_rad(lines, params)
-    seeds = _collect_seeds(on_face, params, extend=True, face=solid, pixel_rad=pixel_rad)
-    seeds = _Seeds(points=solid.project(seeds.points), cropped=seeds.cropped)
-    beyond = _beyond_edges(on_face, solid, params, pixel_rad) if params.bevels else None
-    face = _face_geometry(solid, seeds, params, paper=False, beyond=beyond)
+    measured = 0.0
+    if params.edge_fattening_px == 0 and params.measure_fattening:
+        measured = _fattening(on_face)
+        extra["fattening_px"] = measured
+    seeds = _collect_seeds(on_face, params, extend=True, face=solid)
+    seeds = replace(seeds, points=solid.project(seeds.points))
+    walk = replace(params, edge_fattening_px=measured) if measured else params
+    beyond = _beyond_edges(on_face, solid, walk) if params.bevels else None
+    face = _face_geometry(
+        solid, seeds, params, paper=False, beyond=beyond,
+        trim_px=measured, pixel_rad=_pixel_rad(lines, params),
+    )  # fmt: skip
     if isinstance(face, str):
         return _none(face, summaries, total, extra)
     if face.disc is not None:
@@ -1572,6 +1637,73 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
     moved = copy.copy(line)  # dataclasses.replace, without re-running __init__
     moved.run = run
     return moved
+
+
+def _fattening(lines: list[LineModels]) -> float:
+    """The edge fattening (pixels) the face runs' ends show: the median over the ends where
+    it can be seen, 0 where it cannot be seen anywhere.
+
+    A matcher gives the background pixels within about half its window of an occluding edge
+    the disparity at the edge: depth stays constant past the edge (a plateau). Along a line
+    where the face's depth changes, its inner half predicts the depth (1/z is affine in s/z
+    on a plane), and the plateau's samples part from that prediction where the face ends:
+    the edge is where the prediction reaches the plateau's depth. Where the face keeps its
+    depth along the line, the plateau is the face and shows nothing.
+    """
+    found = []
+    for ln in lines:
+        run, last = ln.run, len(ln.points) - 1
+        n = len(run)
+        if n < 8 or ln.step <= 0:
+            continue
+        q = ln.sz[:, 0] / ln.sz[:, 1]
+        inv = 1.0 / ln.sz[:, 1]
+        inner = run[n // 4 : n - n // 4]
+        a, b = np.polyfit(q[inner], inv[inner], 1)
+        if a == 0:
+            continue
+        for end, inward, first in ((0, 1, run[0]), (last, -1, run[-1])):
+            # The plateau: the segment's last samples at its end sample's depth. It must
+            # reach the face's run: past it the segment is no plateau but more object.
+            z_end = ln.sz[end, 1]
+            j = end
+            while 0 <= j + inward <= last and abs(ln.sz[j + inward, 1] - z_end) <= _PLATEAU_M:
+                j += inward
+            if (first - j) * inward > 1:
+                continue
+            q_cross = (1.0 / z_end - b) / a
+            # The prediction reaches the plateau's depth inside the plateau, and the plateau
+            # parts from it by more than the depth's quantum at its end.
+            inside = min(q[j], q[end]) <= q_cross <= max(q[j], q[end])
+            gap = abs(1.0 / (a * q[end] + b) - z_end)
+            if inside and gap > _PARTED_M:
+                # In samples: a diagonal line's samples are a pixel apart along x and y, as
+                # far as a fattening along rows or columns reaches.
+                # The plateau's first sample is the face's last: the edge lies half a sample on.
+                found.append(abs(q[end] - q_cross) / ln.step - 0.5)
+    return float(np.median(found)) if found else 0.0
+
+
+def measured_fattening_px(
+    scan_lines: ScanLinesLike, plane: PlaneSolid, params: LaserParams = LaserParams()
+) -> float:
+    """The edge fattening (pixels) that the scan lines show at the edges of the face
+    ``plane``: ``_fattening`` on each line's run on that face (0 when none shows it). For
+    the full-cloud method, which finds the face on the whole frame."""
+    angles = np.asarray(scan_lines.angles_rad, dtype=np.float64).reshape(-1).tolist()
+    raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
+    lines = [ln for ln in _prepare_lines(angles, raw, params) if not ln.reason]
+    on_face = []
+    for ln in lines:
+        ln.run = np.arange(len(ln.points))
+        moved = _face_run(ln, plane, params)
+        if moved is not None:
+            on_face.append(moved)
+    return _fattening(on_face)
+
+
+_PLATEAU_M = 0.0006
+_PARTED_M = 0.0014
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:

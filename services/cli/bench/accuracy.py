@@ -19,6 +19,7 @@ frames in order, to show what each does to the frames.
     lpc bench accuracy --quick        # CI-sized: 1 trial x 10 frames
     lpc bench accuracy --suite functional --trials 20
     lpc bench accuracy --quick --sensor stereo --matcher bm --block-size 9
+    lpc bench accuracy --quick --sensor stereo --cache /tmp/lpc-frames   # render once
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -92,6 +94,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--object", action="append", metavar="NAME", help="only this object, repeatable"
     )
     add_sensor_arguments(parser)
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="keep the stereo frames rendered in DIR and read them back on later runs "
+        "(keyed by scene, pose, seed and sensor settings)",
+    )
     parser.add_argument(
         "--rs-filters",
         type=rs_filters_arg,
@@ -193,12 +203,13 @@ def run_suite(
     names: list[str] | None = None,
     sensor: StereoSensor | None = None,
     filters: SoftwareFilters | None = None,
+    cache: Path | None = None,
 ) -> dict[str, list[Outcome]]:
     """Every view of ``suite`` reconstructed by each of ``methods`` (laser, paper, cloud), all
     on the same frames: a stereo frame costs far more to render than to reconstruct."""
     total = lv.count(suite, trials, frames, names)
     outcomes: dict[str, list[Outcome]] = {m: [] for m in methods}
-    views = lv.views(suite, trials, frames, seed, names=names, sensor=sensor)
+    views = lv.views(suite, trials, frames, seed, names=names, sensor=sensor, cache=cache)
     for k, view in enumerate(views, start=1):
         if filters is not None:
             if view.frame == 0:
@@ -438,7 +449,7 @@ def run(args: argparse.Namespace) -> int:
     everything: dict[str, list[Outcome]] = {m: [] for m in methods}
     for suite in dict.fromkeys(suites):
         by_method = run_suite(
-            suite, trials, args.frames, args.seed, methods, args.object, sensor, filters
+            suite, trials, args.frames, args.seed, methods, args.object, sensor, filters, args.cache
         )
         for method, outcomes in by_method.items():
             if not outcomes:
