@@ -8,7 +8,10 @@ the loop reads itself (``loop.add_reader``). At 90 frames a second that is 6 % o
 
 Each worker runs one job at a time, in the order sent; a job is bytes in, and the worker's
 ``work`` function returns bytes or a ``str`` saying why it could not. A worker that dies is
-reported for the job it held (``on_done(tag, "worker ... died")``) and started again.
+reported for the job it held (``on_done(tag, "worker ... died")``) and started again; one
+that dies before it is ready (its initializer failed) fails the pool instead: ``ready()`` and
+``submit()`` raise ``RuntimeError`` saying so, and the service stops with it, to be restarted
+with backoff by its supervisor rather than respawning a broken worker in a loop.
 """
 
 from __future__ import annotations
@@ -74,9 +77,10 @@ class PipePool:
         self._initargs = initargs
         self._on_done = on_done
         self._all_ready = asyncio.Event()
-        self._workers = [self._start() for _ in range(workers)]
+        self.failed: str | None = None
         self.restarts = 0
         self._closed = False
+        self._workers = [self._start() for _ in range(workers)]
 
     def _start(self) -> _Worker:
         ours, theirs = self._context.Pipe()
@@ -95,8 +99,12 @@ class PipePool:
     async def ready(self) -> None:
         """Until every worker has run its initializer (imports, first calls)."""
         await self._all_ready.wait()
+        if self.failed is not None:
+            raise RuntimeError(self.failed)
 
     def submit(self, tag: Any, job: bytes) -> None:
+        if self.failed is not None:
+            raise RuntimeError(self.failed)
         worker = min(self._workers, key=lambda w: len(w.jobs))
         worker.jobs.append(tag)
         try:
@@ -121,19 +129,28 @@ class PipePool:
             self._on_done(tag, body if kind == _RESULT else body.decode(errors="replace"))
 
     def _died(self, worker: _Worker) -> None:
-        self._stop(worker)
+        # Its pipe closed: it is exiting. A moment for it to finish says why, in its exit code.
+        self._stop(worker, grace_s=2.0)
         if self._closed or worker not in self._workers:
             return
         code = worker.process.exitcode
         for tag in worker.jobs:
             self._on_done(tag, f"worker {worker.process.pid} died (exit code {code})")
+        if not worker.ready:
+            self.failed = (
+                f"worker {worker.process.pid} exited (code {code}) before it was ready: "
+                "its start-up failed (see its output above)"
+            )
+            self._all_ready.set()  # wake ready(), which raises
+            return
         self.restarts += 1
         self._workers[self._workers.index(worker)] = self._start()
 
-    def _stop(self, worker: _Worker) -> None:
+    def _stop(self, worker: _Worker, grace_s: float = 0.0) -> None:
         with contextlib.suppress(ValueError, OSError):  # already removed or closed
             self._loop.remove_reader(worker.conn.fileno())
         worker.conn.close()
+        worker.process.join(grace_s)
         if worker.process.is_alive():
             worker.process.terminate()
         worker.process.join(0.1)

@@ -17,3 +17,7 @@ def make_work(prefix: bytes):
         return prefix + job + b"@" + str(os.getpid()).encode()
 
     return work
+
+
+def broken_start(prefix: bytes):
+    raise ImportError(f"cannot start: {prefix!r}")

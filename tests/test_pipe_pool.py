@@ -7,7 +7,7 @@ import asyncio
 import pytest
 
 from services.pipe_pool import PipePool
-from tests.pipe_pool_work import make_work
+from tests.pipe_pool_work import broken_start, make_work
 
 
 async def _collect(pool_size: int, jobs: list[bytes]) -> tuple[dict[int, bytes | str], PipePool]:
@@ -93,3 +93,20 @@ def test_bad_size() -> None:
 
     with pytest.raises(ValueError, match="workers must be >= 1"):
         asyncio.run(make())
+
+
+def test_a_worker_that_cannot_start_fails_the_pool_instead_of_respawning() -> None:
+    async def run() -> PipePool:
+        pool = PipePool(2, broken_start, (b"x",), lambda tag, result: None)
+        try:
+            async with asyncio.timeout(60):
+                with pytest.raises(RuntimeError, match=r"exited \(code 1\) before it was ready"):
+                    await pool.ready()
+            with pytest.raises(RuntimeError, match="before it was ready"):
+                pool.submit(0, b"job")
+        finally:
+            pool.close()
+        return pool
+
+    pool = asyncio.run(run())
+    assert pool.restarts == 0
