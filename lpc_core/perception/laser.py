@@ -1362,6 +1362,15 @@ def _cylinder_candidate(
         sub = clean[:: max(1, len(clean) // params.axis_grid_points)]
         axis, _ = best_cylinder_axis(sub, _grid(params.axis_grid), thr)
         attempt(axis)
+        lo, hi = params.radius_limits_m
+        if best is None or not lo <= best.radius <= hi:
+            # The coarse grid's directions lie ~12 degrees apart: on a noisy shallow arc the
+            # one nearest the axis may hold few points, and a wrong one's wide cylinder is
+            # rejected (SGBM 9, the 60 mm can: 139 mm). Four times finer, among the directions
+            # whose circle is within the limits.
+            fine = _grid(4 * params.axis_grid)
+            axis, _ = best_cylinder_axis(sub, fine, thr, params.radius_limits_m)
+            attempt(axis)
     if best is None:
         return _Candidate("cylinder", reason="no cylinder converged")
     solid = best
