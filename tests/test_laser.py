@@ -437,3 +437,17 @@ def test_sphere_from_circles_exact() -> None:
 def test_laser_params_reject_bad_values(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):
         LaserParams(**{field: value})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_ball_seen_without_its_rim_is_no_box_or_disc(seed: int) -> None:
+    """A stereo matcher loses a small ball's grazing rim: each line keeps only the cap, a flat
+    run and two sides a few millimetres long, straight within 1 mm as any short arc is. The
+    lines were taken for straight pieces and the ball for a 19 mm disc; one circle holds each
+    whole segment, so the circle is fitted and the ball found."""
+    centre = np.array([0.002, -0.001, 0.222])
+    lines = scan(sphere(tuple(centre), 0.02), seed)
+    cap = tuple(p[np.hypot(*(p[:, :2] - centre[:2]).T) <= 0.6 * 0.02] for p in lines.points)
+    result = reconstruct_laser(Lines(lines.angles_rad, cap), seed=1)
+    assert result.shape == "sphere", result.reason
+    assert result.grasp_width_mm == pytest.approx(40.0, abs=3.0)

@@ -96,6 +96,22 @@ def test_best_cylinder_axis_finds_axis_within_grid_spacing() -> None:
     assert count > 150
 
 
+def test_best_cylinder_axis_skips_circles_outside_the_radius_limits() -> None:
+    rng = np.random.default_rng(4)
+    axis = np.array([0.0, 1.0, 0.0])
+    points = _half_cylinder(np.array([0.0, 0.0, 0.2]), axis, 0.03, 200, rng)
+    found, count = best_cylinder_axis(points, hemisphere_directions(200), 0.0015, (0.005, 0.05))
+    assert np.degrees(np.arccos(min(1.0, abs(found @ axis)))) < 15.0
+    assert count > 150
+    # A gently curved sheet (radius 0.5 m): its circles hold every point, all too wide.
+    sheet = _half_cylinder(np.array([0.0, 0.0, 0.7]), axis, 0.5, 4000, rng)
+    sheet = sheet[np.abs(sheet[:, 0]) < 0.04]
+    _, wide = best_cylinder_axis(sheet, hemisphere_directions(200), 0.0015)
+    _, within = best_cylinder_axis(sheet, hemisphere_directions(200), 0.0015, (0.005, 0.05))
+    assert wide > 0.9 * len(sheet)
+    assert within < 0.5 * len(sheet)
+
+
 def test_plane_solid_normal_faces_camera() -> None:
     rng = np.random.default_rng(5)
     normal = np.array([0.3, -0.2, -1.0])

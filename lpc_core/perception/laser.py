@@ -419,7 +419,14 @@ def _runs(
 
 
 def _front(model: str, fitted: Any, sz: np.ndarray) -> np.ndarray | None:
-    """For a line model, the points nearer the camera (smaller z) than the line."""
+    """The points nearer the camera than the model: in front of a line (smaller z), outside a
+    circle. A stereo matcher's window pulls a curved surface's depth toward the camera over a
+    few samples (its staircase, the fattening at a crease or a hole): on a circle as on a
+    face, such a bump does not end the run (the SGBM 5 jar lost its circles to a 2 mm bump
+    of four samples where the axis pierced it, and came out a box)."""
+    if model == "circle":
+        cs, cz, r = fitted.params[:3]
+        return np.hypot(sz[:, 0] - cs, sz[:, 1] - cz) > r
     if model != "line":
         return None
     px, py, dx, dy = fitted.params
@@ -649,6 +656,13 @@ def _straight_pieces(
     neither does. On a sphere or a cylinder the sides of a line run curve away, and they bulge
     toward the camera (convex), so no concave corner stands in for the curve: at least one line
     fails, and every model is fitted as usual.
+
+    Short sides prove nothing, though: over a few millimetres any arc is straight within the
+    threshold. Where a stereo matcher loses a small ball's rim (its grazing, steep part) and
+    smooths its cap flat, every line is a flat run and two short sides, straight pieces, and
+    the ball was taken for a box or a disc (BM 7: 5 of 10 frames of the 40 mm ball). So a line
+    whose whole segment one convex circle holds better than its line model, by the margin a
+    circle needs to win the line, is not straight pieces (``_arc_holds``).
     """
     thr = params.threshold_m
     for k, ln in enumerate(lines):
@@ -660,7 +674,32 @@ def _straight_pieces(
         for side in (ln.sz[: run[0]], ln.sz[run[-1] + 1 :]):
             if not (_straight(side, thr) or _concave_corner(side, thr)):
                 return False
+        if _arc_holds(ln.sz, len(run) + params.model_margin * n, params):
+            return False
     return True
+
+
+def _arc_holds(sz: np.ndarray, need: float, params: LaserParams) -> bool:
+    """Whether one circle, bulging toward the camera with a radius within the limits, holds
+    more than ``need`` of the (s, z) points within ``threshold_m``: the algebraic circle
+    through all of them, then once more through its inliers (a fattened tail or a table's
+    first samples pull the first fit off). Two small solves, not a RANSAC fit."""
+    lo, hi = params.radius_limits_m
+    thr = params.threshold_m
+    keep = np.ones(len(sz), dtype=bool)
+    for _ in range(2):
+        if np.count_nonzero(keep) < 3:
+            return False
+        got = fit_circle_2d(sz[keep])
+        if got is None:
+            return False
+        (cs, cz), radius = got
+        inliers = np.abs(np.hypot(sz[:, 0] - cs, sz[:, 1] - cz) - radius) <= thr
+        convex = cz > float(sz[:, 1].max())
+        if convex and lo <= radius <= hi and np.count_nonzero(inliers) > need:
+            return True
+        keep = inliers
+    return False
 
 
 def _straight(sz: np.ndarray, threshold: float) -> bool:
@@ -1323,6 +1362,15 @@ def _cylinder_candidate(
         sub = clean[:: max(1, len(clean) // params.axis_grid_points)]
         axis, _ = best_cylinder_axis(sub, _grid(params.axis_grid), thr)
         attempt(axis)
+        lo, hi = params.radius_limits_m
+        if best is None or not lo <= best.radius <= hi:
+            # The coarse grid's directions lie ~12 degrees apart: on a noisy shallow arc the
+            # one nearest the axis may hold few points, and a wrong one's wide cylinder is
+            # rejected (SGBM 9, the 60 mm can: 139 mm). Four times finer, among the directions
+            # whose circle is within the limits.
+            fine = _grid(4 * params.axis_grid)
+            axis, _ = best_cylinder_axis(sub, fine, thr, params.radius_limits_m)
+            attempt(axis)
     if best is None:
         return _Candidate("cylinder", reason="no cylinder converged")
     solid = best

@@ -420,13 +420,17 @@ def _cylinder_normal_equations(
 
 
 def best_cylinder_axis(
-    points: np.ndarray, directions: np.ndarray, threshold: float
+    points: np.ndarray,
+    directions: np.ndarray,
+    threshold: float,
+    radius_limits: tuple[float, float] | None = None,
 ) -> tuple[np.ndarray, int]:
     """Among unit ``directions`` (K, 3), the one whose projected points fit a circle best.
 
     For every direction at once: project the points on the plane across it, fit an algebraic
     circle, count points within ``threshold`` of it. Returns the direction and its count. Used
     to seed ``CylinderSolid.estimate`` when the seed points give no principal direction.
+    With ``radius_limits`` (min, max), a direction whose circle lies outside them counts 0.
     """
     points = _as_points(points, 5)
     directions = np.asarray(directions, dtype=np.float64)
@@ -455,6 +459,9 @@ def best_cylinder_axis(
     r = np.sqrt(np.maximum(r2, 0.0))
     rho = np.sqrt((u - sol[:, 0]) ** 2 + (v - sol[:, 1]) ** 2)
     counts = (np.abs(rho - r) <= threshold / scale).sum(axis=0)
+    if radius_limits is not None:
+        lo, hi = radius_limits
+        counts = np.where((r * scale >= lo) & (r * scale <= hi), counts, 0)
     best = int(np.argmax(counts))
     return directions[best], int(counts[best])
 
