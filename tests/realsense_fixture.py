@@ -22,6 +22,7 @@ import numpy as np
 
 from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
 from lpc_core.sim.simcam import SimCamera
+from services.drivers.depth import feed_depth_frame, software_depth_sensor
 
 
 def recording_suffix() -> str:
@@ -73,36 +74,13 @@ def write_recording(
         if frame.dtype != np.uint16 or frame.shape != shape:
             raise ValueError(f"frames[{i}] is {frame.dtype} {frame.shape}, expected uint16 {shape}")
     path = Path(path)
-    device = rs.software_device()
-    sensor = device.add_sensor("Depth")
-
-    rs_intrinsics = rs.intrinsics()
-    rs_intrinsics.width, rs_intrinsics.height = intrinsics.width, intrinsics.height
-    rs_intrinsics.fx, rs_intrinsics.fy = intrinsics.fx, intrinsics.fy
-    rs_intrinsics.ppx, rs_intrinsics.ppy = intrinsics.ppx, intrinsics.ppy
-    rs_intrinsics.model = getattr(rs.distortion, intrinsics.model)
-    rs_intrinsics.coeffs = list(intrinsics.coeffs)
-
-    stream = rs.video_stream()
-    stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
-    stream.width, stream.height, stream.fps = intrinsics.width, intrinsics.height, fps
-    stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, rs_intrinsics
-    profile = sensor.add_video_stream(stream, True).as_video_stream_profile()
-    sensor.add_read_only_option(rs.option.depth_units, intrinsics.depth_scale)
+    device, sensor, profile = software_depth_sensor(rs, intrinsics, fps)
 
     recorder = rs.recorder(str(path), device)
     sensor.open(profile)
     sensor.start(lambda frame: None)  # the recorder sees every frame; nobody else needs them
     for i, depth in enumerate(frames):
-        frame = rs.software_video_frame()
-        frame.pixels = np.ascontiguousarray(depth)
-        frame.bpp, frame.stride = 2, intrinsics.width * 2
-        frame.timestamp = i * 1000.0 / fps
-        frame.domain = rs.timestamp_domain.hardware_clock
-        frame.frame_number = i
-        frame.depth_units = intrinsics.depth_scale
-        frame.profile = profile
-        sensor.on_video_frame(frame)
+        feed_depth_frame(rs, sensor, profile, intrinsics, depth, i, fps)
     sensor.stop()
     sensor.close()
     del recorder  # the file is complete once the recorder is destroyed

@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -270,6 +271,49 @@ def filter_chain(rs, names: tuple[str, ...]) -> list:
     return chain
 
 
+def software_depth_sensor(rs: Any, intrinsics: Intrinsics, fps: int) -> tuple[Any, Any, Any]:
+    """A pyrealsense2 ``software_device`` with one depth sensor streaming z16 images of
+    ``intrinsics`` at ``fps``, its depth units ``intrinsics.depth_scale``: ``(device, sensor,
+    profile)``. Images fed to it (``feed_depth_frame``) come out as librealsense frames."""
+    device = rs.software_device()
+    sensor = device.add_sensor("Depth")
+    ri = rs.intrinsics()
+    ri.width, ri.height = intrinsics.width, intrinsics.height
+    ri.fx, ri.fy, ri.ppx, ri.ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
+    ri.model = getattr(rs.distortion, intrinsics.model)
+    ri.coeffs = list(intrinsics.coeffs)
+    stream = rs.video_stream()
+    stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
+    stream.width, stream.height, stream.fps = intrinsics.width, intrinsics.height, fps
+    stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, ri
+    profile = sensor.add_video_stream(stream, True).as_video_stream_profile()
+    sensor.add_read_only_option(rs.option.depth_units, intrinsics.depth_scale)
+    return device, sensor, profile
+
+
+def feed_depth_frame(
+    rs: Any,
+    sensor: Any,
+    profile: Any,
+    intrinsics: Intrinsics,
+    depth: np.ndarray,
+    number: int,
+    fps: int,
+) -> None:
+    """Hand one uint16 depth image to a ``software_depth_sensor`` as frame ``number``, stamped
+    ``number * 1000 / fps`` ms on the hardware clock."""
+    pixels = np.ascontiguousarray(depth, dtype=np.uint16)  # alive until the sensor has it
+    frame = rs.software_video_frame()
+    frame.pixels = pixels
+    frame.bpp, frame.stride = 2, intrinsics.width * 2
+    frame.timestamp = number * 1000.0 / fps
+    frame.domain = rs.timestamp_domain.hardware_clock
+    frame.frame_number = number
+    frame.depth_units = intrinsics.depth_scale
+    frame.profile = profile
+    sensor.on_video_frame(frame)
+
+
 class SoftwareFilters:
     """librealsense's post-processing filters run on depth images from anywhere (the simulated
     camera, a bench): each image is fed to a pyrealsense2 ``software_device`` depth sensor with
@@ -286,19 +330,7 @@ class SoftwareFilters:
         self._names = names
         self._intrinsics = intrinsics
         self._fps = fps
-        device = rs.software_device()
-        sensor = device.add_sensor("Depth")
-        ri = rs.intrinsics()
-        ri.width, ri.height = intrinsics.width, intrinsics.height
-        ri.fx, ri.fy, ri.ppx, ri.ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
-        ri.model = getattr(rs.distortion, intrinsics.model)
-        ri.coeffs = list(intrinsics.coeffs)
-        stream = rs.video_stream()
-        stream.type, stream.index, stream.uid = rs.stream.depth, 0, 0
-        stream.width, stream.height, stream.fps = intrinsics.width, intrinsics.height, fps
-        stream.bpp, stream.fmt, stream.intrinsics = 2, rs.format.z16, ri
-        self._profile = sensor.add_video_stream(stream, True).as_video_stream_profile()
-        sensor.add_read_only_option(rs.option.depth_units, intrinsics.depth_scale)
+        device, sensor, self._profile = software_depth_sensor(rs, intrinsics, fps)
         self._syncer = rs.syncer()
         sensor.open(self._profile)
         sensor.start(self._syncer)
@@ -311,18 +343,10 @@ class SoftwareFilters:
 
     def process(self, depth: np.ndarray) -> np.ndarray:
         """The filtered copy of one uint16 depth image (``(height, width)`` of the intrinsics)."""
-        rs = self._rs
-        pixels = np.ascontiguousarray(depth, dtype=np.uint16)
-        frame = rs.software_video_frame()
-        frame.pixels = pixels
-        frame.bpp, frame.stride = 2, self._intrinsics.width * 2
-        frame.timestamp = self._count * 1000.0 / self._fps
-        frame.domain = rs.timestamp_domain.hardware_clock
-        frame.frame_number = self._count
-        frame.depth_units = self._intrinsics.depth_scale
-        frame.profile = self._profile
+        feed_depth_frame(
+            self._rs, self._sensor, self._profile, self._intrinsics, depth, self._count, self._fps
+        )
         self._count += 1
-        self._sensor.on_video_frame(frame)
         out = self._syncer.wait_for_frames(5000).get_depth_frame()
         for stage in self._chain:
             out = stage.process(out)
