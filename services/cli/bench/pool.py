@@ -14,6 +14,7 @@ import asyncio
 import multiprocessing
 import os
 import time
+from collections.abc import Awaitable, Callable
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -25,22 +26,31 @@ def _echo(job: bytes) -> bytes | str:
     return job[:64]
 
 
-def _make_echo() -> object:
+def _make_echo() -> Callable[[bytes], bytes | str]:
     return _echo
+
+
+async def _measure(
+    call: Callable[[bytes], Awaitable[object]], jobs: int, payload: bytes, interval_s: float
+) -> tuple[float, list[float]]:
+    """The parent's CPU over ``jobs`` calls (one warm-up call first) and each round trip."""
+    await call(payload)  # the worker is up and warm
+    trips, cpu = [], time.process_time()
+    for _ in range(jobs):
+        start = time.perf_counter()
+        await call(payload)
+        trips.append(time.perf_counter() - start)
+        await asyncio.sleep(interval_s)
+    return time.process_time() - cpu, trips
 
 
 async def _through_executor(jobs: int, payload: bytes, interval_s: float) -> tuple[float, list]:
     loop = asyncio.get_running_loop()
     pool = ProcessPoolExecutor(1, multiprocessing.get_context("spawn"))
     try:
-        await loop.run_in_executor(pool, _echo, payload)  # the worker is up and warm
-        trips, cpu = [], time.process_time()
-        for _ in range(jobs):
-            start = time.perf_counter()
-            await loop.run_in_executor(pool, _echo, payload)
-            trips.append(time.perf_counter() - start)
-            await asyncio.sleep(interval_s)
-        return time.process_time() - cpu, trips
+        return await _measure(
+            lambda job: loop.run_in_executor(pool, _echo, job), jobs, payload, interval_s
+        )
     finally:
         pool.shutdown()
 
@@ -48,16 +58,13 @@ async def _through_executor(jobs: int, payload: bytes, interval_s: float) -> tup
 async def _through_pipes(jobs: int, payload: bytes, interval_s: float) -> tuple[float, list]:
     answered: asyncio.Queue[bytes | str] = asyncio.Queue()
     pool = PipePool(1, _make_echo, (), lambda _tag, result: answered.put_nowait(result))
+
+    async def call(job: bytes) -> bytes | str:
+        pool.submit(None, job)
+        return await answered.get()
+
     try:
-        await pool.ready()
-        trips, cpu = [], time.process_time()
-        for n in range(jobs):
-            start = time.perf_counter()
-            pool.submit(n, payload)
-            await answered.get()
-            trips.append(time.perf_counter() - start)
-            await asyncio.sleep(interval_s)
-        return time.process_time() - cpu, trips
+        return await _measure(call, jobs, payload, interval_s)
     finally:
         pool.close()
 
