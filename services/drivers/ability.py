@@ -80,7 +80,7 @@ class AbilityHand:
         self._replies: collections.deque[ab.Reply] = collections.deque(maxlen=64)
         self._counter = 0
         try:
-            self._serial = serial.Serial(self.port, baudrate=baudrate, timeout=0, write_timeout=0.1)
+            self._serial = serial.Serial(self.port, baudrate=baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             self._close_sim()
             raise DeviceUnavailable(f"cannot open the Ability Hand on {self.port}: {exc}") from exc

@@ -60,7 +60,7 @@ class TactorDriver:
         self._replies: collections.deque[Reply] = collections.deque()
         self._closed = False
         try:
-            self._serial = serial.Serial(port, baudrate=baudrate, timeout=0, write_timeout=1.0)
+            self._serial = serial.Serial(port, baudrate=baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceUnavailable(f"cannot open tactor port {port}: {exc}") from exc
         try:
