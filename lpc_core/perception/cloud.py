@@ -918,6 +918,7 @@ def _cuboid_geometry(
     points: np.ndarray,
     whole: np.ndarray,
     fit: _CuboidFit,
+    pierced: tuple[PlaneModel, np.ndarray, int],
     params: CloudParams,
     pixel_rad: float = 0.0,
 ) -> tuple[float, np.ndarray, np.ndarray]:
@@ -934,7 +935,7 @@ def _cuboid_geometry(
     other face's points reach is an occluding edge: it moves in by ``edge_fattening_px``
     (stereo matching's fattening lies on the face's own plane there).
     """
-    face, face_points, index = _pierced_face(points, fit, params)
+    face, face_points, index = pierced
     others = [f.normal for i, f in enumerate(fit.faces) if i != index]
     if others:
         e1 = others[0] - (others[0] @ face.normal) * face.normal
@@ -994,22 +995,14 @@ def _cuboid_geometry(
     return extent1, e2, center
 
 
-def _measured_fattening(
-    depth: np.ndarray,
-    intrinsics: Intrinsics,
-    points: np.ndarray,
-    whole: np.ndarray,
-    fit: _CuboidFit,
-    params: CloudParams,
-) -> float:
-    """The edge fattening (pixels) the frame shows at the pierced face's edges, measured on
+def _measured_fattening(depth: np.ndarray, intrinsics: Intrinsics, face: PlaneModel) -> float:
+    """The edge fattening (pixels) the frame shows at the pierced ``face``'s edges, measured on
     the four scan lines as the four-line method measures it
     (``lpc_core.perception.laser.measured_fattening_px``)."""
     from lpc_core.perception.laser import measured_fattening_px
     from lpc_core.perception.scans import cut_scan_lines
     from lpc_core.perception.solids import PlaneSolid
 
-    face, _, _ = _pierced_face(points, fit, params)
     # PlaneModel's normal points away from the camera, PlaneSolid's toward it.
     plane = PlaneSolid(point=-face.offset * face.normal, normal=-face.normal)
     return measured_fattening_px(cut_scan_lines(depth, intrinsics), plane)
@@ -1123,11 +1116,12 @@ def reconstruct_cloud(
             axis=tuple(map(float, axis)), confidence=confidence, points=used, extra=extra,
         )  # fmt: skip
     assert isinstance(fit, _CuboidFit)
+    pierced = _pierced_face(segment, fit, params)
     if params.edge_fattening_px == 0 and params.measure_fattening:
-        fattening = _measured_fattening(depth, intrinsics, segment, whole, fit, params)
+        fattening = _measured_fattening(depth, intrinsics, pierced[0])
         extra["fattening_px"] = fattening
         params = replace(params, edge_fattening_px=fattening)
-    width, axis, center = _cuboid_geometry(segment, whole, fit, params, pixel_rad)
+    width, axis, center = _cuboid_geometry(segment, whole, fit, pierced, params, pixel_rad)
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))
     return Reconstruction(
