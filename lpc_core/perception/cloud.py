@@ -15,7 +15,6 @@ random subset of the points; only the winner is refined by least squares on all 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Protocol, Self
@@ -26,7 +25,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.reconstruction import Reconstruction, wrap_half_turn
-from lpc_core.perception.solids import CylinderSolid, SphereSolid
+from lpc_core.perception.solids import CylinderSolid, SphereSolid, fattening_trim_m
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -961,18 +960,13 @@ def _cuboid_geometry(
     s1, s2 = w1[on_face], w2[on_face]
     lo1, hi1, lo2, hi2 = float(s1.min()), float(s1.max()), float(s2.min()), float(s2.max())
     if params.edge_fattening_px > 0 and pixel_rad > 0:
-        # A pixel is depth x pixel_rad across the line of sight, longer along a face that
-        # turns away (1 / the in-image part of the edge's direction). The fattened pixels keep
-        # the edge's depth, so they part from a slanted face, and only those within
-        # fit_threshold_m of it were counted: the trim is that part of the fattening.
+        # Only the fattening within fit_threshold_m of a slanted face was counted as its own.
         z = float(np.median(whole[on_face, 2]))
-        trims = []
-        for e in (e1, e2):
-            lateral = max(float(np.hypot(e[0], e[1])), 1e-6)
-            rise = abs(face.normal[2]) * z * pixel_rad * abs(e[2]) / lateral  # per pixel
-            counted = params.fit_threshold_m / rise if rise > 0 else math.inf
-            trims.append(min(params.edge_fattening_px, counted) * z * pixel_rad / lateral)
-        trim1, trim2 = trims
+        fattening_rad = params.edge_fattening_px * pixel_rad
+        trim1, trim2 = (
+            fattening_trim_m(face.normal[2], e, z, fattening_rad, params.fit_threshold_m)
+            for e in (e1, e2)
+        )
         near = 2 * params.voxel_m
         met = np.zeros(len(points), dtype=bool)
         for i, inliers in enumerate(fit.face_inliers):

@@ -58,6 +58,7 @@ from lpc_core.perception.solids import (
     PlaneSolid,
     SphereSolid,
     best_cylinder_axis,
+    fattening_trim_m,
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
@@ -1119,10 +1120,7 @@ def _trimmed_sides(
     tol = params.edge_tolerance_m
     for k, (coords, normal2) in enumerate(((a, (ux, uy)), (b, (-uy, ux)))):
         normal = normal2[0] * e1 + normal2[1] * e2
-        lateral = max(math.hypot(normal[0], normal[1]), 1e-6)
-        rise = abs(plane.normal[2]) * z * trim_rad * abs(normal[2]) / lateral  # at the trim
-        counted = min(1.0, params.solid_threshold_m / rise) if rise > 0 else 1.0
-        trim = counted * z * trim_rad / lateral
+        trim = fattening_trim_m(plane.normal[2], normal, z, trim_rad, params.solid_threshold_m)
         lo, hi = out[2 * k], out[2 * k + 1]
         on_lo = (coords - lo <= tol) & occluding & ~cropped
         on_hi = (hi - coords <= tol) & occluding & ~cropped

@@ -381,6 +381,27 @@ def silhouette_distance(
     return angle * np.sqrt(np.einsum("ij,ij->i", across, across) / np.einsum("ij,ij->i", p, p))
 
 
+def fattening_trim_m(
+    face_normal_z: float,
+    side_normal: np.ndarray,
+    depth_m: float,
+    fattening_rad: float,
+    counted_m: float,
+) -> float:
+    """How far an occluding side of a plane face moves back in for an edge fattening of
+    ``fattening_rad`` (an angle in view), both methods' trim.
+
+    On the face the angle spans ``depth_m`` times it over the in-image part of the side's
+    normal ``side_normal`` (3-D, in the face's plane). The fattened pixels keep the edge's
+    depth, so on a face turned away they part from it, and only the part within ``counted_m``
+    of the face was counted as the face's and widened it.
+    """
+    lateral = max(math.hypot(side_normal[0], side_normal[1]), 1e-6)
+    rise = abs(face_normal_z) * depth_m * fattening_rad * abs(side_normal[2]) / lateral
+    counted = min(1.0, counted_m / rise) if rise > 0 else 1.0
+    return counted * depth_m * fattening_rad / lateral
+
+
 def _tangent_angle(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
     """Angle at the origin from each point in to the tangents from the origin to the ball of
     ``radius`` about ``centre``."""
