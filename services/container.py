@@ -5,9 +5,10 @@ Each service is the same ``serve`` its own process runs, with its flags parsed a
 own ``main`` (``services.runtime.load_service``), and its own ``Bus`` on the shared session: it
 still publishes and subscribes on the same ``lpc/**`` topics, reports ``lpc/health/<service>``
 and holds ``lpc/alive/<service>``, so recording, replay, dashboards and outside subscribers see
-what they see when every service has its process. Zenoh delivers samples between services of
-one session without a socket, and one subscriber on ``lpc/**`` (``services.runtime.Router``)
-hands each sample to the loop once for all the services that want it. A service that raises is
+what they see when every service has its process. A sample one of its services publishes is
+handed by the publisher straight to the subscriptions of both loops (``Router.deliver``); Zenoh
+carries it only to other processes. Samples from other processes reach each loop through one
+subscriber on ``lpc/**`` (``services.runtime.Router``), once for all the services that want them. A service that raises is
 restarted inside the container with backoff (counted in its health, logged); the process itself
 is restarted by ``lpc up``. On SIGINT/SIGTERM the services are stopped in reverse start order
 (the recorder, first, is last).

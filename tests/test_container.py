@@ -10,7 +10,7 @@ import os
 import pytest
 import zenoh
 
-from schemas import decode
+from schemas import EmgSample, decode
 from services.container import run_container
 from services.runtime import Bus, LoadedService, load_service
 from tests.conftest import until
@@ -119,3 +119,60 @@ def test_container_services_talk_over_the_bus(endpoint: str, rendezvous: zenoh.S
         sub.undeclare()
     assert {"lpc/alive/scans", "lpc/alive/camera", "lpc/alive/container"} <= alive
     assert set(scans) <= set(depth), "every scan comes from a frame seen on the bus"
+
+
+def test_container_hands_its_own_samples_over_once(
+    endpoint: str, rendezvous: zenoh.Session
+) -> None:
+    """A sample published in the container reaches the subscriptions of both its loops once
+    each and in order, without a round through Zenoh, and an outside subscriber still gets it
+    once through Zenoh."""
+    heard: dict[str, list[int]] = {"main": [], "control": []}
+    outside: list[int] = []
+    sent: list[int] = []
+    ready: set[str] = set()
+
+    def listener(where: str) -> LoadedService:
+        async def serve(bus: Bus, args: argparse.Namespace) -> None:
+            sub = bus.subscribe("lpc/emg", latest=False)
+            ready.add(where)
+            async for message in sub:
+                heard[where].append(message.seq)
+
+        return LoadedService(f"listener_{where}", serve, argparse.Namespace(argv=[]))
+
+    async def talk(bus: Bus, args: argparse.Namespace) -> None:
+        emg = bus.publisher("lpc/emg")
+        while len(ready) < 2:
+            await asyncio.sleep(0.005)
+        while True:
+            sent.append(len(sent) + 1)
+            emg.put(EmgSample(seq=sent[-1], t_ns=bus.clock.now_ns(), channels=[0.1, 0.2]))
+            await asyncio.sleep(0.002)
+
+    sub = rendezvous.declare_subscriber(
+        "lpc/emg", lambda s: outside.append(decode("lpc/emg", s.payload.to_bytes()).seq)
+    )
+    services = [
+        listener("main"),
+        listener("control"),
+        LoadedService("talker", talk, argparse.Namespace(argv=[])),
+    ]
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        container = asyncio.create_task(
+            run_container(services, _args(endpoint), stop, control_loop=("listener_control",))
+        )
+        await until(lambda: len(outside) >= 200, 30, "the talker's samples outside")
+        stop.set()
+        async with asyncio.timeout(10):
+            assert await container == 0
+
+    asyncio.run(main())
+    sub.undeclare()
+    for where, seqs in heard.items():
+        assert seqs == sent[: len(seqs)], f"{where}: every sample once, in order"
+        assert len(seqs) >= 200, where
+    assert outside == sorted(set(outside)), "outside: no sample twice"
+    assert len(outside) >= 200
