@@ -130,7 +130,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         while True:
             if args.source in ("realsense", "sim-device"):
                 try:
-                    reading = await asyncio.to_thread(source.read, 1.0)
+                    if isinstance(source, SimDeviceSource):
+                        reading = await source.read_async(1.0)
+                    else:
+                        reading = await asyncio.to_thread(source.read, 1.0)
                 except MalformedFrame as exc:
                     bus.health.counters["malformed_frames"] += 1
                     bus.log("warning", f"{exc}; carrying on")

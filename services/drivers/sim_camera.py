@@ -14,6 +14,7 @@ scene goes on from the next frame across readers, and stands still while no one 
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import stat
 import sys
@@ -45,14 +46,19 @@ def listen(path: str | Path) -> socket.socket:
     with contextlib.suppress(FileNotFoundError):
         if not stat.S_ISSOCK(path.lstat().st_mode):
             raise SourceUnavailable(f"{path} exists and is not a socket; choose another --socket")
-        path.unlink()
+    # Bound and listening under another name first, then renamed into place: a reader that
+    # finds the path can connect (between bind and listen it would be refused).
+    staging = path.with_name(f".{path.name}.{os.getpid()}")
     server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        server.bind(str(path))
+        staging.unlink(missing_ok=True)
+        server.bind(str(staging))
+        server.listen(1)
+        staging.rename(path)
     except OSError as exc:
         server.close()
+        staging.unlink(missing_ok=True)
         raise SourceUnavailable(f"cannot listen at {path}: {exc}") from exc
-    server.listen(1)
     server.settimeout(_POLL_S)
     return server
 
