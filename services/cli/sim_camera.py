@@ -62,5 +62,8 @@ def run(args: argparse.Namespace) -> int:
     )
     device.serve(stop, stderr_log)
     s = device.stats
-    stderr_log(f"stopped: {s.frames} frames to {s.connections} reader(s), {s.late_frames} late")
+    stderr_log(
+        f"stopped: {s.frames} frames to {s.connections} reader(s); skipped {s.late_frames} "
+        f"slots rendering late, {s.unread_frames} with the last frame unread"
+    )
     return 0

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import select
 import socket
 import stat
 import sys
@@ -36,7 +37,8 @@ _POLL_S = 0.1  # longest wait before the stop flag is looked at again
 class DeviceStats:
     connections: int = 0
     frames: int = 0
-    late_frames: int = 0  # slots skipped because rendering or the reader fell behind
+    late_frames: int = 0  # slots skipped because rendering fell behind
+    unread_frames: int = 0  # slots skipped because the reader had not taken the last frame
 
 
 def listen(path: str | Path) -> socket.socket:
@@ -111,6 +113,13 @@ class SimCameraDevice:
                 while (wait_ns := due - time.time_ns()) > 0:
                     if stop.wait(min(wait_ns / 1e9, _POLL_S)):
                         return "stopped"
+                # A camera does not wait for its host: while the last frame is still unread
+                # (a Unix socket is writable again once 3/4 of its send buffer, about one
+                # frame, is free), this slot is dropped, so the reader always gets a fresh frame.
+                if not select.select([], [conn], [], 0)[1]:
+                    self.stats.unread_frames += 1
+                    start_ns += self.period_ns
+                    continue
                 # The same scene time as SimSource in the camera service: seq periods in.
                 reading = self.source.render(self.seq * self.period_ns / 1e9, self.seq)
                 frame = DeviceFrame(
