@@ -9,6 +9,10 @@ receives finished frames; run apart, the simulator's rendering stays out of the 
 same way. A reader that connects gets the hello (intrinsics), then frames; one that goes away
 or stops reading for ``SEND_TIMEOUT_S`` is dropped and the device waits for the next. The
 scene goes on from the next frame across readers, and stands still while no one reads.
+
+A socket rather than shared memory: reading a frame costs the camera about 0.47 ms of CPU here,
+of which parsing and copying its 203 KB are 0.05 ms; the rest is the wake-up, which a shared
+buffer would need as well (its notification).
 """
 
 from __future__ import annotations
