@@ -8,7 +8,12 @@ A RealSense camera gets the visual preset and depth units of ``--rs-preset`` and
 ``--rs-depth-units`` before it streams, and ``--rs-filters`` runs librealsense's own
 post-processing; what is in force goes into the health's ``detail`` (``rs_preset=...
 rs_depth_units=... rs_filters=...``) so that a replay knows, and a setting the device refuses
-(a recording's options are read-only) is logged, counted and skipped."""
+(a recording's options are read-only) is logged, counted and skipped.
+
+``--source sim-device`` reads the simulated camera run as a device of its own (``lpc
+sim-camera``) over its Unix ``--socket``, as a live camera: the device paces the frames, a
+device that is missing or goes away is looked for again like a RealSense, and bytes from it that
+are not a frame are logged, counted (``malformed_frames``) and skipped."""
 
 from __future__ import annotations
 
@@ -21,12 +26,15 @@ from schemas import DepthFrame, to_wire
 from services.drivers.depth import (
     DepthReading,
     EndOfStream,
+    MalformedFrame,
     RealSenseSource,
     ReplaySource,
+    SimDeviceSource,
     SimSource,
     SourceUnavailable,
     add_realsense_arguments,
     add_sensor_arguments,
+    default_sim_socket,
     stereo_sensor,
 )
 from services.drivers.errors import OperationError
@@ -54,21 +62,30 @@ def _realsense(args: argparse.Namespace, file: str | None) -> RealSenseSource:
     )
 
 
-def _report_settings(bus: Bus, source: RealSenseSource) -> None:
+def _live(args: argparse.Namespace) -> RealSenseSource | SimDeviceSource:
+    """The live camera the flags name: a RealSense, or the simulated camera device."""
+    if args.source == "sim-device":
+        return SimDeviceSource(args.socket)
+    return _realsense(args, None)
+
+
+def _report_settings(bus: Bus, source: RealSenseSource | SimDeviceSource) -> None:
     bus.health.detail = source.settings_text()
     for refused in source.unsupported:
         bus.health.counters["rs_option_unsupported"] += 1
         bus.log("warning", f"camera setting not applied, carrying on: {refused}")
 
 
-async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSenseSource:
+async def _open_camera(
+    bus: Bus, args: argparse.Namespace, why: str
+) -> RealSenseSource | SimDeviceSource:
     """The live camera, looked for every ``args.reopen_every`` seconds until it is there."""
     bus.status = "degraded"
     bus.log("error", f"{why}; looking for the camera every {args.reopen_every:g} s")
     while True:
         await bus.clock.sleep_until(bus.clock.now_ns() + round(args.reopen_every * 1e9))
         try:
-            source = _realsense(args, None)
+            source = _live(args)
         except SourceUnavailable:
             bus.health.counters["camera_reopen_failures"] += 1
             continue
@@ -79,13 +96,16 @@ async def _open_camera(bus: Bus, args: argparse.Namespace, why: str) -> RealSens
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    live = args.source == "realsense" and not args.file
+    live = args.source == "sim-device" or (args.source == "realsense" and not args.file)
     stereo = args.source == "sim" and getattr(args, "sensor", "model") == "stereo"
     try:
         if args.source == "sim":
             source = SimSource(seed=args.seed, sensor=stereo_sensor(args) if stereo else None)
         elif args.source == "realsense":
             source = _realsense(args, args.file)
+            _report_settings(bus, source)
+        elif args.source == "sim-device":
+            source = _live(args)
             _report_settings(bus, source)
         else:
             source = ReplaySource(args.file)
@@ -108,9 +128,16 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     seq = 0
     try:
         while True:
-            if args.source == "realsense":
+            if args.source in ("realsense", "sim-device"):
                 try:
-                    reading = await asyncio.to_thread(source.read, 1.0)
+                    if isinstance(source, SimDeviceSource):
+                        reading = await source.read_async(1.0)
+                    else:
+                        reading = await asyncio.to_thread(source.read, 1.0)
+                except MalformedFrame as exc:
+                    bus.health.counters["malformed_frames"] += 1
+                    bus.log("warning", f"{exc}; carrying on")
+                    continue
                 except OperationError as exc:
                     if not live:
                         raise
@@ -125,7 +152,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 if args.file and reading.t_ns is not None:  # a file keeps its frame spacing
                     first_recorded_ns = first_recorded_ns or reading.t_ns
                     await bus.clock.sleep_until(start_ns + reading.t_ns - first_recorded_ns)
-                t_ns = bus.clock.now_ns()
+                # The device's own stamp: when the frame was complete, as a camera stamps it.
+                device_stamp = args.source == "sim-device" and reading.t_ns is not None
+                t_ns = reading.t_ns if device_stamp else bus.clock.now_ns()
             else:
                 due = start_ns + seq * period_ns
                 now = bus.clock.now_ns()
@@ -161,9 +190,23 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = service_parser("camera", __doc__ or "")
-    parser.add_argument("--source", choices=("sim", "realsense", "replay"), default="sim")
+    parser.add_argument(
+        "--source", choices=("sim", "sim-device", "realsense", "replay"), default="sim"
+    )
     parser.add_argument("--file", help="recording for realsense (.bag/.db3) or replay (.mcap)")
-    parser.add_argument("--rate", type=float, default=90.0, help="frame rate in Hz (default 90)")
+    parser.add_argument(
+        "--socket",
+        default=default_sim_socket(),
+        metavar="PATH",
+        help=f"the simulated camera device's socket (--source sim-device; default "
+        f"{default_sim_socket()}, where lpc sim-camera listens by default)",
+    )
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=90.0,
+        help="frame rate in Hz (default 90; a live camera or the sim device paces itself)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene")
     parser.add_argument(
         "--reopen-every",

@@ -23,6 +23,20 @@ def _quota_or_skip() -> CpuQuota:
         pytest.skip(f"no cgroup CPU quota here: {exc}")
 
 
+def test_footprint_device_cgroup_has_a_weight_and_no_quota() -> None:
+    _quota_or_skip().close()
+    group = CpuQuota(None, "-devices")
+    try:
+        assert group.path.name.endswith("-devices")
+        if group.version == 2:
+            assert (group.path / "cpu.max").read_text().split() == ["max", "10000"]
+        else:
+            assert (group.path / "cpu.cfs_quota_us").read_text().strip() == "-1"
+    finally:
+        group.close()
+    assert not group.path.exists()
+
+
 def test_footprint_quota_is_written_and_removed() -> None:
     quota = _quota_or_skip()
     try:
@@ -49,11 +63,15 @@ def test_footprint_smoke_together_under_a_quota() -> None:
     )  # fmt: skip
     stdout, stderr = bench.communicate(timeout=240)
     assert bench.returncode == 0, stdout[-3000:] + stderr[-3000:]
-    # The bench's cgroup is named after its pid, and gone once it has exited.
-    for pattern in (f"lpc-footprint-{bench.pid}", f"*/lpc-footprint-{bench.pid}"):  # v2, v1
+    # The bench's cgroups (the set's, the device's) are named after its pid, and gone once it
+    # has exited.
+    for pattern in (f"lpc-footprint-{bench.pid}*", f"*/lpc-footprint-{bench.pid}*"):  # v2, v1
         assert not list(Path("/sys/fs/cgroup").glob(pattern))
     report = json.loads(stdout)
     assert report["mode"] == "together" and report["cgroup"] in ("v1", "v2")
+    # By default the simulated camera is a device outside the set, measured on its own.
+    assert report["devices"] == "outside"
+    assert report["outside_set"]["sim-camera"]["rss_mb"] > 10
     services = report["services"]
     for name in ("camera", "scans", "reconstructor", "aim", "controller", "recorder"):
         assert services[name]["cpu_from"] == "event loop", name

@@ -97,7 +97,7 @@ def test_up_rejects_bad_parameters() -> None:
     for argv, needle in [
         (["--duration", "-1"], "--duration must be positive"),
         (["--source", "replay"], "needs the recording"),
-        (["--source", "webcam"], "must be sim, realsense or replay"),
+        (["--source", "webcam"], "must be sim, sim-device, realsense or replay"),
         (["--services", "nope"], "unknown service"),
     ]:
         result = subprocess.run(

@@ -250,3 +250,18 @@ def test_up_args_together_one_container_and_the_bridge_apart() -> None:
     assert [s.name for s in loaded] == [m.name for m in members]
     assert all(s.args.quiet for s in loaded)
     assert set(child.members) == {m.name for m in members}
+
+
+def test_up_args_sim_device_source_passes_its_socket(monkeypatch: pytest.MonkeyPatch) -> None:
+    from services import camera
+
+    started: dict[str, argparse.Namespace] = {}
+    monkeypatch.setattr(camera, "run_service", lambda name, serve, a: started.update(c=a) or 0)
+    args = parse("--source", "sim-device", "/run/cam.sock")
+    assert up._validate(args) is None
+    assert camera.main(argv_of("camera", args)) == 0
+    assert (started["c"].source, started["c"].socket) == ("sim-device", "/run/cam.sock")
+    args = parse("--source", "sim-device")  # the device's default socket
+    assert camera.main(argv_of("camera", args)) == 0
+    assert started["c"].socket == camera.default_sim_socket()
+    assert "sim, sim-device, realsense or replay" in (up._validate(parse("--source", "usb")) or "")

@@ -15,6 +15,10 @@ import sys
 # name -> (module, one-line help). Modules are imported only when their command runs.
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("services.cli.up", "start the service set on the bus (simulated scene by default)"),
+    "sim-camera": (
+        "services.cli.sim_camera",
+        "the simulated depth camera as a device of its own (for --source sim-device)",
+    ),
     "topics": ("services.cli.topics", "list the topics seen on the bus, with rates"),
     "echo": ("services.cli.echo", "print the messages of one key expression as JSON lines"),
     "schemas": ("services.cli.schemas", "print the JSON schema of every topic"),

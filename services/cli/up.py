@@ -55,7 +55,7 @@ class ServiceSpec:
 def _camera_argv(args: argparse.Namespace) -> list[str]:
     argv = ["--source", args.source[0], "--rate", str(args.rate), "--seed", str(args.seed)]
     if len(args.source) > 1:
-        argv += ["--file", args.source[1]]
+        argv += ["--socket" if args.source[0] == "sim-device" else "--file", args.source[1]]
     if args.source[0] == "sim":
         argv += sensor_argv(args)
     elif args.source[0] == "realsense":
@@ -218,7 +218,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         nargs="+",
         default=["sim"],
         metavar=("SOURCE", "FILE"),
-        help="depth source: sim (built-in simulated scene, default), realsense [FILE.bag], "
+        help="depth source: sim (built-in simulated scene, default), sim-device [SOCKET] (the "
+        "same scene rendered by 'lpc sim-camera', read as a live camera), realsense [FILE.bag], "
         "or replay FILE.mcap",
     )
     parser.add_argument("--record", metavar="PATH", help="record every lpc/** topic to MCAP")
@@ -361,8 +362,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _validate(args: argparse.Namespace) -> str | None:
     kind = args.source[0]
-    if kind not in ("sim", "realsense", "replay"):
-        return f"--source must be sim, realsense or replay, not {kind!r}"
+    if kind not in ("sim", "sim-device", "realsense", "replay"):
+        return f"--source must be sim, sim-device, realsense or replay, not {kind!r}"
     if kind == "replay" and len(args.source) != 2:
         return "--source replay needs the recording: --source replay FILE.mcap"
     if kind == "sim" and len(args.source) != 1:

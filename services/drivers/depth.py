@@ -8,7 +8,11 @@ of a file it raises ``EndOfStream``. ``shutdown()`` may be called twice.
 from __future__ import annotations
 
 import argparse
+import asyncio
+import collections
 import contextlib
+import os
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -18,9 +22,10 @@ from typing import Any
 
 import numpy as np
 
+from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, LinkParser, Rejected
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.sim.stereo import MATCHERS, Matcher, StereoRig, StereoSensor
-from schemas import ObjectTruth
+from schemas import ObjectTruth, from_wire
 from services.drivers.errors import DeviceUnavailable, OperationError
 
 
@@ -30,6 +35,10 @@ class EndOfStream(Exception):
 
 class SourceUnavailable(DeviceUnavailable):
     """The source cannot be opened: missing package, missing device, unreadable file."""
+
+
+class MalformedFrame(Exception):
+    """The device sent something that is not a frame; it was skipped and the source reads on."""
 
 
 @dataclass(frozen=True)
@@ -587,3 +596,134 @@ class ReplaySource:
 
     def shutdown(self) -> None:
         self._messages = iter(())
+
+
+def default_sim_socket() -> str:
+    """Where ``lpc sim-camera`` listens and ``--source sim-device`` looks by default (per user)."""
+    base = os.environ.get("XDG_RUNTIME_DIR") or "/tmp"
+    return str(Path(base) / f"lpc-sim-camera-{os.getuid()}.sock")
+
+
+class SimDeviceSource:
+    """The simulated camera run as a device of its own (``lpc sim-camera``), read over its Unix
+    socket like a live camera: it paces itself, and each reading carries the device's capture
+    time and the scene's truth.
+
+    ``SourceUnavailable`` when no device answers at ``path`` (or it sends no hello within
+    ``timeout``); ``read`` raises ``OperationError`` once the device has gone away, and
+    ``MalformedFrame`` for bytes that are not a frame of the announced size (skipped: the next
+    ``read`` goes on with the frame after them).
+    """
+
+    name = "sim-device"
+    paced = False
+
+    _RECV_BYTES = 1 << 18
+
+    def __init__(self, path: str | Path, timeout: float = 2.0) -> None:
+        self._path = str(path)
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._parser = LinkParser()
+        self._ready: collections.deque = collections.deque()
+        self._closed = False
+        self.unsupported: list[str] = []
+        try:
+            self._sock.connect(self._path)
+            hello = self._next_message(timeout)
+        except (OSError, OperationError) as exc:
+            self._sock.close()
+            raise SourceUnavailable(
+                f"no simulated camera at {self._path} ({exc}); start one: "
+                f"lpc sim-camera --socket {self._path}"
+            ) from exc
+        if not isinstance(hello, DeviceHello):
+            self._sock.close()
+            raise SourceUnavailable(f"the device at {self._path} did not say hello first")
+        from lpc_core.perception.pipeline import intrinsics_from_message
+
+        self.intrinsics = intrinsics_from_message(hello.intrinsics)
+        self.rate_hz = hello.rate_hz
+        self._detail = hello.detail
+        shape = (self.intrinsics.height, self.intrinsics.width)
+        self._shape = shape
+        # Anything longer than a frame of this size is not one of this device's frames.
+        self._parser.max_body = shape[0] * shape[1] * 2 + 65536
+
+    def settings_text(self) -> str:
+        return f"device={self._path} rate_hz={self.rate_hz:g}" + (
+            f" {self._detail}" if self._detail else ""
+        )
+
+    def _next_message(self, timeout: float) -> DeviceHello | DeviceFrame | Rejected | None:
+        """The next parsed item, ``None`` after ``timeout`` s, ``OperationError`` at the end."""
+        deadline = time.monotonic() + max(timeout, 0.0)
+        while not self._ready:
+            self._check_open()
+            self._sock.settimeout(max(deadline - time.monotonic(), 1e-3))
+            try:
+                data = self._sock.recv(self._RECV_BYTES)
+            except TimeoutError:
+                return None
+            except OSError as exc:
+                raise OperationError(f"reading the simulated camera failed: {exc}") from exc
+            self._feed(data)
+        return self._ready.popleft()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise OperationError(f"the simulated camera at {self._path} went away")
+
+    def _feed(self, data: bytes) -> None:
+        if data:
+            self._ready.extend(self._parser.feed(data))
+            return
+        self._closed = True  # what is left is a truncated record, then the end
+        rest = self._parser.flush()
+        if rest is not None:
+            self._ready.append(rest)
+
+    def read(self, timeout: float) -> DepthReading | None:
+        """The next frame, ``None`` after ``timeout`` seconds."""
+        item = self._next_message(timeout)
+        return None if item is None else self._reading(item)
+
+    async def read_async(self, timeout: float) -> DepthReading | None:
+        """``read`` on the running event loop: woken by the socket, with no thread between
+        (measured: 0.47 ms of CPU a frame against 1.4 ms through ``asyncio.to_thread``)."""
+        loop = asyncio.get_running_loop()
+        self._sock.setblocking(False)
+        try:
+            async with asyncio.timeout(timeout):
+                while not self._ready:
+                    self._check_open()
+                    try:
+                        data = await loop.sock_recv(self._sock, self._RECV_BYTES)
+                    except OSError as exc:
+                        raise OperationError(f"reading the simulated camera failed: {exc}") from exc
+                    self._feed(data)
+        except TimeoutError:
+            return None
+        return self._reading(self._ready.popleft())
+
+    def _reading(self, item: DeviceHello | DeviceFrame | Rejected) -> DepthReading:
+        match item:
+            case Rejected(nbytes=nbytes, reason=reason):
+                raise MalformedFrame(f"skipped {nbytes} bytes from the device: {reason}")
+            case DeviceHello():
+                raise MalformedFrame("a second hello from the device, skipped")
+        try:
+            depth = from_wire(item.depth)
+        except ValueError as exc:
+            raise MalformedFrame(f"frame {item.seq} skipped: {exc}") from exc
+        if depth.dtype != np.uint16 or depth.shape != self._shape:
+            raise MalformedFrame(
+                f"frame {item.seq} skipped: depth is {depth.dtype} {depth.shape}, "
+                f"expected uint16 {self._shape} from the hello"
+            )
+        return DepthReading(depth=depth, truth=item.truth, t_ns=item.t_ns)
+
+    def shutdown(self) -> None:
+        # shutdown() before close(): it wakes a read blocked in another thread.
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)
+        self._sock.close()

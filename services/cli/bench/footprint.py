@@ -9,6 +9,13 @@ cgroup's weight is raised so that other work on the machine cannot take the quot
 the cgroup is removed afterwards, also on failure. Without ``--cpus`` the set runs unconfined
 (and shares the machine with whatever else runs on it).
 
+The simulated camera is a device, as the RealSense is on the worn computer, where its own chip
+makes the depth and the camera service only receives finished frames. So by default
+(``--devices outside``) it runs as ``lpc sim-camera``, started before the set and stopped after
+it, outside the quota, and the set reads it with ``--source sim-device``; its own CPU and memory
+are printed on a line of their own, not in the set's totals. ``--devices inside`` measures the
+set as ``lpc up --source sim``, rendering in the camera service, under the quota.
+
 CPU and memory come from the processes themselves (psutil: user + system time over the
 measured window, and resident set size); with ``--together`` the per-service CPU is what
 each service's tasks took on the shared event loop (its health's ``cpu_ms``), and the rest of
@@ -31,6 +38,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,18 +87,22 @@ class QuotaUnavailable(Exception):
 
 @dataclass
 class CpuQuota:
-    """A fresh cgroup with a CFS quota of ``cpus`` CPUs; ``close`` removes it."""
+    """A fresh cgroup with a CFS quota of ``cpus`` CPUs (None: no ceiling, only the weight),
+    named after this process and ``suffix``; ``close`` removes it."""
 
-    cpus: float
+    cpus: float | None
+    suffix: str = ""
     path: Path = field(init=False)
     version: int = field(init=False)
 
     def __post_init__(self) -> None:
-        self.path, self.version = _make_cgroup(f"lpc-footprint-{os.getpid()}")
-        quota_us = max(1000, round(self.cpus * PERIOD_US))  # the kernel's least: 1 ms
+        self.path, self.version = _make_cgroup(f"lpc-footprint-{os.getpid()}{self.suffix}")
+        # The kernel's least quota is 1 ms; -1 / "max" is none.
+        quota_us = -1 if self.cpus is None else max(1000, round(self.cpus * PERIOD_US))
         try:
             if self.version == 2:
-                (self.path / "cpu.max").write_text(f"{quota_us} {PERIOD_US}")
+                limit = "max" if quota_us < 0 else str(quota_us)
+                (self.path / "cpu.max").write_text(f"{limit} {PERIOD_US}")
                 (self.path / "cpu.weight").write_text(str(100 * WEIGHT))
             else:
                 (self.path / "cpu.cfs_period_us").write_text(str(PERIOD_US))
@@ -306,6 +318,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--record", action="store_true", help="with the recorder on (to a temporary file)"
     )
+    parser.add_argument(
+        "--devices",
+        choices=("outside", "inside"),
+        default="outside",
+        help="outside (default): the simulated camera runs as a device (lpc sim-camera) apart "
+        "from the set and its quota, as the RealSense's chip does; inside: the camera service "
+        "renders the scene itself (lpc up --source sim), under the quota",
+    )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument("--port", type=int, default=7467, help="rendezvous port (loopback)")
     parser.add_argument("--rate", type=float, default=90.0, help="camera rate (default 90 Hz)")
@@ -335,19 +355,27 @@ def run(args: argparse.Namespace) -> int:
     except ImportError:
         print("lpc bench footprint: error: needs psutil: pip install 'lpc[bench]'", file=sys.stderr)
         return 2
-    quota = None
+    quota = devices = None
     if args.cpus is not None:
         try:
             quota = CpuQuota(args.cpus)
+            # The device stands for hardware: out of the quota, and as heavily weighted as the
+            # set, so that neighbours on this machine do not slow the camera the set reads.
+            if args.devices == "outside":
+                devices = CpuQuota(None, "-devices")
         except QuotaUnavailable as exc:
+            if quota is not None:
+                quota.close()
             print(f"lpc bench footprint: error: {exc}", file=sys.stderr)
             return 2
     try:
         with tempfile.TemporaryDirectory(prefix="lpc-footprint-") as tmp:
-            result = _measure(args, quota, Path(tmp))
+            result = _measure(args, quota, Path(tmp), devices)
     finally:
         if quota is not None:
             quota.close()
+        if devices is not None:
+            devices.close()
     if result is None:
         return 1
     if args.json:
@@ -357,10 +385,58 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result["lpc_up_exit"] == 0 else 1
 
 
-def _measure(args: argparse.Namespace, quota: CpuQuota | None, tmp: Path) -> dict | None:
+def _measure(
+    args: argparse.Namespace, quota: CpuQuota | None, tmp: Path, devices: CpuQuota | None = None
+) -> dict | None:
+    if getattr(args, "devices", "outside") == "inside":
+        return _measure_set(args, quota, tmp, ["sim"], None)
+    path = tmp / "camera.sock"
+    with _sim_camera(args, path, devices) as device:
+        if device is None:
+            print("lpc bench footprint: error: lpc sim-camera did not start", file=sys.stderr)
+            return None
+        return _measure_set(args, quota, tmp, ["sim-device", str(path)], device)
+
+
+@contextlib.contextmanager
+def _sim_camera(
+    args: argparse.Namespace, path: Path, group: CpuQuota | None
+) -> Iterator[subprocess.Popen[bytes] | None]:
+    """``lpc sim-camera`` on ``path``, in cgroup ``group`` (not the set's), until the set has
+    stopped; None if it does not start."""
+    device = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "sim-camera", "--socket", str(path),
+         "--rate", f"{args.rate:g}"],
+        stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        preexec_fn=group.enter if group else None,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not path.exists():
+            if device.poll() is not None or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        yield device if path.exists() else None
+    finally:
+        if device.poll() is None:
+            device.send_signal(signal.SIGTERM)
+            try:
+                device.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                device.kill()
+                device.wait()
+
+
+def _measure_set(
+    args: argparse.Namespace,
+    quota: CpuQuota | None,
+    tmp: Path,
+    source: list[str],
+    device: subprocess.Popen[bytes] | None,
+) -> dict | None:
     total_s = args.warmup + args.seconds
     argv = [
-        sys.executable, "-m", "services.cli", "up", "--source", "sim",
+        sys.executable, "-m", "services.cli", "up", "--source", *source,
         "--duration", f"{total_s + 30:g}", "--port", str(args.port),
         "--rate", f"{args.rate:g}", "--status-every", "3600",
     ]  # fmt: skip
@@ -373,7 +449,7 @@ def _measure(args: argparse.Namespace, quota: CpuQuota | None, tmp: Path) -> dic
     print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
     with lpc_up(argv, quota.enter if quota else None) as (up, started, log):
         try:
-            observed = _observe(args, up, started, quota)
+            observed = _observe(args, up, started, quota, device)
         except KeyboardInterrupt:
             observed = None
     if observed is None:
@@ -387,12 +463,15 @@ def _observe(
     up: subprocess.Popen[str],
     started: threading.Event,
     quota: CpuQuota | None,
+    device: subprocess.Popen[bytes] | None = None,
 ) -> tuple[Watcher, Captures, Sampler, dict[str, ProcessReport], dict, float] | None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while not started.wait(0.1):
         if up.poll() is not None or time.monotonic() > deadline:
             return None
     watcher, captures, sampler = Watcher(), Captures(), Sampler(up.pid)
+    # The device is no child of lpc up: sampled on its own, kept out of the set's figures.
+    devices = Sampler(device.pid) if device is not None else None
     services: dict[str, ProcessReport] = {}
     keys = [t.key for t in TOPICS if t.key != "lpc/camera/depth" and "*" not in t.key]
     conf = zenoh_config(connect=[f"tcp/127.0.0.1:{args.port}"])
@@ -416,11 +495,15 @@ def _observe(
             if not in_window and now >= window_start:
                 in_window = True
                 sampler.restart_window()
+                if devices is not None:
+                    devices.restart_window()
                 stat_start = quota.stat() if quota else {}
                 with watcher.lock:
                     watcher.lost.clear()
                     watcher.seen.clear()
             sampler.sample()
+            if devices is not None:
+                devices.sample()
             if in_window:
                 watcher.sample_into(services, now - window_start)
             next_sample += 1.0
@@ -430,7 +513,8 @@ def _observe(
         memory = sampler.memory_detail()
         stat_end = quota.stat() if quota else {}
     throttle = {k: stat_end[k] - stat_start.get(k, 0) for k in stat_end}
-    return watcher, captures, sampler, services, {"memory": memory, "cgroup": throttle}, elapsed
+    extra = {"memory": memory, "cgroup": throttle, "devices": devices}
+    return watcher, captures, sampler, services, extra, elapsed
 
 
 def _percentiles(values: list[float]) -> dict[str, float | None]:
@@ -508,8 +592,17 @@ def _result(
             for k in sorted(watcher.seen)
         }
     total_cpu = sum(cpu.values())
+    outside: dict[str, dict[str, float]] = {}
+    if extra.get("devices") is not None:
+        device: Sampler = extra["devices"]
+        outside["sim-camera"] = {
+            "cpu": round(sum(e.cpu_last - e.cpu_start for e in device.procs.values()) / window, 4),
+            "rss_mb": round(max(device.totals, default=0) / 2**20, 1),
+        }
     return {
         "mode": "together" if args.together else "processes",
+        "devices": "outside" if outside else "inside",
+        "outside_set": outside,
         "cpus": args.cpus,
         "cgroup": f"v{quota.version}" if quota else None,
         "record": args.record,
@@ -544,9 +637,14 @@ def _order(name: str) -> tuple[int, str]:
 
 def _print(r: dict[str, Any]) -> None:
     quota = f"quota {r['cpus']:g} CPU (cgroup {r['cgroup']})" if r["cpus"] else "no quota"
+    devices = (
+        "simulated camera outside the set (a device, not counted)"
+        if r["devices"] == "outside"
+        else "simulated camera inside the set (rendered by the camera service)"
+    )
     print(
         f"lpc bench footprint: {r['mode']}, {quota}, recorder {'on' if r['record'] else 'off'}, "
-        f"{r['seconds']:g} s measured"
+        f"{devices}, {r['seconds']:g} s measured"
     )
     print(
         f"\n{'service':<22}{'cpu %':>7}{'rss MB':>8}{'rate Hz':>9}{'p50 ms':>8}{'p99 ms':>8}  drops"
@@ -569,6 +667,11 @@ def _print(r: dict[str, Any]) -> None:
         f"   ({t['processes']} processes; rss last {t['rss_mb_last']:.0f} MB, "
         f"pss {t['pss_mb']:.0f} MB, uss {t['uss_mb']:.0f} MB)"
     )
+    for name, device in r["outside_set"].items():
+        print(
+            f"{name + ' (device)':<22}{100 * device['cpu']:>7.1f}{device['rss_mb']:>8.0f}"
+            "   outside the set and its quota, not in the total"
+        )
     if throttled:
         periods = throttled.get("nr_periods", 0)
         share = throttled.get("nr_throttled", 0) / periods if periods else 0.0
