@@ -8,10 +8,10 @@ and holds ``lpc/alive/<service>``, so recording, replay, dashboards and outside 
 what they see when every service has its process. A sample one of its services publishes is
 handed by the publisher straight to the subscriptions of both loops (``Router.deliver``); Zenoh
 carries it only to other processes. Samples from other processes reach each loop through one
-subscriber on ``lpc/**`` (``services.runtime.Router``), once for all the services that want them. A service that raises is
-restarted inside the container with backoff (counted in its health, logged); the process itself
-is restarted by ``lpc up``. On SIGINT/SIGTERM the services are stopped in reverse start order
-(the recorder, first, is last).
+subscriber on ``lpc/**`` (``services.runtime.Router``), once for all the services that want
+them. A service that raises is restarted inside the container with backoff (counted in its
+health, logged); the process itself is restarted by ``lpc up``. On SIGINT/SIGTERM the services
+are stopped in reverse start order (the recorder, first, is last).
 
 Each service's health also carries ``cpu_ms``: the CPU time its tasks took on the shared loop
 (Zenoh's own threads and the loop's bookkeeping are the container's).
