@@ -870,8 +870,10 @@ def _column(values: list[float]) -> np.ndarray:
 
 
 def _columns(rows: Iterable[Sequence[float]]) -> tuple[np.ndarray, ...]:
-    """Per-line parameter tuples as one ``(L, 1)`` column per parameter."""
-    return tuple(_column(v) for v in zip(*rows, strict=True))
+    """Per-line parameter tuples as one ``(L, 1)`` column per parameter (views of one array:
+    one conversion instead of one per parameter)."""
+    table = np.array(list(rows), dtype=np.float64)
+    return tuple(table.T[:, :, None])
 
 
 def _best_columns(best: list[Best | None], width: int) -> tuple[np.ndarray, ...]:

@@ -185,7 +185,7 @@ class Segments:
         """``(L, m, W)`` monomials of the centred points, built once per batch."""
         found = self._bases.get(name)
         if found is None:
-            x, y, one = self.x, self.y, np.ones_like(self.x)
+            x, y, one = self.x, self.y, np.ones(self.x.shape)
             found = np.stack([x, y, one] if name == "line" else [x, y, x * x + y * y, one], axis=1)
             self._bases[name] = found
         return found
