@@ -11,7 +11,6 @@ from lpc_core.perception.solids import (
     CylinderSolid,
     PlaneSolid,
     SphereSolid,
-    _solve,
     best_cylinder_axis,
     fit_circle_2d,
     hemisphere_directions,
@@ -170,19 +169,6 @@ def test_silhouette_distance_sphere_and_cylinder() -> None:
     )
     # A camera inside the solid sees no silhouette.
     assert np.isinf(SphereSolid(center=centre, radius=0.3).silhouette_distance(front)).all()
-
-
-def test_solve_matches_numpy_and_reports_singular_systems() -> None:
-    rng = np.random.default_rng(7)
-    for size in (4, 5):
-        a = rng.normal(size=(size, size))
-        a = a @ a.T + np.eye(size)
-        b = rng.normal(size=size)
-        got = _solve(a, b)
-        assert got is not None and np.array_equal(got, np.linalg.solve(a, b))  # same bits
-    singular = np.ones((5, 5))
-    with np.errstate(invalid="ignore"):
-        assert _solve(singular, np.ones(5)) is None
 
 
 def test_silhouette_distance_matches_cross_product_form() -> None:

@@ -114,19 +114,6 @@ def _solve3(
     return x1 / det, x2 / det, x3 / det
 
 
-# numpy.linalg.solve's own gufunc (LAPACK's dgesv, so the same bits) without the wrapper's
-# type checks and error-state context, which cost twice the solve itself at 4x4 and 5x5.
-_SOLVE1 = np.linalg._umath_linalg.solve1
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    """``a x = b`` for one small float64 system (as ``numpy.linalg.solve``), None where ``a``
-    is singular (dgesv's pivot is zero: the gufunc then returns NaN). The caller ignores
-    numpy's invalid-value warning: ``a`` and ``b`` are finite, so NaN means singular."""
-    x = _SOLVE1(a, b, signature="dd->d")
-    return None if math.isnan(float(x.sum())) else x
-
-
 def _smallest_eigenvector(m: list[list[float]]) -> list[float] | None:
     """Unit eigenvector of the smallest eigenvalue of a symmetric positive semi-definite 3x3
     matrix, in closed form (Python floats: a tenth of ``numpy.linalg.eigh`` at this size);
@@ -247,22 +234,22 @@ class SphereSolid:
         rows = np.ascontiguousarray(points.T)
         aug = np.empty((5, len(points)))
         aug[3] = -1.0
-        with np.errstate(invalid="ignore"):  # a singular solve is NaN, reported below
-            for _ in range(iterations):
-                w = rows - center[:, None]
-                rho = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-                if not rho.min() > 0:
-                    return FailedSolid("a point sits on the centre")
-                np.divide(w, -rho, out=aug[:3])
-                np.subtract(radius, rho, out=aug[4])
-                normal = aug @ aug.T
-                step = _solve(normal[:4, :4], normal[:4, 4])
-                if step is None:
-                    return FailedSolid("points do not fix a sphere")
-                center = center + step[:3]
-                radius += float(step[3])
-                if np.abs(step).max() < 1e-7:
-                    break
+        for _ in range(iterations):
+            w = rows - center[:, None]
+            rho = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+            if not rho.min() > 0:
+                return FailedSolid("a point sits on the centre")
+            np.divide(w, -rho, out=aug[:3])
+            np.subtract(radius, rho, out=aug[4])
+            normal = aug @ aug.T
+            try:
+                step = np.linalg.solve(normal[:4, :4], normal[:4, 4])
+            except np.linalg.LinAlgError:
+                return FailedSolid("points do not fix a sphere")
+            center = center + step[:3]
+            radius += float(step[3])
+            if np.abs(step).max() < 1e-7:
+                break
         if not np.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
         return cls(center=center, radius=radius)
@@ -319,35 +306,34 @@ class CylinderSolid:
         state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
         cost, jtj, jtr = _cylinder_normal_equations(rows, *state)
         damping = 1e-4
-        with np.errstate(invalid="ignore"):  # a singular solve is NaN (_solve: None)
-            for _ in range(iterations):
-                h = jtj.copy()
-                h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
-                step = _solve(h, -jtr)
-                if step is None:
+        for _ in range(iterations):
+            h = jtj.copy()
+            h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
+            try:
+                s0, s1, s2, s3, s4 = np.linalg.solve(h, -jtr).tolist()
+            except np.linalg.LinAlgError:
+                break
+            c, d, e1, e2, radius = state
+            dn = [d[i] + e1[i] * s2 + e2[i] * s3 for i in range(3)]
+            k = 1.0 / math.sqrt(dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2])
+            dn = [v * k for v in dn]
+            # Re-orthonormalise the previous basis against the new axis (continuous, no branch).
+            dot = e1[0] * dn[0] + e1[1] * dn[1] + e1[2] * dn[2]
+            f1 = [e1[i] - dot * dn[i] for i in range(3)]
+            k = 1.0 / math.sqrt(f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
+            f1 = [v * k for v in f1]
+            f2 = [dn[1] * f1[2] - dn[2] * f1[1], dn[2] * f1[0] - dn[0] * f1[2],
+                  dn[0] * f1[1] - dn[1] * f1[0]]  # fmt: skip
+            cn = [c[i] + e1[i] * s0 + e2[i] * s1 for i in range(3)]
+            new_state = (cn, dn, f1, f2, radius + s4)
+            new_cost, new_jtj, new_jtr = _cylinder_normal_equations(rows, *new_state)
+            if new_cost < cost:
+                state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
+                damping = max(damping / 4, 1e-9)
+                if max(abs(s0), abs(s1), abs(s2), abs(s3), abs(s4)) < 1e-6:
                     break
-                s0, s1, s2, s3, s4 = step.tolist()
-                c, d, e1, e2, radius = state
-                dn = [d[i] + e1[i] * s2 + e2[i] * s3 for i in range(3)]
-                k = 1.0 / math.sqrt(dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2])
-                dn = [v * k for v in dn]
-                # Re-orthonormalise the previous basis on the new axis (continuous, no branch).
-                dot = e1[0] * dn[0] + e1[1] * dn[1] + e1[2] * dn[2]
-                f1 = [e1[i] - dot * dn[i] for i in range(3)]
-                k = 1.0 / math.sqrt(f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
-                f1 = [v * k for v in f1]
-                f2 = [dn[1] * f1[2] - dn[2] * f1[1], dn[2] * f1[0] - dn[0] * f1[2],
-                      dn[0] * f1[1] - dn[1] * f1[0]]  # fmt: skip
-                cn = [c[i] + e1[i] * s0 + e2[i] * s1 for i in range(3)]
-                new_state = (cn, dn, f1, f2, radius + s4)
-                new_cost, new_jtj, new_jtr = _cylinder_normal_equations(rows, *new_state)
-                if new_cost < cost:
-                    state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
-                    damping = max(damping / 4, 1e-9)
-                    if max(abs(s0), abs(s1), abs(s2), abs(s3), abs(s4)) < 1e-6:
-                        break
-                else:
-                    damping *= 16
+            else:
+                damping *= 16
         c, d, _, _, radius = state
         if not math.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
