@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import mcap.writer
 import numpy as np
 import pytest
+import zstandard
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
@@ -115,6 +117,9 @@ def test_writer_zstd_level_leaves_other_mcap_writers_at_zstd_default(tmp_path: P
     before = stock(tmp_path / "before.mcap")
     write_session(tmp_path / "z19.mcap", session(6), zstd_level=19)
     assert stock(tmp_path / "after.mcap") == before
+    # What mcap's Writer calls is zstandard's own compress at its default level.
+    chunk = b"".join(payload for _, payload, _ in session(3))
+    assert mcap.writer.zstandard.compress(chunk) == zstandard.compress(chunk)
 
 
 def test_writer_sequence_keeps_low_32_bits(tmp_path: Path) -> None:
