@@ -13,10 +13,19 @@ that jumped) are counted in the health counters (``gaps``, ``missing``) and each
 Default compression, measured with ``python -m services.cli.bench.recorder`` (203 KB simulated
 depth frames, 1 MiB chunks, mcap 1.6, this 2-core machine at load 5): zstd 1.1 ms per frame
 and 4.4x smaller (4.2 MB/s at 90 Hz), LZ4 0.8 ms and 2.7x (6.7 MB/s), none 0.6 ms (18 MB/s).
-zstd is the default: 10% of one core at 90 Hz, half the disk of LZ4, and it releases the GIL
-while it compresses, where python-lz4 holds it and stalls the Zenoh threads that hand samples
-over. The whole recorder takes 18-26% of one core on the full live mix (depth and scans at
-90 Hz, EMG and hand state at 100 Hz, cue and tactor command at 90 Hz).
+zstd is the default: it releases the GIL while it compresses, where python-lz4 holds it and
+stalls the Zenoh threads that hand samples over.
+
+Its level (``--zstd-level``, default 1), measured with ``python -m services.cli.bench.recorder
+write --zstd-levels=3,1,-1,-5`` (CPU time per frame, shared machine at load 3.5, three runs):
+level 3 (zstd's own default, used until then) 1.5-1.7 ms and 4.40x (4.2 MB/s); level 1
+1.0 ms and 3.77x (4.9 MB/s); level -1 1.0-1.1 ms and 3.36x; level -5 0.9 ms and 2.78x
+(6.6 MB/s). Writing without compression already costs 0.65 ms (chunking, CRCs, the write), so
+negative levels save little CPU over level 1 and cost a third more disk; level 1 takes 9% of
+one core at 90 Hz against 14% at level 3. The files read with any zstd decoder (the stock
+``mcap`` reader included). The whole recorder took 18-26% of one core on the full live mix
+(depth and scans at 90 Hz, EMG and hand state at 100 Hz, cue and tactor command at 90 Hz) at
+level 3.
 """
 
 from __future__ import annotations
@@ -29,7 +38,15 @@ import time
 from pathlib import Path
 
 from lpc_core.gaps import GapState, gap_step
-from services.mcap_log import COMPRESSIONS, DEFAULT_COMPRESSION, LogWriter, free_path, read_header
+from services.mcap_log import (
+    COMPRESSIONS,
+    DEFAULT_COMPRESSION,
+    DEFAULT_ZSTD_LEVEL,
+    ZSTD_LEVELS,
+    LogWriter,
+    free_path,
+    read_header,
+)
 from services.runtime import Bus, run_service, service_parser
 
 QUEUE_CAPACITY = 1 << 16  # ~6 s of everything at 90 Hz depth: a slow disk stalls, never drops
@@ -44,9 +61,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     # Never overwrite a recording: a recorder restarted after a crash (or a second session
     # with the same --out) writes beside the file its predecessor left, not over it.
     out = free_path(Path(args.out))
-    writer = LogWriter(out, compression=args.compression, max_bytes=max_bytes)
+    writer = LogWriter(
+        out, compression=args.compression, max_bytes=max_bytes, zstd_level=args.zstd_level
+    )
     sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY, decode=False)
-    bus.log("info", f"recording lpc/** to {out} ({args.compression})")
+    level = f" level {args.zstd_level}" if args.compression == "zstd" else ""
+    bus.log("info", f"recording lpc/** to {out} ({args.compression}{level})")
     gaps = GapState()
     try:
         while True:
@@ -99,6 +119,14 @@ def main(argv: list[str] | None = None) -> int:
         help=f"chunk compression (default {DEFAULT_COMPRESSION}, chosen by measurement)",
     )
     parser.add_argument(
+        "--zstd-level",
+        type=int,
+        default=DEFAULT_ZSTD_LEVEL,
+        metavar="N",
+        help=f"zstd level, {ZSTD_LEVELS.start}..{ZSTD_LEVELS.stop - 1} (default "
+        f"{DEFAULT_ZSTD_LEVEL}: half the CPU of level 3 for 15%% more bytes)",
+    )
+    parser.add_argument(
         "--max-mb",
         type=float,
         metavar="MB",
@@ -107,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.max_mb is not None and args.max_mb <= 0:
         parser.error("--max-mb must be positive")
+    if args.zstd_level not in ZSTD_LEVELS:
+        parser.error(f"--zstd-level must lie in {ZSTD_LEVELS.start}..{ZSTD_LEVELS.stop - 1}")
     return run_service("recorder", serve, args)
 
 

@@ -5,9 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import mcap.writer
 import numpy as np
 import pytest
+import zstandard
 from mcap.reader import make_reader
+from mcap.writer import Writer
 
 from schemas import CameraIntrinsics, DepthFrame, EmgSample, Health, decode, encode, to_wire
 from services.mcap_log import (
@@ -85,6 +88,38 @@ def test_writer_identical_input_gives_identical_bytes(tmp_path: Path) -> None:
         write_session(tmp_path / f"b-{compression}.mcap", items, compression=compression)
         a = (tmp_path / f"a-{compression}.mcap").read_bytes()
         assert a == (tmp_path / f"b-{compression}.mcap").read_bytes()
+
+
+def test_writer_zstd_level_is_used_and_stock_mcap_reads_every_level(tmp_path: Path) -> None:
+    items = session(12)
+    sizes = {}
+    for level in (-5, 1, 19):
+        path = tmp_path / f"z{level}.mcap"
+        write_session(path, items, zstd_level=level)
+        sizes[level] = path.stat().st_size
+        with open(path, "rb") as f:
+            got = [m.data for _, _, m in make_reader(f).iter_messages(log_time_order=True)]
+        assert got == [payload for _, payload, _ in items]
+    assert sizes[19] < sizes[1] < sizes[-5]
+
+
+def test_writer_zstd_level_leaves_other_mcap_writers_at_zstd_default(tmp_path: Path) -> None:
+    def stock(path: Path) -> bytes:
+        with open(path, "wb") as f:
+            writer = Writer(f)  # mcap's own, zstd at its default level
+            writer.start()
+            channel = writer.register_channel("lpc/camera/depth", "msgpack", 0)
+            for i, (_, payload, t) in enumerate(session(6)):
+                writer.add_message(channel, log_time=t, data=payload, publish_time=t, sequence=i)
+            writer.finish()
+        return path.read_bytes()
+
+    before = stock(tmp_path / "before.mcap")
+    write_session(tmp_path / "z19.mcap", session(6), zstd_level=19)
+    assert stock(tmp_path / "after.mcap") == before
+    # What mcap's Writer calls is zstandard's own compress at its default level.
+    chunk = b"".join(payload for _, payload, _ in session(3))
+    assert mcap.writer.zstandard.compress(chunk) == zstandard.compress(chunk)
 
 
 def test_writer_sequence_keeps_low_32_bits(tmp_path: Path) -> None:
@@ -212,6 +247,8 @@ def test_writer_rejects_bad_parameters(tmp_path: Path) -> None:
         LogWriter(tmp_path / "p.mcap", compression="gzip")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="max_bytes"):
         LogWriter(tmp_path / "p.mcap", max_bytes=0)
+    with pytest.raises(ValueError, match="zstd_level"):
+        LogWriter(tmp_path / "p.mcap", zstd_level=30)
     writer = LogWriter(tmp_path / "p.mcap")
     writer.finish()
     writer.finish()  # twice is fine

@@ -39,7 +39,7 @@ def test_recorder_round_trip_keeps_every_message_in_order(
         loop = asyncio.get_running_loop()
         with zenoh.open(zenoh_config(connect=[endpoint])) as session:
             bus = Bus(session, "recorder", loop=loop, quiet=True)
-            args = argparse.Namespace(out=out, compression="zstd", max_mb=None)
+            args = argparse.Namespace(out=out, compression="zstd", zstd_level=1, max_mb=None)
             task = asyncio.create_task(recorder.serve(bus, args))
             # Both keys on one publisher-side session; BLOCK so the sender never drops.
             pubs = {

@@ -138,7 +138,7 @@ def proportional_velocity(level: Sequence[float], profile: EmgProfile) -> float:
         return 0.0
     span = 1.0 - profile.on
     drive = (max(flex - profile.on, 0.0) - max(ext - profile.on, 0.0)) / span
-    return float(np.clip(drive * profile.gain, -1.0, 1.0))
+    return min(max(drive * profile.gain, -1.0), 1.0)  # np.clip on one float cost ~5 us
 
 
 def calibrate(

@@ -23,7 +23,6 @@ proportional close on the object, a hold, and an opening that releases it.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ import numpy as np
 
 from lpc_core.control.controller import ControllerParams
 from lpc_core.control.emg import EmgProfile
+from lpc_core.control.state import evolve
 from schemas import AimCue, ControllerState, EmgSample, ProsthesisState
 
 RATE_HZ = 100.0
@@ -266,28 +266,28 @@ def user_step(
     match message:
         case ControllerState():
             if message.state != state.controller:
-                state = dataclasses.replace(state, controller=message.state, since_ns=now_ns)
+                state = evolve(state, controller=message.state, since_ns=now_ns)
             return state, []
         case ProsthesisState():
             return _watch_hand(state, message, now_ns), []
         case AimCue():
-            return dataclasses.replace(state, cue=message.state), []
+            return evolve(state, cue=message.state), []
         case Tick():
             state = _decide(state, now_ns)
             t_s = now_ns / 1e9
             # A held command rises slowly (never a quick contraction) and relaxes faster.
             sustained = tuple(
-                cur + float(np.clip(goal - cur, -3.0 / RATE_HZ, 1.2 / RATE_HZ))
+                cur + min(max(goal - cur, -3.0 / RATE_HZ), 1.2 / RATE_HZ)
                 for cur, goal in zip(state.sustained, state.sustain, strict=True)
             )
-            state = dataclasses.replace(state, sustained=sustained)  # type: ignore[arg-type]
+            state = evolve(state, sustained=sustained)  # type: ignore[arg-type]
             drive = np.maximum(script_drive(list(state.plan), 1, t_s), np.array([sustained]))
             muscle, raw = simulate_emg(state.muscle, drive, state.params, state.seed, state.seq)
             plan = tuple(s for s in state.plan if s.end_s > t_s)
             sample = EmgSample(
                 seq=state.seq, t_ns=message.t_ns, channels=[float(raw[0, 0]), float(raw[0, 1])]
             )
-            return dataclasses.replace(state, muscle=muscle, plan=plan, seq=state.seq + 1), [sample]
+            return evolve(state, muscle=muscle, plan=plan, seq=state.seq + 1), [sample]
         case _:
             raise ValueError(f"message: unexpected {type(message).__name__}")
 
@@ -299,13 +299,11 @@ def _watch_hand(state: UserState, hand: ProsthesisState, now_ns: int) -> UserSta
         or abs(hand.wrist_angle_deg - previous.wrist_angle_deg) > 0.05
     )
     still = None if moving else (state.still_since_ns or now_ns)
-    return dataclasses.replace(state, hand=hand, still_since_ns=still)
+    return evolve(state, hand=hand, still_since_ns=still)
 
 
 def _begin(state: UserState, task: str, now_ns: int, *segments: Segment) -> UserState:
-    return dataclasses.replace(
-        state, task=task, task_since_ns=now_ns, plan=state.plan + tuple(segments)
-    )
+    return evolve(state, task=task, task_since_ns=now_ns, plan=state.plan + tuple(segments))
 
 
 def _decide(state: UserState, now_ns: int) -> UserState:
@@ -349,7 +347,7 @@ def _decide(state: UserState, now_ns: int) -> UserState:
 
 
 def _sustain(state: UserState, flexor: float, extensor: float, **changes: object) -> UserState:
-    return dataclasses.replace(state, sustain=(flexor, extensor), **changes)  # type: ignore[arg-type]
+    return evolve(state, sustain=(flexor, extensor), **changes)  # type: ignore[arg-type]
 
 
 def _direct(state: UserState, now_ns: int, hand: ProsthesisState | None) -> UserState:
