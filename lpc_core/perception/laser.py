@@ -156,6 +156,10 @@ class LaserParams:
     # under 1 mm depth steps: the fit on all inliers stands unless its diameter exceeds the
     # camera-facing fit's by more than this.
     silhouette_tolerance_m: float = 0.0015
+    # A round is also refitted without the plateaus ending its lines' segments (a matcher's
+    # fattening past the silhouette); that fit stands when narrower by more than
+    # silhouette_tolerance_m (see _without_end_plateaus).
+    end_plateaus: bool = True
     # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
     # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
     # for a 7 x 7 window. Fixed, it cost lpc's own noise model, which does not fatten, cuboid
@@ -1510,7 +1514,10 @@ def _decide(
         return _none(f"no solid explains the scan lines ({details})", summaries, total, extra)
     solid = candidates[shape].solid
     if shape in ("sphere", "cylinder"):
+        full = solid
         solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
+        if params.end_plateaus:
+            solid = _without_end_plateaus(lines, full, solid, params)
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
@@ -1643,6 +1650,62 @@ def _camera_facing(
         # and on an object only roughly a cylinder the facing arc alone turns it.
         return replace(full, radius=solid.radius)
     return solid
+
+
+def _without_end_plateaus(
+    lines: list[LineModels],
+    full: SphereSolid | CylinderSolid,
+    solid: SphereSolid | CylinderSolid,
+    params: LaserParams,
+) -> SphereSolid | CylinderSolid:
+    """``solid``, or the round refitted without the plateaus that end the lines' segments
+    when that one is narrower by more than ``silhouette_tolerance_m``.
+
+    A round's depth changes fastest at its silhouette, so two or more samples within a depth
+    quantum of a segment's end are no rim but a matcher's fattening: background given the
+    edge's depth, beyond the silhouette, where they widen every fit (and the silhouette that
+    ``_camera_facing`` trims against). The refit starts from the fit on every inlier
+    (``full``) and keeps the points within three inlier bands of it, twice.
+    """
+    kept = []
+    trimmed = False
+    for ln in lines:
+        z = ln.sz[:, 1]
+        last = len(z) - 1
+        keep = np.zeros(len(z), dtype=bool)
+        keep[ln.run] = True
+        for end, inward in ((0, 1), (last, -1)):
+            j = end
+            while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= _PLATEAU_STEPPED_M:
+                j += inward
+            if j != end:
+                keep[min(j, end) : max(j, end) + 1] = False
+                trimmed = True
+        kept.append(ln.points[keep])
+    if not trimmed:
+        return solid
+    points = np.concatenate(kept)
+    refit: SphereSolid | CylinderSolid = full
+    for _ in range(2):
+        near = points[refit.residuals(points) <= 3 * params.solid_threshold_m]
+        if len(near) < params.min_points_per_line:
+            return solid
+        if isinstance(refit, SphereSolid):
+            again = SphereSolid.estimate(near, init=(refit.center, refit.radius))
+        else:
+            again = CylinderSolid.estimate(near, refit.axis, iterations=2)
+        if not again:
+            return solid
+        refit = again
+    lo, hi = params.radius_limits_m
+    if not lo <= refit.radius <= hi:
+        return solid
+    if 2 * (solid.radius - refit.radius) <= params.silhouette_tolerance_m:
+        return solid
+    if isinstance(solid, CylinderSolid):
+        # As in _camera_facing: the rims shift the radius, hardly the axis.
+        return replace(solid, radius=refit.radius)
+    return refit
 
 
 def _radius_sd(solid: SphereSolid | CylinderSolid, points: np.ndarray) -> float:
