@@ -114,9 +114,8 @@ def test_a_plateau_stepping_by_the_depth_quantum_is_measured() -> None:
 def test_a_face_nearly_square_on_shows_no_fattening_on_the_noise_model() -> None:
     """lpc's own noise model, the upright box's third frame: its face slants by 0.1 mm a
     sample, so within a quantum of the end sample lie 26 samples, and the noisy end sample
-    parts from the face's prediction by 1.6 mm. A stepping plateau must part by 3 mm and hold
-    those samples better than the face: no fattening (with 1.4 mm, as for a plateau of one
-    depth, and no such test, 13 px was found and the width came out 18 mm)."""
+    parts from the face's prediction by 1.6 mm. The face holds those samples better than a
+    plateau does: no fattening (13 px was found without that test, the width 18 mm)."""
     from services.cli import _laser_views as lv
 
     view = list(lv.views("functional", 1, 3, 0, names=["cuboid_upright"]))[2]
