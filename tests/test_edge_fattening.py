@@ -82,106 +82,28 @@ def test_a_face_without_fattening_keeps_its_width() -> None:
     )
 
 
-def _stepped_plateau(fatten_px: int) -> tuple[np.ndarray, float]:
-    """``_slanted_face`` whose fattened pixels step by the depth quantum (1 mm) every other
-    pixel, as a stereo matcher's plateau does, rather than repeating the edge's depth."""
-    depth, truth = _slanted_face(0)
-    for row in range(INTRINSICS.height):
-        cols = np.flatnonzero(depth[row])
-        if len(cols):
-            for k in range(fatten_px):
-                depth[row, cols[-1] + 1 + k] = int(depth[row, cols[-1]]) + k % 2
-                depth[row, cols[0] - 1 - k] = int(depth[row, cols[0]]) - k % 2
-    return depth, truth
-
-
-def test_a_plateau_stepping_by_the_depth_quantum_is_measured() -> None:
-    """A plateau within one depth quantum is one: at 0.6 mm only equal depths counted, and
-    this one (5 px) showed no fattening; the full-cloud width kept 6.5 mm of it. (The
-    four-line width keeps it: at 5 px the plateau leaves the face's inlier band, as above.)"""
-    depth, truth = _stepped_plateau(5)
-    lines = cut_scan_lines(depth, INTRINSICS)
-    aware = reconstruct_laser(lines, LaserParams(), seed=1)
-    assert aware.shape == "cuboid"
-    assert aware.extra["fattening_px"] == pytest.approx(5, abs=1.0)
-    blind = reconstruct_cloud(depth, INTRINSICS, CloudParams(measure_fattening=False), seed=1)
-    cloud = reconstruct_cloud(depth, INTRINSICS, seed=1)
-    assert cloud.extra["fattening_px"] == pytest.approx(5, abs=1.0)
-    assert blind.grasp_width_m - truth > 0.005
-    assert abs(cloud.grasp_width_m - truth) <= 0.0015
-
-
-def test_a_face_nearly_square_on_shows_no_fattening_on_the_noise_model() -> None:
-    """lpc's own noise model, the upright box's third frame: its face slants by 0.1 mm a
-    sample, so within a quantum of the end sample lie 26 samples, and the noisy end sample
-    parts from the face's prediction by 1.6 mm. The face holds those samples better than a
-    plateau does: no fattening (13 px was found without that test, the width 18 mm)."""
-    from services.cli import _laser_views as lv
-
-    view = list(lv.views("functional", 1, 3, 0, names=["cuboid_upright"]))[2]
-    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-    aware = reconstruct_laser(lines, LaserParams(), seed=view.seq)
-    assert aware.shape == "cuboid"
-    assert aware.extra["fattening_px"] == 0.0
-    assert abs(aware.grasp_width_m - view.truth.grasp_width_m) < 0.001
-
-
-def test_real_stereo_frames_of_boxes_come_out_nearer_the_truth() -> None:
-    """SGBM frames (block 7), the first two of each box of the functional set: the width
-    error summed over them falls in both methods (four-line 55.0 -> 39.1 mm, full-cloud
-    101.8 -> 77.1). Not on each frame: on the first of the box tilted right, whose four-line
-    width was 0.2 mm off, two ends measure 1.8 and 5.7 px and their median trims the side
-    that showed 1.8 by 3.8 px: 4 mm narrow."""
+def test_real_stereo_frames_of_a_box_come_out_narrower_and_nearer_the_truth() -> None:
+    """Two SGBM frames (block 7) of the box tilted right, whose 85 mm face the four-line
+    method measured 2-3 mm and the full-cloud one 14-24 mm too wide: the fattening is seen on
+    each and the error falls."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
     from services.cli import _laser_views as lv
 
-    boxes = ["cuboid_upright", "cuboid_lying", "cuboid_tilt_left", "cuboid_tilt_right"]
-    errors = {"laser": [0.0, 0.0], "cloud": [0.0, 0.0]}
-    seen = 0
-    for view in lv.views("functional", 1, 2, 0, names=boxes, sensor=StereoSensor()):
+    views = lv.views("functional", 1, 2, 0, names=["cuboid_tilt_right"], sensor=StereoSensor())
+    for view in views:
         truth = view.truth.grasp_width_m
         lines = cut_scan_lines(view.depth, lv.INTRINSICS)
         blind = reconstruct_laser(lines, LaserParams(measure_fattening=False), seed=view.seq)
         aware = reconstruct_laser(lines, LaserParams(), seed=view.seq)
         assert aware.shape == blind.shape == "cuboid"
-        seen += aware.extra["fattening_px"] > 0
-        errors["laser"][0] += abs(blind.grasp_width_m - truth)
-        errors["laser"][1] += abs(aware.grasp_width_m - truth)
+        assert aware.extra["fattening_px"] > 0
+        assert abs(aware.grasp_width_m - truth) < abs(blind.grasp_width_m - truth)
         off = CloudParams(measure_fattening=False)
         cloud_blind = reconstruct_cloud(view.depth, lv.INTRINSICS, off, seed=view.seq)
         cloud_aware = reconstruct_cloud(view.depth, lv.INTRINSICS, seed=view.seq)
-        assert cloud_aware.shape == cloud_blind.shape == "cuboid"
-        errors["cloud"][0] += abs(cloud_blind.grasp_width_m - truth)
-        errors["cloud"][1] += abs(cloud_aware.grasp_width_m - truth)
-    assert seen >= 3
-    for blind_sum, aware_sum in errors.values():
-        assert aware_sum < blind_sum
-
-
-def test_a_real_stereo_plateau_stepping_by_the_quantum_is_measured() -> None:
-    """SGBM 7, the box tilted left, second approach, third frame: its plateaus step by 1 mm.
-    Only one end kept one depth, and measured 1.6 px: the four-line width stayed 7 mm and the
-    full-cloud one 30 mm too wide. The stepping ones measure 6.9 px; both errors fall (to 3.6
-    and 19 mm)."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from services.cli import _laser_views as lv
-
-    views = lv.views("functional", 2, 3, 0, names=["cuboid_tilt_left"], sensor=StereoSensor())
-    view = next(v for v in views if (v.trial, v.frame) == (1, 2))
-    truth = view.truth.grasp_width_m
-    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-    blind = reconstruct_laser(lines, LaserParams(measure_fattening=False), seed=view.seq)
-    aware = reconstruct_laser(lines, LaserParams(), seed=view.seq)
-    assert aware.shape == blind.shape == "cuboid"
-    assert aware.extra["fattening_px"] > 5.0
-    assert abs(aware.grasp_width_m - truth) < 0.6 * abs(blind.grasp_width_m - truth)
-    off = CloudParams(measure_fattening=False)
-    cloud_blind = reconstruct_cloud(view.depth, lv.INTRINSICS, off, seed=view.seq)
-    cloud_aware = reconstruct_cloud(view.depth, lv.INTRINSICS, seed=view.seq)
-    assert cloud_aware.extra["fattening_px"] > 5.0
-    assert abs(cloud_aware.grasp_width_m - truth) < abs(cloud_blind.grasp_width_m - truth) - 0.005
+        assert cloud_aware.extra["fattening_px"] > 0
+        assert abs(cloud_aware.grasp_width_m - truth) < abs(cloud_blind.grasp_width_m - truth)
 
 
 def test_a_round_is_refitted_without_the_plateaus_ending_its_lines() -> None:

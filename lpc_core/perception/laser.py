@@ -1677,7 +1677,7 @@ def _without_end_plateaus(
         keep[ln.run] = True
         for end, inward in ((0, 1), (last, -1)):
             j = end
-            while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= _PLATEAU_STEPPED_M:
+            while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= _END_PLATEAU_M:
                 j += inward
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
@@ -1770,63 +1770,25 @@ def _fattening(lines: list[LineModels]) -> float:
         if a == 0:
             continue
         for end, inward, first in ((0, 1, run[0]), (last, -1, run[-1])):
-            # A plateau of one depth (within 0.6 mm) first, as lpc's own noise model has
-            # always been measured; else one stepping by the depth quantum, which must part
-            # from the face by more (see _PARTED_STEPPED_M).
-            reach = _plateau_reach(ln.sz, q, (a, b), end, inward, first, _PLATEAU_M, _PARTED_M)
-            if reach is None:
-                reach = _plateau_reach(
-                    ln.sz, q, (a, b), end, inward, first, _PLATEAU_STEPPED_M, _PARTED_STEPPED_M
-                )
-            if reach is not None:
+            # The plateau: the segment's last samples at its end sample's depth. It must
+            # reach the face's run: past it the segment is no plateau but more object.
+            z_end = ln.sz[end, 1]
+            j = end
+            while 0 <= j + inward <= last and abs(ln.sz[j + inward, 1] - z_end) <= _PLATEAU_M:
+                j += inward
+            if (first - j) * inward > 1:
+                continue
+            q_cross = (1.0 / z_end - b) / a
+            # The prediction reaches the plateau's depth inside the plateau, and the plateau
+            # parts from it by more than the depth's quantum at its end.
+            inside = min(q[j], q[end]) <= q_cross <= max(q[j], q[end])
+            gap = abs(1.0 / (a * q[end] + b) - z_end)
+            if inside and gap > _PARTED_M:
                 # In samples: a diagonal line's samples are a pixel apart along x and y, as
                 # far as a fattening along rows or columns reaches.
                 # The plateau's first sample is the face's last: the edge lies half a sample on.
-                found.append(reach / ln.step - 0.5)
+                found.append(abs(q[end] - q_cross) / ln.step - 0.5)
     return float(np.median(found)) if found else 0.0
-
-
-def _plateau_reach(
-    sz: np.ndarray,
-    q: np.ndarray,
-    face: tuple[float, float],
-    end: int,
-    inward: int,
-    first: int,
-    tolerance_m: float,
-    parted_m: float,
-) -> float | None:
-    """How far (in s/z) the plateau at the segment's ``end`` reaches past the face's edge,
-    or None where it shows none. ``face`` is (a, b) of the face's 1/z = a q + b; ``first``
-    the face run's sample nearest ``end``, ``inward`` the direction from ``end`` to it."""
-    a, b = face
-    last = len(sz) - 1
-    # The plateau: the segment's last samples within ``tolerance_m`` of its end sample's
-    # depth. It must reach the face's run: past it the segment is no plateau but more object.
-    z_end = sz[end, 1]
-    j = end
-    while 0 <= j + inward <= last and abs(sz[j + inward, 1] - z_end) <= tolerance_m:
-        j += inward
-    if (first - j) * inward > 1:
-        return None
-    q_cross = (1.0 / z_end - b) / a
-    # The prediction reaches the plateau's depth inside the plateau, and the plateau parts
-    # from it by more than ``parted_m`` at its end.
-    inside = min(q[j], q[end]) <= q_cross <= max(q[j], q[end])
-    if not (inside and abs(1.0 / (a * q[end] + b) - z_end) > parted_m):
-        return None
-    if tolerance_m > _PLATEAU_M:
-        # Past the predicted edge a stepping plateau must hold the samples better than the
-        # face does: a face slanting by less than the quantum a sample is such a plateau
-        # over many samples, and one noisy end sample parts it from the prediction (lpc's
-        # own noise model, the upright box's third frame: 13 px).
-        past = np.arange(min(j, end), max(j, end) + 1)
-        past = past[(q[past] - q_cross) * inward < 0]
-        z = sz[past, 1]
-        off_face = z - 1.0 / (a * q[past] + b)
-        if not len(past) or float(np.sum((z - z_end) ** 2)) >= float(np.sum(off_face**2)):
-            return None
-    return abs(q[end] - q_cross)
 
 
 def measured_fattening_px(
@@ -1849,15 +1811,9 @@ def measured_fattening_px(
 
 _PLATEAU_M = 0.0006
 _PARTED_M = 0.0014
-# A stereo plateau steps by the depth quantum (1 mm, the camera's depth units), which a
-# 0.6 mm tolerance misses (SGBM 7: most occluding edges of the boxes). lpc's own noise model
-# has such plateaus on the object itself, which depth along one line cannot tell from a
-# fattened edge: a prism's far face at one depth along the line (parted from the near face's
-# prediction by 1.6 mm), a box beside a table (2.0-2.5 mm), a rounded edge in grasp.mcap
-# (2.6 mm). Such a plateau must part by more than 3 mm: the golden replays and lpc bench
-# accuracy on the noise model are unchanged.
-_PLATEAU_STEPPED_M = 0.0011
-_PARTED_STEPPED_M = 0.003
+# A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
+# depth units) and noise; a stereo plateau steps by the quantum.
+_END_PLATEAU_M = 0.0011
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:
