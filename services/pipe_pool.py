@@ -119,6 +119,9 @@ class PipePool:
         except (EOFError, OSError):
             self._died(worker)
             return
+        self._handle(worker, message)
+
+    def _handle(self, worker: _Worker, message: bytes) -> None:
         kind, body = message[:1], message[1:]
         if kind == _READY:
             worker.ready = True
@@ -129,6 +132,11 @@ class PipePool:
             self._on_done(tag, body if kind == _RESULT else body.decode(errors="replace"))
 
     def _died(self, worker: _Worker) -> None:
+        # Results it sent before it died may still be in the pipe (a submit that met the
+        # closed pipe gets here before the loop has read them): they are results, not losses.
+        with contextlib.suppress(EOFError, OSError):
+            while worker.conn.poll(0):
+                self._handle(worker, worker.conn.recv_bytes())
         # Its pipe closed: it is exiting. A moment for it to finish says why, in its exit code.
         self._stop(worker, grace_s=2.0)
         if self._closed or worker not in self._workers:

@@ -87,6 +87,42 @@ def test_a_dead_worker_is_reported_for_its_job_and_replaced() -> None:
     assert done[3].split(b"@")[1] != done[0].split(b"@")[1]
 
 
+def test_results_sent_before_a_worker_died_are_kept_when_a_submit_finds_it_dead() -> None:
+    """The worker answers 'a' and dies on 'die' before 'b' is sent: the send meets a closed
+    pipe, and the answer to 'a' still in the pipe is a result, not a death."""
+
+    async def run() -> dict[int, bytes | str]:
+        done: dict[int, bytes | str] = {}
+        arrived = asyncio.Event()
+
+        def on_done(tag: int, result: bytes | str) -> None:
+            done[tag] = result
+            arrived.set()
+
+        pool = PipePool(1, make_work, (b"ok:",), on_done)
+        try:
+            async with asyncio.timeout(60):
+                await pool.ready()
+                pool.submit(0, b"a")
+                pool.submit(1, b"die")
+                # Block the loop until it has exited, so that nothing reads the pipe meanwhile.
+                process = pool._workers[0].process
+                process.join(30)
+                assert process.exitcode == 3
+                pool.submit(2, b"b")
+                while len(done) < 3:
+                    arrived.clear()
+                    await arrived.wait()
+        finally:
+            pool.close()
+        return done
+
+    done = asyncio.run(run())
+    assert isinstance(done[0], bytes) and done[0].startswith(b"ok:a@")
+    assert isinstance(done[1], str) and "died (exit code 3)" in done[1]
+    assert isinstance(done[2], str) and "died" in done[2]
+
+
 def test_bad_size() -> None:
     async def make() -> None:
         PipePool(0, make_work, (b"",), lambda tag, result: None)
