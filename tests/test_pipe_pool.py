@@ -31,6 +31,23 @@ async def _collect(pool_size: int, jobs: list[bytes]) -> tuple[dict[int, bytes |
     return done, pool
 
 
+class Results(dict[int, bytes | str]):
+    """What ``on_done`` reported, by tag; ``until(n)`` waits for the n-th report."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._arrived = asyncio.Event()
+
+    def on_done(self, tag: int, result: bytes | str) -> None:
+        self[tag] = result
+        self._arrived.set()
+
+    async def until(self, n: int) -> None:
+        while len(self) < n:
+            self._arrived.clear()
+            await self._arrived.wait()
+
+
 def test_every_job_comes_back_with_its_tag_spread_over_the_workers() -> None:
     jobs = [f"job{i}".encode() for i in range(40)]
     done, pool = asyncio.run(_collect(2, jobs))
@@ -50,14 +67,8 @@ def test_a_refused_job_is_reported_as_its_reason() -> None:
 
 def test_a_dead_worker_is_reported_for_its_job_and_replaced() -> None:
     async def run() -> tuple[dict[int, bytes | str], int]:
-        done: dict[int, bytes | str] = {}
-        arrived = asyncio.Event()
-
-        def on_done(tag: int, result: bytes | str) -> None:
-            done[tag] = result
-            arrived.set()
-
-        pool = PipePool(1, make_work, (b"ok:",), on_done)
+        done = Results()
+        pool = PipePool(1, make_work, (b"ok:",), done.on_done)
         try:
             async with asyncio.timeout(60):
                 await pool.ready()
@@ -65,13 +76,9 @@ def test_a_dead_worker_is_reported_for_its_job_and_replaced() -> None:
                 pool.submit(0, b"a")
                 pool.submit(1, b"die")
                 pool.submit(2, b"b")
-                while len(done) < 3:
-                    arrived.clear()
-                    await arrived.wait()
+                await done.until(3)
                 pool.submit(3, b"c")
-                while len(done) < 4:
-                    arrived.clear()
-                    await arrived.wait()
+                await done.until(4)
         finally:
             pool.close()
         return done, pool.restarts
@@ -92,14 +99,8 @@ def test_results_sent_before_a_worker_died_are_kept_when_a_submit_finds_it_dead(
     pipe, and the answer to 'a' still in the pipe is a result, not a death."""
 
     async def run() -> dict[int, bytes | str]:
-        done: dict[int, bytes | str] = {}
-        arrived = asyncio.Event()
-
-        def on_done(tag: int, result: bytes | str) -> None:
-            done[tag] = result
-            arrived.set()
-
-        pool = PipePool(1, make_work, (b"ok:",), on_done)
+        done = Results()
+        pool = PipePool(1, make_work, (b"ok:",), done.on_done)
         try:
             async with asyncio.timeout(60):
                 await pool.ready()
@@ -110,9 +111,7 @@ def test_results_sent_before_a_worker_died_are_kept_when_a_submit_finds_it_dead(
                 process.join(30)
                 assert process.exitcode == 3
                 pool.submit(2, b"b")
-                while len(done) < 3:
-                    arrived.clear()
-                    await arrived.wait()
+                await done.until(3)
         finally:
             pool.close()
         return done
