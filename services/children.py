@@ -1,4 +1,4 @@
-"""Child processes never outlive their parent."""
+"""Child processes never outlive their parent, and stop when asked."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import ctypes
 import multiprocessing
 import os
 import signal
+import subprocess
 
 
 def die_with_parent(sig: int = signal.SIGTERM) -> None:
@@ -21,3 +22,18 @@ def die_with_parent(sig: int = signal.SIGTERM) -> None:
     parent = multiprocessing.parent_process()
     if parent is not None and parent.pid is not None and os.getppid() != parent.pid:
         os.kill(os.getpid(), sig)
+
+
+def stop(process: subprocess.Popen[bytes], sig: int = signal.SIGTERM, grace_s: float = 10.0) -> int:
+    """Ask ``process`` to stop with ``sig`` and wait ``grace_s`` for it; then kill it (and its
+    process group, when it leads one: an ``lpc up`` takes its services with it). Its exit code."""
+    if process.poll() is None:
+        process.send_signal(sig)
+        try:
+            return process.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                if os.getpgid(process.pid) == process.pid:
+                    os.killpg(process.pid, signal.SIGKILL)
+            process.kill()
+    return process.wait()

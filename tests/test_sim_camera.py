@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -22,6 +21,7 @@ from lpc_core.devices.depth_link import MAGIC, DeviceFrame, DeviceHello, encode
 from lpc_core.perception.intrinsics import D435_424X240
 from lpc_core.perception.pipeline import intrinsics_to_message
 from schemas import DepthFrame, ObjectTruth, decode, to_wire
+from services.children import stop
 from services.drivers.depth import SimSource
 from tests.conftest import spawn_service, wait_for
 from tests.test_faults import BusWatch
@@ -46,16 +46,6 @@ def _device(path: Path, *args: str) -> subprocess.Popen[bytes]:
     wait_for(lambda: path.exists() or device.poll() is not None, 30, "the device's socket")
     assert device.poll() is None, device.stderr.read().decode() if device.stderr else ""
     return device
-
-
-def _stop(process: subprocess.Popen[bytes]) -> None:
-    if process.poll() is None:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 class Frames:
@@ -103,8 +93,8 @@ def test_sim_camera_frames_and_truth_reach_the_bus_as_sim_source_renders_them(
     try:
         wait_for(lambda: len(frames) >= 40 or camera.poll() is not None, 60, "40 frames")
     finally:
-        _stop(camera)
-        _stop(device)
+        stop(camera)
+        stop(device)
     with frames.lock:
         got = list(frames.frames)
     # One reader from the device's first frame on: the camera's seq is the device's.
@@ -151,9 +141,9 @@ def test_sim_camera_missing_or_killed_makes_the_camera_degraded_until_it_is_back
         wait_for(lambda: _status(watch) == "ok", 10, "the camera ok again")
         assert camera.poll() is None
     finally:
-        _stop(camera)
+        stop(camera)
         if device is not None:
-            _stop(device)
+            stop(device)
     # The camera's seq goes on across the device's restart: nothing repeated, nothing skipped.
     seqs = frames.seqs()
     assert seqs == list(range(len(seqs)))
@@ -211,7 +201,7 @@ def test_sim_camera_garbage_and_truncated_records_are_counted_and_skipped(
         assert _counter(watch, "malformed_frames") == 4  # the truncated frame 4
         assert _status(watch) == "degraded" and camera.poll() is None
     finally:
-        _stop(camera)
+        stop(camera)
     assert camera.returncode == 0
     with frames.lock:
         got = [(f.seq, int(f.depth.data[0]) + 256 * int(f.depth.data[1])) for f in frames.frames]

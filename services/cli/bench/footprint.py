@@ -48,6 +48,7 @@ import numpy as np
 import zenoh
 
 from schemas import TOPICS
+from services.children import stop
 from services.cli.bench.soak import ProcessReport, Watcher, lpc_up
 from services.cli.up import SERVICES
 from services.runtime import zenoh_config
@@ -418,13 +419,7 @@ def _sim_camera(
             time.sleep(0.05)
         yield device if path.exists() else None
     finally:
-        if device.poll() is None:
-            device.send_signal(signal.SIGTERM)
-            try:
-                device.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                device.kill()
-                device.wait()
+        stop(device)
 
 
 def _measure_set(

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -30,6 +29,7 @@ import numpy as np
 import zenoh
 
 from schemas import BadMessage, Health, decode
+from services.children import stop
 from services.runtime import zenoh_config
 
 START_TIMEOUT_S = 90.0
@@ -188,14 +188,7 @@ def lpc_up(
     try:
         yield up, started, log
     finally:
-        if up.poll() is None:
-            up.send_signal(signal.SIGINT)
-            try:
-                up.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(up.pid, signal.SIGKILL)
-                up.wait()
+        stop(up, signal.SIGINT, grace_s=30)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
