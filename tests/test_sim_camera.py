@@ -113,15 +113,20 @@ def test_sim_camera_frames_and_truth_reach_the_bus_as_sim_source_renders_them(
     assert stamps == sorted(stamps)
 
 
+def _camera(endpoint: str, sock: Path) -> subprocess.Popen[bytes]:
+    """The camera service on the device at ``sock``, looking for it every 0.2 s."""
+    return spawn_service(
+        "services.camera", endpoint, "--source", "sim-device", "--socket", str(sock),
+        "--reopen-every", "0.2",
+    )  # fmt: skip
+
+
 def test_sim_camera_missing_or_killed_makes_the_camera_degraded_until_it_is_back(
     endpoint: str, rendezvous: zenoh.Session, sock: Path
 ) -> None:
     frames = Frames(rendezvous)
     watch = BusWatch(rendezvous)
-    camera = spawn_service(
-        "services.camera", endpoint, "--source", "sim-device", "--socket", str(sock),
-        "--reopen-every", "0.2",
-    )  # fmt: skip
+    camera = _camera(endpoint, sock)
     device = None
     try:
         wait_for(lambda: _status(watch) == "degraded", 30, "the camera degraded, no device")
@@ -188,10 +193,7 @@ def test_sim_camera_garbage_and_truncated_records_are_counted_and_skipped(
     device = _serve_once(sock, records, close)
     frames = Frames(rendezvous)
     watch = BusWatch(rendezvous)
-    camera = spawn_service(
-        "services.camera", endpoint, "--source", "sim-device", "--socket", str(sock),
-        "--reopen-every", "0.2",
-    )  # fmt: skip
+    camera = _camera(endpoint, sock)
     try:
         wait_for(lambda: len(frames) >= 3, 30, "the three good frames")
         wait_for(lambda: _counter(watch, "malformed_frames") == 3, 10, "three rejections")
