@@ -447,3 +447,25 @@ def test_reconstruct_cloud_box_sides_move_in_from_occluding_edges():
         assert _width_errors_mm((fat,), 0.04, EXACT_EDGES).min() > 1.5 * k
         trimmed = CloudParams(edge_fattening_px=float(k))
         assert np.abs(_width_errors_mm((fat,), 0.04, trimmed)).max() < 1.5
+
+
+def test_reconstruct_cloud_box_side_ignores_a_locally_fattened_stretch():
+    # Front face 40 x 120 mm square-on at 0.2 m, 30 degrees in the image, the table behind.
+    # A matcher fattens a 30 mm stretch of one long side by 12 mm (about 13 px) at the face's
+    # own depth, where a scan line would see no depth change: the stretch must not bound it.
+    angle = np.radians(30)
+    box = _hit_box((0.0, 0.0, 0.225), _rotation((0, 0, 1), angle), (0.12, 0.04, 0.05))
+    table = _hit_plane((0, 0, 1), (0, 0, 0.3))
+    rays = _directions()
+    x, y = 0.2 * rays[..., 0], 0.2 * rays[..., 1]
+    along = x * np.cos(angle) + y * np.sin(angle)
+    across = -x * np.sin(angle) + y * np.cos(angle)
+    stretch = (along >= 0.02) & (along <= 0.05) & (across > 0.02) & (across <= 0.032)
+    bulge = np.where(stretch & ~np.isfinite(box), 0.2, np.inf)
+    assert np.count_nonzero(np.isfinite(bulge)) > 300
+    every_extreme = CloudParams(side_tolerance_m=1.0)
+    assert _width_errors_mm((box, table, bulge), 0.04, every_extreme).min() > 8.0
+    assert np.abs(_width_errors_mm((box, table, bulge), 0.04, PARAMS)).max() < 1.5
+    # Without the stretch the sides stay the extremes, as before.
+    clean = _width_errors_mm((box, table), 0.04, PARAMS)
+    assert np.array_equal(clean, _width_errors_mm((box, table), 0.04, every_extreme))

@@ -76,12 +76,16 @@ class CloudParams:
     # With edge_fattening_px 0, measure it on each frame's scan lines (see
     # lpc_core.perception.laser.measured_fattening_px).
     measure_fattening: bool = True
+    # An occluding side of a cuboid face with a stretch (a strip two voxels wide) further out
+    # than this past its median stretch was fattened there, and the median stretch bounds it
+    # (see _strip_sides). Half a voxel: a clean edge's strips agree closer than that.
+    side_tolerance_m: float = 0.001
 
     def __post_init__(self) -> None:
         positive = (
             "crop_xy_m", "crop_z_min_m", "crop_z_max_m", "voxel_m", "support_threshold_m",
             "cluster_cell_m", "pierce_tolerance_m", "fit_threshold_m", "normal_tolerance_rad",
-            "radius_min_m", "radius_max_m",
+            "radius_min_m", "radius_max_m", "side_tolerance_m",
         )  # fmt: skip
         for name in positive:
             value = getattr(self, name)
@@ -931,8 +935,9 @@ def _cuboid_geometry(
     bounding rectangle; the principal axis runs along its longer side and the grasp width is
     its shorter side, measured on the whole segment (``whole``), not only on the subset the
     faces were fitted on, so that the extreme points are not lost to sampling. A side that no
-    other face's points reach is an occluding edge: it moves in by ``edge_fattening_px``
-    (stereo matching's fattening lies on the face's own plane there).
+    other face's points reach is an occluding edge: where stretches of it reach further out
+    than the rest, the median stretch bounds it (``_strip_sides``), and it moves in by
+    ``edge_fattening_px`` (stereo matching's fattening lies on the face's own plane there).
     """
     face, face_points, index = pierced
     others = [f.normal for i, f in enumerate(fit.faces) if i != index]
@@ -957,27 +962,40 @@ def _cuboid_geometry(
         & (w2 >= s2.min() - margin)
         & (w2 <= s2.max() + margin)
     )
-    s1, s2 = w1[on_face], w2[on_face]
-    lo1, hi1, lo2, hi2 = float(s1.min()), float(s1.max()), float(s2.min()), float(s2.max())
+    face_whole = whole[on_face]
+    s1, s2 = face_whole @ e1, face_whole @ e2
+    extremes = (float(s1.min()), float(s1.max()), float(s2.min()), float(s2.max()))
+    # A side that another face's points reach is a shared edge; only the others occlude the
+    # background, which a matcher fattens.
+    near = 2 * params.voxel_m
+    met = np.zeros(len(points), dtype=bool)
+    for i, inliers in enumerate(fit.face_inliers):
+        if i != index:
+            met |= inliers
+    o1, o2 = points[met] @ e1, points[met] @ e2
+    occluding = [
+        not np.any(np.abs(o - edge) <= near)
+        for edge, o in zip(extremes, (o1, o1, o2, o2), strict=True)
+    ]
+    strip_m, tolerance = 2 * params.voxel_m, params.side_tolerance_m
+    strips = (*_strip_sides(s1, s2, strip_m, tolerance), *_strip_sides(s2, s1, strip_m, tolerance))
+    lo1, hi1, lo2, hi2 = (
+        strip if free else edge
+        for strip, edge, free in zip(strips, extremes, occluding, strict=True)
+    )
     if params.edge_fattening_px > 0 and pixel_rad > 0:
         # Only the fattening within fit_threshold_m of a slanted face was counted as its own.
-        z = float(np.median(whole[on_face, 2]))
+        z = float(np.median(face_whole[:, 2]))
         fattening_rad = params.edge_fattening_px * pixel_rad
         trim1, trim2 = (
             fattening_trim_m(face.normal[2], e, z, fattening_rad, params.fit_threshold_m)
             for e in (e1, e2)
         )
-        near = 2 * params.voxel_m
-        met = np.zeros(len(points), dtype=bool)
-        for i, inliers in enumerate(fit.face_inliers):
-            if i != index:
-                met |= inliers
-        o1, o2 = points[met] @ e1, points[met] @ e2
-        sides = []
-        for edge, o, step in ((lo1, o1, trim1), (hi1, o1, -trim1), (lo2, o2, trim2),
-                              (hi2, o2, -trim2)):  # fmt: skip
-            sides.append(edge if np.any(np.abs(o - edge) <= near) else edge + step)
-        lo1, hi1, lo2, hi2 = sides
+        steps = (trim1, -trim1, trim2, -trim2)
+        lo1, hi1, lo2, hi2 = (
+            edge + step if free else edge
+            for edge, step, free in zip((lo1, hi1, lo2, hi2), steps, occluding, strict=True)
+        )
         if hi1 < lo1:
             lo1 = hi1 = (lo1 + hi1) / 2
         if hi2 < lo2:
@@ -987,6 +1005,30 @@ def _cuboid_geometry(
     if extent1 >= extent2:
         return extent2, e1, center
     return extent1, e2, center
+
+
+def _strip_sides(
+    across: np.ndarray, along: np.ndarray, strip_m: float, tolerance_m: float
+) -> tuple[float, float]:
+    """The two sides, in ``across``, of a face's points whose coordinate along those sides is
+    ``along``. The points are cut in strips ``strip_m`` wide along the sides. A side whose
+    strips all reach within ``tolerance_m`` of the median strip's extreme is their extreme, as
+    a clean edge's is; else the matcher fattened stretches of that edge more than the rest
+    (by 6-27 px on stereo frames, where the background is far and dim, at the face's own
+    depth on a face seen square-on, so no scan line's depth shows it), and the median strip's
+    extreme bounds the face."""
+    strips = np.floor((along - along.min()) / strip_m).astype(np.intp)
+    order = np.argsort(strips, kind="stable")
+    strip = strips[order]
+    starts = np.flatnonzero(np.concatenate([[True], strip[1:] != strip[:-1]]))
+    lows = np.minimum.reduceat(across[order], starts)
+    highs = np.maximum.reduceat(across[order], starts)
+    lo_edge, hi_edge = float(np.median(lows)), float(np.median(highs))
+    lo, hi = float(lows.min()), float(highs.max())
+    return (
+        lo if lo >= lo_edge - tolerance_m else lo_edge,
+        hi if hi <= hi_edge + tolerance_m else hi_edge,
+    )
 
 
 def _measured_fattening(depth: np.ndarray, intrinsics: Intrinsics, face: PlaneModel) -> float:
