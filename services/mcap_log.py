@@ -139,6 +139,15 @@ def rotated_path(path: Path, index: int) -> Path:
     return path.with_name(f"{path.stem}-{index:03d}{path.suffix or '.mcap'}")
 
 
+def check_zstd_level(level: int) -> int:
+    """``level`` if zstd has it, else ``ValueError`` saying the range."""
+    if level not in ZSTD_LEVELS:
+        raise ValueError(
+            f"zstd_level must lie in {ZSTD_LEVELS.start}..{ZSTD_LEVELS.stop - 1}, not {level}"
+        )
+    return level
+
+
 class _ChunkZstd(threading.local):
     """Stands in for the ``zstandard`` module inside ``mcap.writer``, whose Writer compresses
     each chunk with ``zstandard.compress(data)`` and takes no level. A LogWriter sets ``level``
@@ -182,11 +191,7 @@ class LogWriter:
             raise ValueError(
                 f"compression must be one of {sorted(COMPRESSIONS)}, not {compression!r}"
             )
-        if zstd_level not in ZSTD_LEVELS:
-            raise ValueError(
-                f"zstd_level must lie in {ZSTD_LEVELS.start}..{ZSTD_LEVELS.stop - 1}, "
-                f"not {zstd_level}"
-            )
+        check_zstd_level(zstd_level)
         if chunk_bytes <= 0:
             raise ValueError(f"chunk_bytes must be positive, not {chunk_bytes}")
         if max_bytes is not None and max_bytes <= 0:

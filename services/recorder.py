@@ -44,6 +44,7 @@ from services.mcap_log import (
     DEFAULT_ZSTD_LEVEL,
     ZSTD_LEVELS,
     LogWriter,
+    check_zstd_level,
     free_path,
     read_header,
 )
@@ -135,8 +136,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.max_mb is not None and args.max_mb <= 0:
         parser.error("--max-mb must be positive")
-    if args.zstd_level not in ZSTD_LEVELS:
-        parser.error(f"--zstd-level must lie in {ZSTD_LEVELS.start}..{ZSTD_LEVELS.stop - 1}")
+    try:
+        check_zstd_level(args.zstd_level)
+    except ValueError as exc:
+        parser.error(f"--zstd-level: {exc}")
     return run_service("recorder", serve, args)
 
 

@@ -42,7 +42,7 @@ from schemas import (
     encode,
     to_wire,
 )
-from services.mcap_log import COMPRESSIONS, DEFAULT_ZSTD_LEVEL, ZSTD_LEVELS, McapLog
+from services.mcap_log import COMPRESSIONS, DEFAULT_ZSTD_LEVEL, McapLog, check_zstd_level
 from services.runtime import zenoh_config
 
 RATE_HZ = 90.0
@@ -86,12 +86,10 @@ def _levels(text: str) -> list[int]:
         levels = [int(part) for part in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a list of integers: {text!r}") from None
-    bad = [level for level in levels if level not in ZSTD_LEVELS]
-    if bad:
-        raise argparse.ArgumentTypeError(
-            f"zstd levels lie in {ZSTD_LEVELS.start}..{ZSTD_LEVELS.stop - 1}, not {bad}"
-        )
-    return levels
+    try:
+        return [check_zstd_level(level) for level in levels]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _frames(n: int) -> list[DepthFrame]:
