@@ -35,6 +35,7 @@ from services.drivers.depth import (
     add_realsense_arguments,
     add_sensor_arguments,
     default_sim_socket,
+    skip_missed_slots,
     stereo_sensor,
 )
 from services.drivers.errors import OperationError
@@ -156,15 +157,13 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 device_stamp = args.source == "sim-device" and reading.t_ns is not None
                 t_ns = reading.t_ns if device_stamp else bus.clock.now_ns()
             else:
-                due = start_ns + seq * period_ns
-                now = bus.clock.now_ns()
-                # Fell behind: skip the missed slots and count them.
-                if args.source == "sim" and now - due > period_ns:
-                    missed = (now - due) // period_ns
-                    bus.health.counters["late_frames"] += int(missed)
-                    start_ns += missed * period_ns
-                    due += missed * period_ns
                 if args.source == "sim":
+                    start_ns, missed = skip_missed_slots(
+                        start_ns, seq, period_ns, bus.clock.now_ns()
+                    )
+                    if missed:
+                        bus.health.counters["late_frames"] += missed
+                    due = start_ns + seq * period_ns
                     await bus.clock.sleep_until(due)
                     if stereo:  # 100+ ms a frame: keep the loop (health, stop) free
                         reading = await asyncio.to_thread(

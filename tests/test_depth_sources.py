@@ -19,7 +19,12 @@ import zenoh
 from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
 from lpc_core.perception.pipeline import depth_image, intrinsics_from_message
 from schemas import decode
-from services.drivers.depth import EndOfStream, RealSenseSource, SourceUnavailable
+from services.drivers.depth import (
+    EndOfStream,
+    RealSenseSource,
+    SourceUnavailable,
+    skip_missed_slots,
+)
 from services.drivers.errors import DeviceUnavailable, OperationError
 from tests.conftest import spawn_service, wait_for
 from tests.realsense_fixture import plane_frames, recording_suffix, write_recording
@@ -281,3 +286,11 @@ def test_camera_service_records_the_realsense_settings_in_its_health(
     assert last.counters["rs_option_unsupported"] == 2  # the preset and the depth units
     assert "--rs-preset" in last.argv
     assert all(np.count_nonzero(depth_image(m) == 0) <= 0.001 * 424 * 240 for m in received)
+
+
+def test_a_frame_clock_behind_skips_the_slots_it_missed() -> None:
+    # Frame 3 of a 10 ms clock is due at 30 ms: on time up to a period late, then whole slots go.
+    assert skip_missed_slots(0, 3, 10, 40) == (0, 0)
+    assert skip_missed_slots(0, 3, 10, 41) == (10, 1)
+    assert skip_missed_slots(0, 3, 10, 75) == (40, 4)
+    assert skip_missed_slots(5, 3, 10, 20) == (5, 0)  # early is no skip

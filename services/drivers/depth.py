@@ -136,6 +136,17 @@ def sensor_argv(args: argparse.Namespace) -> list[str]:
     ]  # fmt: skip
 
 
+def skip_missed_slots(start_ns: int, seq: int, period_ns: int, now_ns: int) -> tuple[int, int]:
+    """A frame clock (frame ``seq`` due at ``start_ns + seq * period_ns``) that has fallen more
+    than a period behind skips the slots it missed, as a live camera does: the new
+    ``start_ns`` and how many slots were skipped."""
+    late_ns = now_ns - (start_ns + seq * period_ns)
+    if late_ns <= period_ns:
+        return start_ns, 0
+    missed = late_ns // period_ns
+    return start_ns + missed * period_ns, int(missed)
+
+
 class SimSource:
     """The built-in simulated scene (``lpc_core.sim.simcam``): a pure function of time and seed,
     seen through the noise model or, given ``sensor``, the simulated stereo camera."""

@@ -31,7 +31,7 @@ from pathlib import Path
 from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
 from lpc_core.perception.pipeline import intrinsics_to_message
 from schemas import to_wire
-from services.drivers.depth import SimSource, SourceUnavailable
+from services.drivers.depth import SimSource, SourceUnavailable, skip_missed_slots
 
 SEND_TIMEOUT_S = 2.0  # a reader this long behind is taken for gone
 _POLL_S = 0.1  # longest wait before the stop flag is looked at again
@@ -107,13 +107,11 @@ class SimCameraDevice:
             # The frame due now is the next seq: the scene resumes where the last reader left.
             start_ns = time.time_ns() - self.seq * self.period_ns
             while not stop.is_set():
+                start_ns, missed = skip_missed_slots(
+                    start_ns, self.seq, self.period_ns, time.time_ns()
+                )
+                self.stats.late_frames += missed
                 due = start_ns + self.seq * self.period_ns
-                now = time.time_ns()
-                if now - due > self.period_ns:  # fell behind: skip the missed slots, as live
-                    missed = (now - due) // self.period_ns
-                    self.stats.late_frames += int(missed)
-                    start_ns += missed * self.period_ns
-                    due += missed * self.period_ns
                 while (wait_ns := due - time.time_ns()) > 0:
                     if stop.wait(min(wait_ns / 1e9, _POLL_S)):
                         return "stopped"
