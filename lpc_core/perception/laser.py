@@ -1677,9 +1677,7 @@ def _without_end_plateaus(
         keep = np.zeros(len(z), dtype=bool)
         keep[ln.run] = True
         for end, inward in ((0, 1), (last, -1)):
-            j = end
-            while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= _END_PLATEAU_M:
-                j += inward
+            j = _plateau_end(z, end, inward, _END_PLATEAU_M)
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
                 trimmed = True
@@ -1747,6 +1745,15 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
     return moved
 
 
+def _plateau_end(z: np.ndarray, end: int, inward: int, tolerance_m: float) -> int:
+    """The last sample, walking from the segment's ``end`` in direction ``inward`` (+1 or -1),
+    whose neighbours all lie within ``tolerance_m`` of the end sample's depth ``z[end]``."""
+    j, last = end, len(z) - 1
+    while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= tolerance_m:
+        j += inward
+    return j
+
+
 def _fattening(lines: list[LineModels]) -> float:
     """The edge fattening (pixels) the face runs' ends show: the median over the ends where
     it can be seen, 0 where it cannot be seen anywhere.
@@ -1774,9 +1781,7 @@ def _fattening(lines: list[LineModels]) -> float:
             # The plateau: the segment's last samples at its end sample's depth. It must
             # reach the face's run: past it the segment is no plateau but more object.
             z_end = ln.sz[end, 1]
-            j = end
-            while 0 <= j + inward <= last and abs(ln.sz[j + inward, 1] - z_end) <= _PLATEAU_M:
-                j += inward
+            j = _plateau_end(ln.sz[:, 1], end, inward, _PLATEAU_M)
             if (first - j) * inward > 1:
                 continue
             q_cross = (1.0 / z_end - b) / a
