@@ -15,6 +15,7 @@ random subset of the points; only the winner is refined by least squares on all 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Protocol, Self
@@ -451,9 +452,14 @@ def find_support_plane(
         signed_all = model.signed_distances(points)
         mask = np.abs(signed_all) <= params.support_threshold_m
     behind_all = int((signed_all > params.support_threshold_m).sum())
-    if mask.sum() < params.support_min_points or behind_all > (
-        params.support_max_behind_fraction * n
-    ):
+    # The hypothesis passed on the sample; the whole cloud may hold a little more behind by the
+    # sample's chance alone: three standard deviations of the sampled fraction, with the finite
+    # population correction (none when the sample is the whole cloud). A table seen through a
+    # sparse dot pattern has a noise tail past the threshold; the table behind a box's face is
+    # far more than that.
+    f, s = params.support_max_behind_fraction, len(sub)
+    allowed = f + 3.0 * math.sqrt(f * (1.0 - f) / s * (n - s) / max(n - 1, 1))
+    if mask.sum() < params.support_min_points or behind_all > allowed * n:
         return None
     return mask
 
