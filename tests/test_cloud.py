@@ -489,3 +489,35 @@ def test_find_support_plane_keeps_a_sparse_dot_table_with_a_noise_tail() -> None
     result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
     assert result.shape == "sphere", (result.shape, result.reason)
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.004
+
+
+def test_on_support_finds_the_side_a_face_stands_on_not_a_corner_the_table_touches() -> None:
+    from lpc_core.perception.cloud import _on_support
+
+    # A face in the plane z = 0.2, 40 x 60 mm; the table meets it along its y = +30 mm side
+    # and runs from there toward the camera.
+    face = PlaneModel(np.array([0.0, 0.0, 1.0]), -0.2)
+    basis = (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    extremes = (-0.02, 0.02, -0.03, 0.03)
+    x, d = np.meshgrid(np.arange(-0.05, 0.05, 0.002), np.arange(0.0, 0.05, 0.002))
+    table = np.column_stack([x.ravel(), np.full(x.size, 0.031), 0.2 - d.ravel()])
+    assert _on_support(face, basis, extremes, table, 0.004) == [False, False, False, True]
+    # Only a corner of that side touches the table (an upright box's foot beside it).
+    corner = table[table[:, 0] > 0.012]
+    assert _on_support(face, basis, extremes, corner, 0.004) == [False] * 4
+    assert _on_support(face, basis, extremes, None, 0.004) == [False] * 4
+
+
+def test_a_lying_box_side_on_the_table_is_not_trimmed_as_an_occluding_edge() -> None:
+    """SGBM 7, the lying 40 mm box, trial 1 frame 0: no other face met the side it lies on, so
+    it was taken for an occluding edge and moved in by the 4 px fattening the scan lines
+    measured: 30 mm wide. The table's points along it make it a contact edge."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from services.cli import _laser_views as lv
+
+    views = lv.views("functional", 2, 5, 0, names=["cuboid_lying"], sensor=StereoSensor())
+    view = next(v for v in views if (v.trial, v.frame) == (1, 0))
+    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    assert result.shape == "cuboid", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.005

@@ -930,6 +930,7 @@ def _cuboid_geometry(
     pierced: tuple[PlaneModel, np.ndarray, int],
     params: CloudParams,
     pixel_rad: float = 0.0,
+    support: np.ndarray | None = None,
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Grasp width, principal axis and centre of the face the optical axis pierces.
 
@@ -941,9 +942,10 @@ def _cuboid_geometry(
     bounding rectangle; the principal axis runs along its longer side and the grasp width is
     its shorter side, measured on the whole segment (``whole``), not only on the subset the
     faces were fitted on, so that the extreme points are not lost to sampling. A side that no
-    other face's points reach is an occluding edge: where stretches of it reach further out
-    than the rest, the median stretch bounds it (``_strip_sides``), and it moves in by
-    ``edge_fattening_px`` (stereo matching's fattening lies on the face's own plane there).
+    other face's points reach, nor the supporting plane's (``support``, see ``_on_support``),
+    is an occluding edge: where stretches of it reach further out than the rest, the median
+    stretch bounds it (``_strip_sides``), and it moves in by ``edge_fattening_px`` (stereo
+    matching's fattening lies on the face's own plane there).
     """
     face, face_points, index = pierced
     others = [f.normal for i, f in enumerate(fit.faces) if i != index]
@@ -980,8 +982,13 @@ def _cuboid_geometry(
             met |= inliers
     o1, o2 = points[met] @ e1, points[met] @ e2
     occluding = [
-        not np.any(np.abs(o - edge) <= near)
-        for edge, o in zip(extremes, (o1, o1, o2, o2), strict=True)
+        not np.any(np.abs(o - edge) <= near) and not on_support
+        for edge, o, on_support in zip(
+            extremes,
+            (o1, o1, o2, o2),
+            _on_support(face, (e1, e2), extremes, support, near),
+            strict=True,
+        )
     ]
     strip_m, tolerance = 2 * params.voxel_m, params.side_tolerance_m
     strips = (*_strip_sides(s1, s2, strip_m, tolerance), *_strip_sides(s2, s1, strip_m, tolerance))
@@ -1011,6 +1018,32 @@ def _cuboid_geometry(
     if extent1 >= extent2:
         return extent2, e1, center
     return extent1, e2, center
+
+
+def _on_support(
+    face: PlaneModel,
+    basis: tuple[np.ndarray, np.ndarray],
+    extremes: tuple[float, float, float, float],
+    support: np.ndarray | None,
+    near: float,
+) -> list[bool]:
+    """Which of the face's sides ``(lo1, hi1, lo2, hi2)`` (at ``extremes`` along the in-plane
+    ``basis``) stand on the supporting plane: its points within ``near`` of the face's plane
+    and of the side line cover half the side's length or more. Nothing lies behind such an
+    edge for a matcher to fatten (a lying box's bottom edge on the table); the table that
+    only touches a corner of a side (beside an upright box's foot) does not count."""
+    if support is None or not len(support):
+        return [False] * 4
+    close = support[np.abs(face.signed_distances(support)) <= near]
+    c1, c2 = close @ basis[0], close @ basis[1]
+    out = []
+    for k, edge in enumerate(extremes):
+        across, along = (c1, c2) if k < 2 else (c2, c1)
+        lo, hi = extremes[2:] if k < 2 else extremes[:2]
+        on = (np.abs(across - edge) <= near) & (along >= lo) & (along <= hi)
+        cells = np.unique(np.floor((along[on] - lo) / near)).size
+        out.append(cells >= 0.5 * max(math.ceil((hi - lo) / near), 1))
+    return out
 
 
 def _strip_sides(
@@ -1163,7 +1196,9 @@ def reconstruct_cloud(
         fattening = _measured_fattening(depth, intrinsics, pierced[0])
         extra["fattening_px"] = fattening
         params = replace(params, edge_fattening_px=fattening)
-    width, axis, center = _cuboid_geometry(segment, whole, fit, pierced, params, pixel_rad)
+    width, axis, center = _cuboid_geometry(
+        segment, whole, fit, pierced, params, pixel_rad, support=cloud[~keep]
+    )
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))
     return Reconstruction(
