@@ -450,6 +450,36 @@ def _pierced_run(runs: list[np.ndarray], s: np.ndarray, params: LaserParams) -> 
     return _EMPTY_RUN
 
 
+def _hole(before: np.ndarray, after: np.ndarray, params: LaserParams) -> bool:
+    """Whether the gap between two (s, z) samples of a line is a hole, not an edge: the
+    samples between them are missing (a matcher's failed windows: dim or dotless patches, a
+    block matcher's texture check) while the surface goes on, at most ``run_gap_m`` across
+    and rising or falling no more than it runs across (45 degrees). An occluding edge or the
+    shadow band beside it changes depth far faster than that."""
+    ds = abs(float(after[0] - before[0]))
+    return ds <= params.run_gap_m and abs(float(after[1] - before[1])) <= ds
+
+
+def _across_holes(
+    runs: list[np.ndarray], run: np.ndarray, sz: np.ndarray, params: LaserParams
+) -> np.ndarray:
+    """The pierced ``run`` joined with the runs beside it that only a hole parts from it
+    (at most ``max_outlier_run`` outliers between them, ``_hole`` across): the gap's
+    distance ended it, and holes make a gap long without any sample leaving the model.
+    Only a run too short to count is joined, so a line without holes keeps its run."""
+    at = next(i for i, r in enumerate(runs) if r is run)
+    lo = hi = at
+    while lo > 0 and _joins(runs[lo - 1][-1], runs[lo][0], sz, params):
+        lo -= 1
+    while hi + 1 < len(runs) and _joins(runs[hi][-1], runs[hi + 1][0], sz, params):
+        hi += 1
+    return run if lo == hi else np.concatenate(runs[lo : hi + 1])
+
+
+def _joins(i: int, j: int, sz: np.ndarray, params: LaserParams) -> bool:
+    return j - i - 1 <= params.max_outlier_run and _hole(sz[i], sz[j], params)
+
+
 def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_margin: float) -> str:
     """The model whose pierced run covers most of the segment; a richer model (circle over
     line, ellipse over circle) must cover more by its margin."""
@@ -562,6 +592,14 @@ def _prepare_lines(
             continue
         a, b = bounds[best], bounds[best + 1]
         if b - a < need:
+            # Holes (a matcher's failures) may have split or thinned the pierced stretch.
+            while best > 0 and b - a < need and _hole(sz[a - 1], sz[a], params):
+                best -= 1
+                a = bounds[best]
+            while best + 2 < len(bounds) and b - a < need and _hole(sz[b - 1], sz[b], params):
+                best += 1
+                b = bounds[best + 1]
+        if b - a < need:
             line.reason = f"too few points on {line.label}: {b - a} < {need} on the object"
             continue
         line.points, line.sz = points[a:b], sz[a:b]
@@ -630,6 +668,8 @@ def _fit_lines_models(
             runs = _runs(found.inliers, ln.points, params, front) if found else []
             all_runs[k][model] = runs
             pierced[k][model] = _pierced_run(runs, ln.sz[:, 0], params)
+            if 0 < len(pierced[k][model]) < need:
+                pierced[k][model] = _across_holes(runs, pierced[k][model], ln.sz, params)
         if model == "line":
             # Across a crease (a box's front and top faces, or a face and the table) RANSAC's
             # line may lie on the other side: look once more among the points it left out.
