@@ -1556,9 +1556,17 @@ def _decide(
     solid = candidates[shape].solid
     if shape in ("sphere", "cylinder"):
         full = solid
-        solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
-        if params.end_plateaus:
-            solid = _without_end_plateaus(lines, full, solid, params)
+        free = None
+        if shape == "sphere" and params.end_plateaus and _fattened(lines):
+            free = _plateau_free(lines, full, params)
+        if free is not None:
+            # A matcher's fattening all round the ball: the fit on every inlier but the
+            # plateaus, without _camera_facing's trim (see _fattened).
+            solid = free
+        else:
+            solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
+            if params.end_plateaus:
+                solid = _without_end_plateaus(lines, full, solid, params)
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
@@ -1700,7 +1708,46 @@ def _without_end_plateaus(
     params: LaserParams,
 ) -> SphereSolid | CylinderSolid:
     """``solid``, or the round refitted without the plateaus that end the lines' segments
-    when that one is narrower by more than ``silhouette_tolerance_m``.
+    (``_plateau_free``) when that one is narrower by more than ``silhouette_tolerance_m``."""
+    refit = _plateau_free(lines, full, params)
+    if refit is None or 2 * (solid.radius - refit.radius) <= params.silhouette_tolerance_m:
+        return solid
+    if isinstance(solid, CylinderSolid):
+        # As in _camera_facing: the rims shift the radius, hardly the axis.
+        return replace(solid, radius=refit.radius)
+    return refit
+
+
+def _fattened(lines: list[LineModels]) -> bool:
+    """Whether at least ``_FATTENED_ENDS`` of the lines' segment ends show a matcher's
+    fattening: a plateau of three or more samples within the depth quantum
+    (``_plateau_end``), then a rim: the surface comes nearer by two quanta or more over as
+    many samples again inward. A matcher fattens all round an object (1.5-3 px at the median
+    end for block 5-9, SGBM and BM); lpc's noise model has no matching window, and a ball
+    whose rim is lost ends in a shallow cap (1-2 mm over as many samples: no rim).
+
+    A ball's width then comes from the fit on every inlier but the plateaus
+    (``_plateau_free``), not from the camera-facing cap: under a matcher's correlated depth
+    errors (SGBM's pixel-locked staircase terraces a 40 mm ball's visible 20 mm of depth into
+    four or five disparity levels) a sphere fitted to the cap alone trades its radius against
+    its centre's depth, and its width scattered by 10 mm about the truth (31-54 mm for 40 mm,
+    SGBM 7), while the points' median radial error is under 0.5 mm."""
+    count = 0
+    for ln in lines:
+        z = ln.sz[:, 1]
+        for end, inward in ((0, 1), (len(z) - 1, -1)):
+            j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+            span = abs(j - end)
+            k = j + inward * span
+            count += span >= 2 and 0 <= k < len(z) and z[j] - z[k] >= 2 * _END_PLATEAU_M
+    return count >= _FATTENED_ENDS
+
+
+def _plateau_free(
+    lines: list[LineModels], full: SphereSolid | CylinderSolid, params: LaserParams
+) -> SphereSolid | CylinderSolid | None:
+    """The round refitted without the plateaus that end the lines' segments, or None when no
+    segment ends in one (or the refit fails or leaves the radius limits).
 
     A round's depth changes fastest at its silhouette, so two or more samples within a depth
     quantum of a segment's end are no rim but a matcher's fattening: background given the
@@ -1723,25 +1770,18 @@ def _without_end_plateaus(
                 trimmed = True
         kept.append(ln.points[keep])
     if not trimmed:
-        return solid
+        return None
     points = np.concatenate(kept)
     near = points[full.residuals(points) <= 3 * params.solid_threshold_m]
     if len(near) < params.min_points_per_line:
-        return solid
+        return None
     if isinstance(full, SphereSolid):
         refit = SphereSolid.estimate(near, init=(full.center, full.radius))
     else:
         refit = CylinderSolid.estimate(near, full.axis, iterations=2)
-    if not refit:
-        return solid
     lo, hi = params.radius_limits_m
-    if not lo <= refit.radius <= hi:
-        return solid
-    if 2 * (solid.radius - refit.radius) <= params.silhouette_tolerance_m:
-        return solid
-    if isinstance(solid, CylinderSolid):
-        # As in _camera_facing: the rims shift the radius, hardly the axis.
-        return replace(solid, radius=refit.radius)
+    if not refit or not lo <= refit.radius <= hi:
+        return None
     return refit
 
 
@@ -1860,6 +1900,7 @@ _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
 # depth units) and noise; a stereo plateau steps by the quantum.
 _END_PLATEAU_M = 0.0011
+_FATTENED_ENDS = 3
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:
