@@ -58,3 +58,54 @@ def test_a_can_under_semi_global_matching_whose_axis_the_coarse_search_misses() 
     assert result.shape == "cylinder", (result.shape, result.reason)
     # Its width is still 13 mm wide of the truth: the rims SGBM 9 fattens (see the README).
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.015
+
+
+def test_a_small_ball_whose_diagonal_line_holes_thin_is_still_a_sphere() -> None:
+    """Block matching (block 5), the 40 mm ball 225 mm away, trial 0 frames 2 and 4: the 135
+    degree line crosses the ball on 25 pixels, of which the matcher left 11-14, and holes of
+    6-9 mm split its segment (frame 2: 9 points left on the object) or its circle's run
+    (frame 4: 9 inliers). Both frames had no shape ("too few points on line 3"); the holes
+    now join the pierced stretch (laser._hole)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import Matcher, StereoSensor
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(kind="bm", block_size=5))
+    views = lv.views("functional", 1, 5, 0, names=["sphere_small"], sensor=sensor)
+    for view in (v for v in views if v.frame in (2, 4)):
+        lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+        assert len(lines.points[3]) < 16  # the holes: 30 samples on an exact frame
+        result = reconstruct_laser(lines, seed=view.seq)
+        assert result.shape == "sphere", (view.frame, result.shape, result.reason)
+        assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003
+
+
+def test_a_fattened_ball_takes_its_width_from_every_inlier_but_the_plateaus() -> None:
+    """SGBM (block 7): the 40 mm ball (trial 1 frame 2) and the 70 mm ball (trial 0 frames 0
+    and 2), whose lines end in the matcher's plateaus, came out 31.3, 61.4 and 64.9 mm from
+    the camera-facing cap (the cap alone trades its radius against its centre's depth under
+    the staircase). The fit on every inlier but the plateaus gives 39.3, 68.9 and 70.7 mm.
+    The same views through lpc's noise model show no fattening and keep the camera-facing
+    fit."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception.laser import _fattened, analyse_lines, decide
+    from lpc_core.sim.stereo import Matcher, StereoSensor
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7))
+    names = ["sphere_small", "sphere_large"]
+    picked = {("sphere_small", 1, 2), ("sphere_large", 0, 0), ("sphere_large", 0, 2)}
+    views = lv.views("functional", 2, 5, 0, names=names, sensor=sensor)
+    checked = 0
+    for view in (v for v in views if (v.subject, v.trial, v.frame) in picked):
+        lines = analyse_lines(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+        assert _fattened(lines), (view.subject, view.trial, view.frame)
+        result = decide(lines)
+        assert result.shape == "sphere", (view.subject, result.shape, result.reason)
+        error = result.grasp_width_m - view.truth.grasp_width_m
+        assert abs(error) < 0.0015, (view.subject, view.trial, view.frame, error)
+        checked += 1
+    assert checked == 3
+    for view in lv.views("functional", 2, 5, 0, names=names):
+        lines = analyse_lines(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+        assert not _fattened(lines), (view.subject, view.trial, view.frame)

@@ -450,6 +450,36 @@ def _pierced_run(runs: list[np.ndarray], s: np.ndarray, params: LaserParams) -> 
     return _EMPTY_RUN
 
 
+def _hole(before: np.ndarray, after: np.ndarray, params: LaserParams) -> bool:
+    """Whether the gap between two (s, z) samples of a line is a hole, not an edge: the
+    samples between them are missing (a matcher's failed windows: dim or dotless patches, a
+    block matcher's texture check) while the surface goes on, at most ``run_gap_m`` across
+    and rising or falling no more than it runs across (45 degrees). An occluding edge or the
+    shadow band beside it changes depth far faster than that."""
+    ds = abs(float(after[0] - before[0]))
+    return ds <= params.run_gap_m and abs(float(after[1] - before[1])) <= ds
+
+
+def _across_holes(
+    runs: list[np.ndarray], run: np.ndarray, sz: np.ndarray, params: LaserParams
+) -> np.ndarray:
+    """The pierced ``run`` joined with the runs beside it that only a hole parts from it
+    (at most ``max_outlier_run`` outliers between them, ``_hole`` across): the gap's
+    distance ended it, and holes make a gap long without any sample leaving the model.
+    Only a run too short to count is joined, so a line without holes keeps its run."""
+    at = next(i for i, r in enumerate(runs) if r is run)
+    lo = hi = at
+    while lo > 0 and _joins(runs[lo - 1][-1], runs[lo][0], sz, params):
+        lo -= 1
+    while hi + 1 < len(runs) and _joins(runs[hi][-1], runs[hi + 1][0], sz, params):
+        hi += 1
+    return run if lo == hi else np.concatenate(runs[lo : hi + 1])
+
+
+def _joins(i: int, j: int, sz: np.ndarray, params: LaserParams) -> bool:
+    return j - i - 1 <= params.max_outlier_run and _hole(sz[i], sz[j], params)
+
+
 def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_margin: float) -> str:
     """The model whose pierced run covers most of the segment; a richer model (circle over
     line, ellipse over circle) must cover more by its margin."""
@@ -562,6 +592,14 @@ def _prepare_lines(
             continue
         a, b = bounds[best], bounds[best + 1]
         if b - a < need:
+            # Holes (a matcher's failures) may have split or thinned the pierced stretch.
+            while best > 0 and b - a < need and _hole(sz[a - 1], sz[a], params):
+                best -= 1
+                a = bounds[best]
+            while best + 2 < len(bounds) and b - a < need and _hole(sz[b - 1], sz[b], params):
+                best += 1
+                b = bounds[best + 1]
+        if b - a < need:
             line.reason = f"too few points on {line.label}: {b - a} < {need} on the object"
             continue
         line.points, line.sz = points[a:b], sz[a:b]
@@ -630,6 +668,8 @@ def _fit_lines_models(
             runs = _runs(found.inliers, ln.points, params, front) if found else []
             all_runs[k][model] = runs
             pierced[k][model] = _pierced_run(runs, ln.sz[:, 0], params)
+            if 0 < len(pierced[k][model]) < need:
+                pierced[k][model] = _across_holes(runs, pierced[k][model], ln.sz, params)
         if model == "line":
             # Across a crease (a box's front and top faces, or a face and the table) RANSAC's
             # line may lie on the other side: look once more among the points it left out.
@@ -1516,9 +1556,17 @@ def _decide(
     solid = candidates[shape].solid
     if shape in ("sphere", "cylinder"):
         full = solid
-        solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
-        if params.end_plateaus:
-            solid = _without_end_plateaus(lines, full, solid, params)
+        free = None
+        if shape == "sphere" and params.end_plateaus and _fattened(lines):
+            free = _plateau_free(lines, full, params)
+        if free is not None:
+            # A matcher's fattening all round the ball: the fit on every inlier but the
+            # plateaus, without _camera_facing's trim (see _fattened).
+            solid = free
+        else:
+            solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
+            if params.end_plateaus:
+                solid = _without_end_plateaus(lines, full, solid, params)
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
@@ -1660,7 +1708,46 @@ def _without_end_plateaus(
     params: LaserParams,
 ) -> SphereSolid | CylinderSolid:
     """``solid``, or the round refitted without the plateaus that end the lines' segments
-    when that one is narrower by more than ``silhouette_tolerance_m``.
+    (``_plateau_free``) when that one is narrower by more than ``silhouette_tolerance_m``."""
+    refit = _plateau_free(lines, full, params)
+    if refit is None or 2 * (solid.radius - refit.radius) <= params.silhouette_tolerance_m:
+        return solid
+    if isinstance(solid, CylinderSolid):
+        # As in _camera_facing: the rims shift the radius, hardly the axis.
+        return replace(solid, radius=refit.radius)
+    return refit
+
+
+def _fattened(lines: list[LineModels]) -> bool:
+    """Whether at least ``_FATTENED_ENDS`` of the lines' segment ends show a matcher's
+    fattening: a plateau of three or more samples within the depth quantum
+    (``_plateau_end``), then a rim: the surface comes nearer by two quanta or more over as
+    many samples again inward. A matcher fattens all round an object (1.5-3 px at the median
+    end for block 5-9, SGBM and BM); lpc's noise model has no matching window, and a ball
+    whose rim is lost ends in a shallow cap (1-2 mm over as many samples: no rim).
+
+    A ball's width then comes from the fit on every inlier but the plateaus
+    (``_plateau_free``), not from the camera-facing cap: under a matcher's correlated depth
+    errors (SGBM's pixel-locked staircase terraces a 40 mm ball's visible 20 mm of depth into
+    four or five disparity levels) a sphere fitted to the cap alone trades its radius against
+    its centre's depth, and its width scattered by 10 mm about the truth (31-54 mm for 40 mm,
+    SGBM 7), while the points' median radial error is under 0.5 mm."""
+    count = 0
+    for ln in lines:
+        z = ln.sz[:, 1]
+        for end, inward in ((0, 1), (len(z) - 1, -1)):
+            j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+            span = abs(j - end)
+            k = j + inward * span
+            count += span >= 2 and 0 <= k < len(z) and z[j] - z[k] >= 2 * _END_PLATEAU_M
+    return count >= _FATTENED_ENDS
+
+
+def _plateau_free(
+    lines: list[LineModels], full: SphereSolid | CylinderSolid, params: LaserParams
+) -> SphereSolid | CylinderSolid | None:
+    """The round refitted without the plateaus that end the lines' segments, or None when no
+    segment ends in one (or the refit fails or leaves the radius limits).
 
     A round's depth changes fastest at its silhouette, so two or more samples within a depth
     quantum of a segment's end are no rim but a matcher's fattening: background given the
@@ -1683,25 +1770,18 @@ def _without_end_plateaus(
                 trimmed = True
         kept.append(ln.points[keep])
     if not trimmed:
-        return solid
+        return None
     points = np.concatenate(kept)
     near = points[full.residuals(points) <= 3 * params.solid_threshold_m]
     if len(near) < params.min_points_per_line:
-        return solid
+        return None
     if isinstance(full, SphereSolid):
         refit = SphereSolid.estimate(near, init=(full.center, full.radius))
     else:
         refit = CylinderSolid.estimate(near, full.axis, iterations=2)
-    if not refit:
-        return solid
     lo, hi = params.radius_limits_m
-    if not lo <= refit.radius <= hi:
-        return solid
-    if 2 * (solid.radius - refit.radius) <= params.silhouette_tolerance_m:
-        return solid
-    if isinstance(solid, CylinderSolid):
-        # As in _camera_facing: the rims shift the radius, hardly the axis.
-        return replace(solid, radius=refit.radius)
+    if not refit or not lo <= refit.radius <= hi:
+        return None
     return refit
 
 
@@ -1820,6 +1900,7 @@ _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
 # depth units) and noise; a stereo plateau steps by the quantum.
 _END_PLATEAU_M = 0.0011
+_FATTENED_ENDS = 3
 
 
 def _tuple3(v: np.ndarray) -> tuple[float, float, float]:
