@@ -127,3 +127,20 @@ def test_a_round_is_refitted_without_the_plateaus_ending_its_lines() -> None:
         assert trimmed.wrist_angle_rad == kept.wrist_angle_rad
         narrower += trimmed.grasp_width_m < kept.grasp_width_m - 0.0015
     assert narrower >= 3
+
+
+def test_a_plateau_that_cannot_place_the_edge_does_not_size_the_fattening() -> None:
+    """SGBM 7, the upright 35 mm box, trial 0 frame 2: on the horizontal line the face's depth
+    changes by 0.1 mm a sample, so the plateau's depth, known to half the 1 mm quantum, puts
+    the edge anywhere within 3.5 samples; that plateau gave 15.4 px where the seeds lie 4-10 px
+    past the true edges, and the face came out 24 mm wide. It now sizes nothing."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from services.cli import _laser_views as lv
+
+    views = lv.views("functional", 2, 5, 0, names=["cuboid_upright"], sensor=StereoSensor())
+    view = next(v for v in views if (v.trial, v.frame) == (0, 2))
+    result = reconstruct_laser(cut_scan_lines(view.depth, INTRINSICS), seed=view.seq)
+    assert result.shape == "cuboid", (result.shape, result.reason)
+    assert result.extra["fattening_px"] <= 8.0
+    assert result.grasp_width_m > view.truth.grasp_width_m - 0.003

@@ -1869,7 +1869,12 @@ def _fattening(lines: list[LineModels]) -> float:
             # parts from it by more than the depth's quantum at its end.
             inside = min(q[j], q[end]) <= q_cross <= max(q[j], q[end])
             gap = abs(1.0 / (a * q[end] + b) - z_end)
-            if inside and gap > _PARTED_M:
+            # The plateau's depth is known to half a quantum: where the face's depth changes
+            # so slowly along the line that this moves the crossing by more than
+            # _CROSSING_SAMPLES, the plateau cannot size the fattening (it came out 12-15 px
+            # on stereo edges of 4-7).
+            spread = 0.5 * _QUANTUM_M / (z_end * z_end * abs(a) * ln.step)
+            if inside and gap > _PARTED_M and spread <= _CROSSING_SAMPLES:
                 # In samples: a diagonal line's samples are a pixel apart along x and y, as
                 # far as a fattening along rows or columns reaches.
                 # The plateau's first sample is the face's last: the edge lies half a sample on.
@@ -1896,6 +1901,8 @@ def measured_fattening_px(
 
 
 _PLATEAU_M = 0.0006
+_QUANTUM_M = 0.001
+_CROSSING_SAMPLES = 1.5
 _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
 # depth units) and noise; a stereo plateau steps by the quantum.
