@@ -90,7 +90,9 @@ class _Shedder:
 
     def __init__(self, bus: Bus, args: argparse.Namespace) -> None:
         self._bus = bus
-        self.state = ShedState(ShedParams(max_rate_hz=args.rate, min_rate_hz=args.min_rate))
+        # Callers that build the flags themselves may leave these out: the defaults of main.
+        least = min(getattr(args, "min_rate", 5.0), args.rate)
+        self.state = ShedState(ShedParams(max_rate_hz=args.rate, min_rate_hz=least))
         bus.health.counters["shed_frames"] = 0
         bus.health.counters["shed_rate_hz"] = round(args.rate)
 
@@ -172,7 +174,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     first_recorded_ns = 0
     seq = slot = 0  # frames published; the simulated frame clock's slots
     shedder = _Shedder(bus, args)
-    watch = asyncio.create_task(shedder.watch()) if args.shed else None
+    watch = asyncio.create_task(shedder.watch()) if getattr(args, "shed", True) else None
     try:
         while True:
             if args.source in ("realsense", "sim-device"):
@@ -279,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         type=float,
         default=5.0,
         metavar="HZ",
-        help="the least frame rate shedding goes down to (default 5 Hz)",
+        help="the least frame rate shedding goes down to (default 5 Hz; --rate if lower)",
     )
     add_sensor_arguments(parser)
     add_realsense_arguments(parser)
@@ -292,8 +294,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--source replay needs --file FILE.mcap")
     if not 0 < args.rate <= 1000:
         parser.error("--rate must be in (0, 1000]")
-    if not 0 < args.min_rate <= args.rate:
-        parser.error("--min-rate must be in (0, --rate]")
+    if not 0 < args.min_rate <= 1000:
+        parser.error("--min-rate must be in (0, 1000]")
     if not 1e-6 <= args.rs_depth_units <= 0.01:
         parser.error("--rs-depth-units must be in [1e-6, 0.01] m")
     if not 0.01 <= args.reopen_every <= 60:
