@@ -4,6 +4,7 @@ frames in, the gate's verdicts and the allowed rate out. No bus, no clock."""
 from __future__ import annotations
 
 import itertools
+import math
 
 import pytest
 
@@ -90,15 +91,22 @@ def test_shed_step_decreases_once_per_report_window_whoever_reports() -> None:
     assert change == RateChange(45.0, 22.5, 0.5, "controller")
 
 
-def test_shed_step_holds_between_the_thresholds_and_climbs_one_hz_a_second_when_clean() -> None:
+def test_shed_step_holds_between_the_thresholds_and_climbs_when_clean() -> None:
     state = overloaded()
     state, change = shed_step(state, report("controller", 300, 65), 2 * S)  # 25 %: hold
     assert change is None and state.rate == 45.0
-    state, change = shed_step(state, report("controller", 400, 75), 3 * S)  # 10 %: climb
-    assert change == RateChange(45.0, 46.0, 0.1, "controller")
-    # A clean window of 1.5 s adds 1.5 Hz.
+    # 10 %: climbs a tenth of the rate a second (more than 1 Hz at 45 Hz).
+    state, change = shed_step(state, report("controller", 400, 75), 3 * S)
+    assert change == RateChange(45.0, 49.5, 0.1, "controller")
+    # A clean window of 1.5 s adds 1.5 times that.
     state, change = shed_step(state, report("controller", 550, 75), 9 * S // 2)
-    assert change is not None and change.rate_hz == pytest.approx(47.5)
+    assert change is not None and change.rate_hz == pytest.approx(49.5 + 1.5 * 4.95)
+
+
+def test_shed_step_climbs_one_hz_a_second_at_low_rates() -> None:
+    state = overloaded(10.0)  # 5 Hz: a tenth would be 0.5 Hz a second
+    state, change = shed_step(state, report("controller", 300, 40), 2 * S)
+    assert change == RateChange(5.0, 6.0, 0.0, "controller")
 
 
 def test_shed_step_climbs_back_to_every_frame() -> None:
@@ -127,8 +135,8 @@ def test_shed_step_climbs_back_when_the_reports_stop() -> None:
     state = overloaded()  # 45 Hz at 1 s; the controller then goes silent
     state, _ = frames(state, 1 * S, 2 * 90)
     assert state.rate == 45.0  # silent for 2 s: not stale yet (3 s)
-    state, _ = frames(state, 3 * S, 2 * 90)  # stale from 4 s: 1 Hz a second since
-    assert state.rate == pytest.approx(46.0, abs=0.05)
+    state, _ = frames(state, 3 * S, 2 * 90)  # stale from 4 s: a tenth a second since
+    assert state.rate == pytest.approx(45.0 * math.exp(0.1), abs=0.1)
     for second in range(5, 60):
         state, _ = frames(state, second * S, 90)
     assert state.rate == 90.0
@@ -139,7 +147,7 @@ def test_shed_step_takes_a_restarted_service_as_a_new_baseline() -> None:
     state, change = shed_step(state, report("controller", 50, 40), 2 * S)  # counters restart
     assert change is None and state.rate == 45.0
     state, change = shed_step(state, report("controller", 150, 40), 3 * S)
-    assert change == RateChange(45.0, 46.0, 0.0, "controller")
+    assert change == RateChange(45.0, 49.5, 0.0, "controller")
 
 
 def test_shed_step_ignores_services_without_tick_counters() -> None:
