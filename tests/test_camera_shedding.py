@@ -60,14 +60,15 @@ def test_camera_sheds_frames_while_the_controller_reports_late_ticks(
         wait_for(lambda: controller.matching_status.matching, 30, "the camera's subscriber")
         wait_for(lambda: _counter(watch, "shed_rate_hz") is not None, 30, "the camera's health")
         assert _counter(watch, "shed_frames") == 0 and _counter(watch, "shed_rate_hz") == 30
-        # A baseline, then a window with half the ticks late: 30 Hz halves to 15.
+        # A baseline, then two windows with half the ticks late: 30 Hz halves to 15.
         report(1, 100, 0)
         report(2, 200, 50)
+        report(3, 300, 100)
         wait_for(lambda: _counter(watch, "shed_rate_hz") == 15, 30, "the camera at 15 Hz")
         assert watch.logged("frame rate 30.0 -> 15.0 Hz: controller late in 50% of its ticks")
         # At 15 Hz of 30, every other frame is shed. Meanwhile the stand-in goes on reporting
         # a quarter of its ticks late, between the thresholds: the rate holds.
-        ticks, late = 200, 50
+        ticks, late = 300, 100
         last_report = time.monotonic()
 
         def thirty_shed_while_holding() -> bool:

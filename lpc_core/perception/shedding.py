@@ -9,9 +9,11 @@ its health (``lpc/health/<service>``, once a second): ``ticks``, the periodic ti
 100 Hz timer, and ``late_ticks``, those that woke more than one period late. The rate follows
 AIMD, as TCP's congestion window does:
 
-- a report whose share of late ticks exceeds ``late_above`` multiplies the rate by
-  ``decrease`` (at most once per report window: a report whose window began before the last
-  decrease describes the old rate and is not acted on again);
+- two windows in a row of one service whose share of late ticks exceeds ``late_above``
+  multiply the rate by ``decrease``: one window alone is taken for a passing burst (a busy
+  neighbour, services starting up), which under load here made the camera shed at full CPU.
+  At most once per report window: a report whose window began before the last decrease
+  describes the old rate and is not acted on again;
 - a report under ``clean_below`` adds, for each second since the last change,
   ``increase_hz_per_s`` or ``increase_share_per_s`` of the rate, whichever is more, up to
   ``max_rate_hz`` (1 Hz a second near the 10 Hz a half-core quota leaves here, but 45 Hz back
@@ -88,6 +90,7 @@ class TickCount:
     ticks: int
     late_ticks: int
     seen_ns: int
+    behind: bool = False  # the window that ended with this report had too many late ticks
 
 
 @dataclass(frozen=True)
@@ -170,16 +173,18 @@ def _report(
         return state, None  # a service without a control timer
     p = state.params
     previous = state.reports.get(health.service)
+    fresh = previous is None or ticks <= previous.ticks or late < previous.late_ticks
+    fraction = 0.0 if fresh else (late - previous.late_ticks) / (ticks - previous.ticks)
     reports = dict(state.reports)
-    reports[health.service] = TickCount(ticks, late, now_ns)
+    reports[health.service] = TickCount(ticks, late, now_ns, fraction > p.late_above)
     state = replace(state, reports=MappingProxyType(reports), last_report_ns=now_ns)
-    if previous is None or ticks <= previous.ticks or late < previous.late_ticks:
+    if previous is None or fresh:
         return state, None  # the first report, or the service restarted: a new baseline
-    fraction = (late - previous.late_ticks) / (ticks - previous.ticks)
     before = state.rate
     if fraction > p.late_above:
-        if previous.seen_ns < state.last_decrease_ns:
-            return state, None  # this window saw the rate before the last decrease
+        if not previous.behind or previous.seen_ns < state.last_decrease_ns:
+            # One late window alone, or one that saw the rate before the last decrease.
+            return state, None
         rate = max(p.min_rate_hz, before * p.decrease)
         state = replace(state, rate_hz=rate, last_decrease_ns=now_ns, last_increase_ns=now_ns)
     elif fraction < p.clean_below:
