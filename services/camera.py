@@ -101,6 +101,7 @@ class _Shedder:
         """Whether the frame now ready is to be published (if not, it is counted as shed)."""
         self.state, gate = shed_step(self.state, FrameReady(), self._bus.clock.now_ns())
         self._bus.health.counters["shed_frames"] = self.state.shed_frames
+        self._bus.health.counters["shed_rate_hz"] = round(self.state.rate)  # climbs here too
         return gate is Gate.PUBLISH
 
     async def watch(self) -> None:
@@ -108,7 +109,6 @@ class _Shedder:
             self.state, change = shed_step(self.state, health, self._bus.clock.now_ns())
             if not isinstance(change, RateChange):
                 continue
-            self._bus.health.counters["shed_rate_hz"] = round(change.rate_hz)
             if change.previous_hz == self.state.params.max_rate_hz or not self.state.shedding:
                 self._bus.log(
                     "info",
