@@ -13,7 +13,15 @@ rs_depth_units=... rs_filters=...``) so that a replay knows, and a setting the d
 ``--source sim-device`` reads the simulated camera run as a device of its own (``lpc
 sim-camera``) over its Unix ``--socket``, as a live camera: the device paces the frames, a
 device that is missing or goes away is looked for again like a RealSense, and bytes from it that
-are not a frame are logged, counted (``malformed_frames``) and skipped."""
+are not a frame are logged, counted (``malformed_frames``) and skipped.
+
+Perception is shed before control: when the control path's health (``lpc/health/*``) reports
+too many ``late_ticks`` (over 30 % in two reports in a row), the camera publishes fewer frames
+(a simulated frame shed is not even rendered): it halves its rate per late report and climbs
+back a tenth of it (at least 1 Hz) a second once on time (``lpc_core.perception.shedding``),
+down to ``--min-rate`` at most. Its health counts the
+frames shed (``shed_frames``) and the rate now allowed (``shed_rate_hz``); the published frames
+keep consecutive ``seq``. ``--no-shed`` publishes every frame."""
 
 from __future__ import annotations
 
@@ -22,6 +30,14 @@ import asyncio
 import sys
 
 from lpc_core.perception.pipeline import intrinsics_to_message
+from lpc_core.perception.shedding import (
+    FrameReady,
+    Gate,
+    RateChange,
+    ShedParams,
+    ShedState,
+    shed_step,
+)
 from schemas import DepthFrame, to_wire
 from services.drivers.depth import (
     DepthReading,
@@ -68,6 +84,37 @@ def _live(args: argparse.Namespace) -> RealSenseSource | SimDeviceSource:
     if args.source == "sim-device":
         return SimDeviceSource(args.socket)
     return _realsense(args, None)
+
+
+class _Shedder:
+    """The frame gate of ``lpc_core.perception.shedding``, fed the control path's health."""
+
+    def __init__(self, bus: Bus, args: argparse.Namespace) -> None:
+        self._bus = bus
+        # Callers that build the flags themselves may leave these out: the defaults of main.
+        least = min(getattr(args, "min_rate", 5.0), args.rate)
+        self.state = ShedState(ShedParams(max_rate_hz=args.rate, min_rate_hz=least))
+        bus.health.counters["shed_frames"] = 0
+        bus.health.counters["shed_rate_hz"] = round(args.rate)
+
+    def publish(self) -> bool:
+        """Whether the frame now ready is to be published (if not, it is counted as shed)."""
+        self.state, gate = shed_step(self.state, FrameReady(), self._bus.clock.now_ns())
+        self._bus.health.counters["shed_frames"] = self.state.shed_frames
+        self._bus.health.counters["shed_rate_hz"] = round(self.state.rate)  # climbs here too
+        return gate is Gate.PUBLISH
+
+    async def watch(self) -> None:
+        async for health in self._bus.subscribe("lpc/health/*"):
+            self.state, change = shed_step(self.state, health, self._bus.clock.now_ns())
+            if not isinstance(change, RateChange):
+                continue
+            if change.previous_hz == self.state.params.max_rate_hz or not self.state.shedding:
+                self._bus.log(
+                    "info",
+                    f"frame rate {change.previous_hz:.1f} -> {change.rate_hz:.1f} Hz: "
+                    f"{change.service} late in {100 * change.late_fraction:.0f}% of its ticks",
+                )
 
 
 def _report_settings(bus: Bus, source: RealSenseSource | SimDeviceSource) -> None:
@@ -126,7 +173,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     period_ns = round(1e9 / args.rate)
     start_ns = bus.clock.now_ns()
     first_recorded_ns = 0
-    seq = 0
+    seq = slot = 0  # frames published; the simulated frame clock's slots
+    shedder = _Shedder(bus, args)
+    watch = asyncio.create_task(shedder.watch()) if getattr(args, "shed", True) else None
     try:
         while True:
             if args.source in ("realsense", "sim-device"):
@@ -159,12 +208,15 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             else:
                 if args.source == "sim":
                     start_ns, missed = skip_missed_slots(
-                        start_ns, seq, period_ns, bus.clock.now_ns()
+                        start_ns, slot, period_ns, bus.clock.now_ns()
                     )
                     if missed:
                         bus.health.counters["late_frames"] += missed
-                    due = start_ns + seq * period_ns
+                    due = start_ns + slot * period_ns
                     await bus.clock.sleep_until(due)
+                    slot += 1
+                    if not shedder.publish():  # shed before rendering
+                        continue
                     if stereo:  # 100+ ms a frame: keep the loop (health, stop) free
                         reading = await asyncio.to_thread(
                             source.render, (due - start_ns) / 1e9, seq
@@ -177,12 +229,16 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     await bus.clock.sleep_until(start_ns + recorded_ns - first_recorded_ns)
                 # Stamped when the frame is complete, as a camera stamps its frames.
                 t_ns = bus.clock.now_ns()
+            if args.source != "sim" and not shedder.publish():
+                continue
             depth.put(_frame(seq, t_ns, reading, intrinsics, args.source))
             seq += 1
     except EndOfStream:
         bus.log("info", f"end of {args.file} after {seq} frames")
     finally:
         source.shutdown()
+        if watch is not None:
+            watch.cancel()
     # Stay up (and healthy) after the end of a file: the session ends when 'lpc up' says so.
     await asyncio.Event().wait()
 
@@ -214,6 +270,20 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="look for a missing or lost live camera every S seconds (default 1)",
     )
+    parser.add_argument(
+        "--no-shed",
+        dest="shed",
+        action="store_false",
+        help="publish every frame even when the control path reports late ticks (default: "
+        "shed frames then, down to --min-rate)",
+    )
+    parser.add_argument(
+        "--min-rate",
+        type=float,
+        default=5.0,
+        metavar="HZ",
+        help="the least frame rate shedding goes down to (default 5 Hz; --rate if lower)",
+    )
     add_sensor_arguments(parser)
     add_realsense_arguments(parser)
     args = parser.parse_args(argv)
@@ -225,6 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--source replay needs --file FILE.mcap")
     if not 0 < args.rate <= 1000:
         parser.error("--rate must be in (0, 1000]")
+    if not 0 < args.min_rate <= 1000:
+        parser.error("--min-rate must be in (0, 1000]")
     if not 1e-6 <= args.rs_depth_units <= 0.01:
         parser.error("--rs-depth-units must be in [1e-6, 0.01] m")
     if not 0.01 <= args.reopen_every <= 60:

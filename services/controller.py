@@ -1,7 +1,9 @@
 """Controller service: ``lpc/emg``, ``lpc/grasp/target``, ``lpc/aim/cue`` and
 ``lpc/prosthesis/state`` in; ``lpc/controller/state`` (every transition, and 10 Hz) and
 ``lpc/prosthesis/command`` (one per hand status, 100 Hz) out. A 100 Hz timer lets the
-controller notice stale inputs when nothing arrives at all."""
+controller notice stale inputs when nothing arrives at all; its health counts the timer's
+``ticks`` and the ``late_ticks`` that woke more than a period late (the camera sheds frames
+when there are too many of them)."""
 
 from __future__ import annotations
 
@@ -90,6 +92,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         while True:
             t_ns = max(t_ns + TICK_NS, bus.clock.now_ns() - TICK_NS)
             await bus.clock.sleep_until(t_ns)
+            # Its lateness is the camera's cue to shed frames (lpc_core.perception.shedding).
+            bus.health.counters["ticks"] += 1
+            if bus.clock.now_ns() - t_ns > TICK_NS:
+                bus.health.counters["late_ticks"] += 1
             inbox.put_nowait((t_ns, Tick(t_ns)))
 
     tasks = [asyncio.create_task(pump(k, latest)) for k, latest in INPUTS.items()]

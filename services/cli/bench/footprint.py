@@ -66,6 +66,11 @@ WEIGHT = 100
 # Frame-derived topics: their frame_seq says which camera frame they came from.
 FRAME_TOPICS = ("lpc/scans", "lpc/reconstruction", "lpc/grasp/target", "lpc/aim/cue")
 CAPTURE_TOPICS = (*FRAME_TOPICS, "lpc/tactors/command")
+# Health counters shown in a service's drops column, as they grew over the measured window:
+# late_ticks is the control path's lateness, shed_frames the frames the camera shed for it.
+DROP_COUNTERS = (
+    "dropped", "dropped_frames", "late_frames", "stale_commands", "late_ticks", "shed_frames",
+)  # fmt: skip
 
 
 class _Stamp(msgspec.Struct):
@@ -555,7 +560,7 @@ def _result(
         first = services[name].samples[0].counters if name in services else {}
         drops = {
             k: counters[k] - first.get(k, 0)
-            for k in ("dropped", "dropped_frames", "late_frames", "stale_commands")
+            for k in DROP_COUNTERS
             if counters.get(k, 0) - first.get(k, 0)
         }
         own_cpu = cpu.get(name, loop_cpu.get(name, 0.0))
@@ -615,6 +620,7 @@ def _result(
         "frames": {
             "camera_hz": camera_hz,
             "frames": span,
+            "shed": rows.get("camera", {}).get("drops", {}).get("shed_frames", 0),
             "coverage_pct": coverage,
         },
         "capture_latency_ms": latencies,
@@ -673,7 +679,8 @@ def _print(r: dict[str, Any]) -> None:
         print(f"throttled in {100 * share:.0f}% of the {periods} quota periods")
     f = r["frames"]
     cov = ", ".join(f"{k.removeprefix('lpc/')} {_fmt(v)}%" for k, v in f["coverage_pct"].items())
-    print(f"\ncamera {_fmt(f['camera_hz'])} Hz over {f['frames']} frames; of them: {cov}")
+    shed = f" ({f['shed']} more shed at the camera)" if f.get("shed") else ""
+    print(f"\ncamera {_fmt(f['camera_hz'])} Hz over {f['frames']} frames{shed}; of them: {cov}")
     print(f"\n{'capture ->':<24}{'n':>7}{'p50 ms':>9}{'p99 ms':>9}")
     for key, lat in r["capture_latency_ms"].items():
         print(f"{key:<24}{lat['n']:>7}{_fmt(lat['p50']):>9}{_fmt(lat['p99']):>9}")
