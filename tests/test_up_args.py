@@ -265,3 +265,14 @@ def test_up_args_sim_device_source_passes_its_socket(monkeypatch: pytest.MonkeyP
     assert camera.main(argv_of("camera", args)) == 0
     assert started["c"].socket == camera.default_sim_socket()
     assert "sim, sim-device, realsense or replay" in (up._validate(parse("--source", "usb")) or "")
+
+
+def test_up_args_no_shed_reaches_the_camera(monkeypatch: pytest.MonkeyPatch) -> None:
+    from services import camera
+
+    started: dict[str, argparse.Namespace] = {}
+    monkeypatch.setattr(camera, "run_service", lambda name, serve, a: started.update(c=a) or 0)
+    assert camera.main(argv_of("camera", parse())) == 0
+    assert started["c"].shed
+    assert camera.main(argv_of("camera", parse("--no-shed"))) == 0
+    assert not started["c"].shed

@@ -60,6 +60,8 @@ def _camera_argv(args: argparse.Namespace) -> list[str]:
         argv += sensor_argv(args)
     elif args.source[0] == "realsense":
         argv += realsense_argv(args)
+    if not args.shed:
+        argv.append("--no-shed")
     return argv
 
 
@@ -236,6 +238,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--port", type=int, default=7447, help="loopback port of the rendezvous (default 7447)"
     )
     parser.add_argument("--rate", type=float, default=90.0, help="camera frame rate (Hz)")
+    parser.add_argument(
+        "--no-shed",
+        dest="shed",
+        action="store_false",
+        help="the camera publishes every frame even while the controller reports late ticks "
+        "(default: it sheds frames first, so that the hand keeps its 100 Hz)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene")
     parser.add_argument(
         "--status-every",
