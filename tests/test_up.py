@@ -33,6 +33,9 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.Comple
             str(out),
             "--port",
             str(free_port()),
+            # The frame-slot count below is the camera's pacing; on a loaded machine the
+            # controller's late ticks would rightly shed frames (tests/test_camera_shedding.py).
+            "--no-shed",
         ],
         capture_output=True,
         text=True,
