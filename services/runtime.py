@@ -14,6 +14,7 @@ import collections
 import contextlib
 import contextvars
 import importlib
+import itertools
 import json
 import os
 import signal
@@ -141,10 +142,21 @@ class _Stream:
     )
 
     def rate_hz(self, now_ns: int, window_ns: int = 2_000_000_000) -> float:
-        recent = [t for t in self.stamps if now_ns - t <= window_ns]
-        if len(recent) < 2:
+        # Stamps are appended in time order: walk back from the newest to the window's start
+        # instead of testing all 512 (a snapshot per second of each service spent ~20 us per
+        # stream on that).
+        n = 0
+        first = newest = 0
+        for t in reversed(self.stamps):
+            if now_ns - t > window_ns:
+                break
+            if n == 0:
+                newest = t
+            first = t
+            n += 1
+        if n < 2:
             return 0.0
-        return (len(recent) - 1) / ((recent[-1] - recent[0]) / 1e9 or 1e-9)
+        return (n - 1) / ((newest - first) / 1e9 or 1e-9)
 
 
 class HealthCounters:
@@ -162,8 +174,13 @@ class HealthCounters:
     def snapshot(self, now_ns: int, status: str = "ok") -> Health:
         rates = {k: round(s.rate_hz(now_ns), 2) for k, s in self.published.items()}
         latency: dict[str, float] = {}
-        samples = [x for s in self.published.values() for x in s.latencies_ms]
-        if samples:
+        # One float array, not a list: np.percentile on a list of 4096 floats cost ~180 us.
+        samples = np.fromiter(
+            itertools.chain.from_iterable(s.latencies_ms for s in self.published.values()),
+            dtype=float,
+            count=sum(len(s.latencies_ms) for s in self.published.values()),
+        )
+        if samples.size:
             p50, p99 = np.percentile(samples, [50, 99])
             latency = {"p50": round(float(p50), 3), "p99": round(float(p99), 3)}
         counters = dict(self.counters)
