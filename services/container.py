@@ -256,7 +256,8 @@ class _ControlLoop:
     def __init__(self, session: zenoh.Session) -> None:
         self.loop = asyncio.new_event_loop()
         self.loop.set_task_factory(_task_factory)
-        # Its own subscribers, one per key: it wants a few small topics, not every depth frame.
+        # No subscriber of its own: the main loop's router, on the same session, copies out the
+        # remote samples this loop wants and queues them here (it wants a few small topics).
         self.router = Router(session, self.loop, wildcard=False)
         self._thread = threading.Thread(target=self.loop.run_forever, name="control", daemon=True)
         self._thread.start()

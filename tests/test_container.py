@@ -6,13 +6,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import time
 
 import pytest
 import zenoh
 
-from schemas import EmgSample, decode
+from schemas import EmgSample, decode, encode
 from services.container import run_container
-from services.runtime import Bus, LoadedService, load_service
+from services.runtime import Bus, LoadedService, Router, load_service
 from tests.conftest import until
 
 
@@ -176,3 +177,49 @@ def test_container_hands_its_own_samples_over_once(
         assert len(seqs) >= 200, where
     assert outside == sorted(set(outside)), "outside: no sample twice"
     assert len(outside) >= 200
+
+
+def test_container_hands_outside_samples_to_both_loops_through_one_subscriber(
+    endpoint: str, rendezvous: zenoh.Session
+) -> None:
+    """A sample from another process reaches the subscriptions of both loops once each and in
+    order, copied out by the main loop's subscriber on lpc/**: the control loop declares no
+    Zenoh subscriber of its own."""
+    heard: dict[str, list[int]] = {"main": [], "control": []}
+    ready: set[str] = set()
+    routers: dict[str, Router] = {}
+
+    def listener(where: str) -> LoadedService:
+        async def serve(bus: Bus, args: argparse.Namespace) -> None:
+            sub = bus.subscribe("lpc/emg", latest=False)
+            assert bus.router is not None
+            routers[where] = bus.router
+            ready.add(where)
+            async for message in sub:
+                heard[where].append(message.seq)
+
+        return LoadedService(f"listener_{where}", serve, argparse.Namespace(argv=[]))
+
+    services = [listener("main"), listener("control")]
+    pub = rendezvous.declare_publisher("lpc/emg")
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        container = asyncio.create_task(
+            run_container(services, _args(endpoint), stop, control_loop=("listener_control",))
+        )
+        await until(lambda: len(ready) == 2, 30, "both listeners")
+        await asyncio.sleep(0.5)  # the container's subscriber reaches the rendezvous
+        for seq in range(1, 201):
+            pub.put(encode(EmgSample(seq=seq, t_ns=time.time_ns(), channels=[0.1, 0.2])))
+            await asyncio.sleep(0.002)
+        await until(lambda: min(map(len, heard.values())) >= 200, 10, "the samples in both")
+        assert routers["control"]._by_key == {}, "the control loop has no subscriber"
+        stop.set()
+        async with asyncio.timeout(10):
+            assert await container == 0
+
+    asyncio.run(main())
+    pub.undeclare()
+    for where, seqs in heard.items():
+        assert seqs == list(range(1, 201)), f"{where}: every sample once, in order"

@@ -154,3 +154,22 @@ def test_service_flags_are_kept_and_reported_in_health() -> None:
     assert args.argv == ["--band-mm", "2", "--quiet"] and args.band_mm == 2.0
     health = HealthCounters("scans", args.argv).snapshot(now_ns=5)
     assert decode("lpc/health/scans", encode(health)).argv == ["--band-mm", "2", "--quiet"]
+
+
+def test_health_rate_and_latency_cover_the_window_only() -> None:
+    """A stream's rate counts the stamps of the last 2 s only (100 Hz, after 50 Hz before);
+    the latency percentiles are over every published stream's recent samples."""
+    from services.runtime import HealthCounters
+
+    health = HealthCounters("x")
+    stream = health.published["lpc/emg"]
+    now = 10**12
+    stamps = [now - 5_000_000_000 + i * 20_000_000 for i in range(100)]  # 50 Hz, long ago
+    stamps += [now - 1_990_000_000 + i * 10_000_000 for i in range(200)]  # 100 Hz, recent
+    stream.stamps.extend(stamps)
+    stream.latencies_ms.extend([1.0] * 50 + [3.0] * 50)
+    health.published["lpc/prosthesis/command"].latencies_ms.extend([100.0] * 3)
+    snapshot = health.snapshot(now)
+    assert snapshot.rates_hz["lpc/emg"] == 100.0
+    assert snapshot.rates_hz["lpc/prosthesis/command"] == 0.0
+    assert snapshot.latency_ms == {"p50": 3.0, "p99": 100.0}
