@@ -1871,8 +1871,8 @@ def _fattening(lines: list[LineModels]) -> float:
             gap = abs(1.0 / (a * q[end] + b) - z_end)
             # The plateau's depth is known to half a quantum: where the face's depth changes
             # so slowly along the line that this moves the crossing by more than
-            # _CROSSING_SAMPLES, the plateau cannot size the fattening (it came out 12-15 px
-            # on stereo edges of 4-7).
+            # _CROSSING_SAMPLES, the plateau cannot size the fattening (on stereo frames such
+            # ends gave 12-15 px where the seeds lay about 5 px past the true edge).
             spread = 0.5 * _QUANTUM_M / (z_end * z_end * abs(a) * ln.step)
             if inside and gap > _PARTED_M and spread <= _CROSSING_SAMPLES:
                 # In samples: a diagonal line's samples are a pixel apart along x and y, as
