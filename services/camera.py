@@ -17,11 +17,11 @@ are not a frame are logged, counted (``malformed_frames``) and skipped.
 
 Perception is shed before control: when the control path's health (``lpc/health/*``) reports
 too many ``late_ticks`` (over 30 % in two reports in a row), the camera publishes fewer frames
-(a simulated frame shed is not even rendered): it halves its rate per late report and climbs
-back a tenth of it (at least 1 Hz) a second once on time (``lpc_core.perception.shedding``),
-down to ``--min-rate`` at most. Its health counts the
-frames shed (``shed_frames``) and the rate now allowed (``shed_rate_hz``); the published frames
-keep consecutive ``seq``. ``--no-shed`` publishes every frame."""
+(a simulated frame shed is not even rendered): it halves its rate and climbs back a tenth of
+it (at least 1 Hz) a second once on time (``lpc_core.perception.shedding``), never below
+``--min-rate``. Its health counts the frames shed (``shed_frames``) and the rate now allowed
+(``shed_rate_hz``); the published frames keep consecutive ``seq``. ``--no-shed`` publishes
+every frame."""
 
 from __future__ import annotations
 
