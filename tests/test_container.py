@@ -209,7 +209,7 @@ def test_container_hands_outside_samples_to_both_loops_through_one_subscriber(
             run_container(services, _args(endpoint), stop, control_loop=("listener_control",))
         )
         await until(lambda: len(ready) == 2, 30, "both listeners")
-        await asyncio.sleep(0.5)  # the container's subscriber reaches the rendezvous
+        await until(lambda: pub.matching_status.matching, 30, "the container's subscriber")
         for seq in range(1, 201):
             pub.put(encode(EmgSample(seq=seq, t_ns=time.time_ns(), channels=[0.1, 0.2])))
             await asyncio.sleep(0.002)
