@@ -399,26 +399,29 @@ def _sample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
     return np.arange(n) if n <= size else rng.choice(n, size, replace=False)
 
 
+# Index orders that rotate (x, y, z) to (y, z, x) and (z, x, y): a x b is
+# a_yzx * b_zxy - a_zxy * b_yzx, the products np.cross forms, in two array operations.
+_YZX, _ZXY = [1, 2, 0], [2, 0, 1]
+
+
 def _plane_hypotheses(
     p0: np.ndarray, p1: np.ndarray, p2: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Planes through point triples ``(T, 3)`` each: unit normals facing away from the camera."""
+    """Planes through point triples ``(T, 3)`` each: unit normals facing away from the camera.
+
+    On a few hundred triples the cost is the count of array operations, not their size: the
+    cross product by rotated columns, the norm by one reduction (what ``np.linalg.norm`` does
+    under its argument handling) and the flips by one sign vector, not masked assignments.
+    """
     a, b = p1 - p0, p2 - p0
-    # np.cross spelled out: its axis handling cost more than the products on small batches.
-    normals = np.column_stack(
-        (
-            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-        )
-    )
-    norms = np.linalg.norm(normals, axis=1)
+    normals = a[:, _YZX] * b[:, _ZXY] - a[:, _ZXY] * b[:, _YZX]
+    norms = np.sqrt(np.add.reduce(normals * normals, axis=1))
     valid = norms > 1e-10
-    normals = normals / np.where(valid, norms, 1.0)[:, None]
-    offsets = -(normals * p0).sum(axis=1)
-    flip = offsets > 0
-    normals[flip] *= -1
-    offsets[flip] *= -1
+    normals /= np.where(valid, norms, 1.0)[:, None]
+    offsets = -np.add.reduce(normals * p0, axis=1)
+    sign = np.where(offsets > 0, -1.0, 1.0)
+    normals *= sign[:, None]
+    offsets *= sign
     return normals, offsets, valid
 
 
@@ -434,24 +437,32 @@ def find_support_plane(
     n = len(points)
     if n < max(3, params.support_min_points):
         return None
-    trials = params.support_trials
-    picks = rng.integers(0, n, size=(trials, 3))
-    normals, offsets, valid = _plane_hypotheses(*(points[picks[:, i]] for i in range(3)))
-    sub = points[_sample(n, params.score_sample, rng)]
+    threshold = params.support_threshold_m
+    picks = rng.integers(0, n, size=(params.support_trials, 3))
+    triples = points[picks]  # (T, 3, 3): one gather instead of three
+    normals, offsets, valid = _plane_hypotheses(triples[:, 0], triples[:, 1], triples[:, 2])
+    # All the points when they are few (no copy: _sample's arange would only copy them).
+    if n <= params.score_sample:
+        sub = np.ascontiguousarray(points)
+    else:
+        sub = points[_sample(n, params.score_sample, rng)]
     signed = sub @ normals.T + offsets  # (S, T)
-    inliers = (np.abs(signed) <= params.support_threshold_m).sum(axis=0)
-    behind = (signed > params.support_threshold_m).sum(axis=0)
+    # Counts as byte sums down the columns: a boolean .sum() casts every element to int64 on
+    # its way, and cost more than the comparisons. |d| <= t is d >= -t less d > t.
+    behind = np.add.reduce((signed > threshold).view(np.uint8), axis=0, dtype=np.int32)
+    front = np.add.reduce((signed >= -threshold).view(np.uint8), axis=0, dtype=np.int32)
+    inliers = front - behind
     ok = valid & (behind <= params.support_max_behind_fraction * len(sub))
     if not ok.any():
         return None
     best = int(np.argmax(np.where(ok, inliers, -1)))
     signed_all = points @ normals[best] + offsets[best]
-    mask = np.abs(signed_all) <= params.support_threshold_m
+    mask = np.abs(signed_all) <= threshold
     model = PlaneModel.estimate(points[mask])
     if model:
-        signed_all = model.signed_distances(points)
-        mask = np.abs(signed_all) <= params.support_threshold_m
-    behind_all = int((signed_all > params.support_threshold_m).sum())
+        signed_all = points @ model.normal + model.offset
+        mask = np.abs(signed_all) <= threshold
+    behind_all = np.count_nonzero(signed_all > threshold)
     # The hypothesis passed on the sample; the whole cloud may hold a little more behind by the
     # sample's chance alone: three standard deviations of the sampled fraction, with the finite
     # population correction (none when the sample is the whole cloud). A table seen through a
@@ -459,7 +470,7 @@ def find_support_plane(
     # far more than that.
     f, s = params.support_max_behind_fraction, len(sub)
     allowed = f + 3.0 * math.sqrt(f * (1.0 - f) / s * (n - s) / max(n - 1, 1))
-    if mask.sum() < params.support_min_points or behind_all > allowed * n:
+    if np.count_nonzero(mask) < params.support_min_points or behind_all > allowed * n:
         return None
     return mask
 
