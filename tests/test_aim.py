@@ -30,6 +30,7 @@ from schemas import (
     TactorCommand,
     decode,
     encode,
+    from_wire,
     to_wire,
 )
 from tests.conftest import spawn_service, wait_for
@@ -377,6 +378,33 @@ def test_aim_step_bad_points_shape_raises_value_error() -> None:
     )
     with pytest.raises(ValueError, match="scan line 0"):
         aim_step(AimState(), bad, T0)
+
+
+def test_aim_step_non_finite_point_raises_value_error() -> None:
+    line = ray(0.0, 0.030, 0.045).astype(np.float32)
+    line[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN or inf"):
+        aim_step(AimState(), scans(ray(90.0, 0.010, 0.020), line), T0)
+
+
+def test_aim_step_same_cue_from_float32_and_float64_lines() -> None:
+    # The scans service sends float32 (N, 3) lines, which the step reads as one array; any
+    # other dtype goes line by line, and must point the same way.
+    lines = [ray(0.0, 0.030, 0.045), ray(45.0, 0.030, 0.040), patch(0.02, 0.03, 0.02, 0.03)]
+    narrow = scans(*lines)
+    wide = ScanLines(
+        seq=1,
+        t_ns=T0,
+        frame_seq=1,
+        lines=[
+            ScanLine(angle_deg=line.angle_deg, points=to_wire(from_wire(line.points).astype(float)))
+            for line in narrow.lines
+        ],
+    )
+    _, (cue32, command32) = aim_step(AimState(), narrow, T0)
+    _, (cue64, command64) = aim_step(AimState(), wide, T0)
+    assert cue32.state == "guiding" and cue32.objects == 2
+    assert cue64 == cue32 and command64 == command32
 
 
 def test_aim_service_publishes_command_and_cue_per_frame(

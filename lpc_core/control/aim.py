@@ -145,7 +145,10 @@ def capture_points(lines: list[np.ndarray], params: AimParams) -> np.ndarray:
             raise ValueError(f"points of scan line {i} must have shape (N, 3), got {line.shape}")
     if not lines:
         return np.empty((0, 3))
-    points = np.concatenate([np.asarray(x, dtype=float) for x in lines])
+    if len(lines) == 1:
+        points = np.asarray(lines[0], dtype=float)
+    else:
+        points = np.concatenate([np.asarray(x, dtype=float) for x in lines])
     inside = (
         (np.abs(points[:, 0]) <= params.half_width_m)
         & (np.abs(points[:, 1]) <= params.half_width_m)
@@ -162,15 +165,27 @@ def cluster_points(points: np.ndarray, gap_m: float) -> np.ndarray:
     honoured to within that resolution; this keeps a 90 Hz frame's clustering well under a
     millisecond (linking every raw point pair costs ~10 ms at 1300 points).
     """
-    if len(points) == 0:
+    n = len(points)
+    if n == 0:
         return np.empty(0, dtype=np.intp)
-    cells = np.floor(points / (gap_m / 4.0)).astype(np.int64)
-    cells -= cells.min(axis=0)
-    span = cells.max(axis=0) + 1
-    keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    # Row-wise on the transpose (C order): reductions along contiguous rows cost less.
+    cells = np.floor(np.divide(points.T, gap_m / 4.0, order="C")).astype(np.int64)
+    cells -= cells.min(axis=1)[:, None]
+    span = cells.max(axis=1) + 1
+    keys = (cells[0] * span[1] + cells[1]) * span[2] + cells[2]
+    # np.unique(keys, return_index=True, return_inverse=True) spelled out, without the
+    # argument handling that cost as much as the sort: each cube's first point, cubes in key
+    # order, and each point's cube.
+    order = np.argsort(keys, kind="stable")
+    ordered = keys[order]
+    starts = np.empty(n, dtype=bool)
+    starts[0] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=starts[1:])
+    first = order[starts]
+    cube = np.empty(n, dtype=np.intp)
+    cube[order] = np.cumsum(starts) - 1
     pairs = cKDTree(points[first]).query_pairs(gap_m, output_type="ndarray")
-    return _components(len(first), pairs)[inverse]
+    return _components(len(first), pairs)[cube]
 
 
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:
@@ -184,16 +199,17 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     if len(pairs) == 0:
         return parent
     i, j = pairs[:, 0], pairs[:, 1]
+    roots_i, roots_j = i, j  # every node is its own root to begin with
     while True:
-        pi, pj = parent[i], parent[j]
-        if np.array_equal(pi, pj):
-            return parent
-        np.minimum.at(parent, np.maximum(pi, pj), np.minimum(pi, pj))
+        np.minimum.at(parent, np.maximum(roots_i, roots_j), np.minimum(roots_i, roots_j))
         while True:
             jumped = parent[parent]
-            if np.array_equal(jumped, parent):
+            if (jumped == parent).all():
                 break
             parent = jumped
+        roots_i, roots_j = parent[i], parent[j]
+        if (roots_i == roots_j).all():
+            return parent
 
 
 # Unit directions every 45 degrees, counter-clockwise, for the Akl-Toussaint filter.
@@ -242,18 +258,28 @@ def _hull(points: np.ndarray) -> list[Point]:
     plain floats cost less than small arrays in the steps that follow."""
     extremes = np.argmax(points @ _OCTANTS, axis=0).tolist()
     # Consecutive directions often share their extreme point: keep each once, in order.
-    ring = points[[e for k, e in enumerate(extremes) if k == 0 or e != extremes[k - 1]]]
-    if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
-        ring = ring[:-1]
-    candidates = points
+    ring: list[list[float]] = points[
+        [e for k, e in enumerate(extremes) if k == 0 or e != extremes[k - 1]]
+    ].tolist()
+    if len(ring) > 1 and ring[0] == ring[-1]:
+        ring.pop()
     if len(ring) >= 3:
-        edges = np.concatenate((ring[1:], ring[:1])) - ring
+        # Each edge's start and direction as (k, 1) columns, built from the few ring floats
+        # in one array: the test below then runs on (k, N) rows.
+        ex, ey, sx, sy = np.array(
+            [
+                [bx - ax for (ax, _), (bx, _) in zip(ring, ring[1:] + ring[:1], strict=True)],
+                [by - ay for (_, ay), (_, by) in zip(ring, ring[1:] + ring[:1], strict=True)],
+                [ax for ax, _ in ring],
+                [ay for _, ay in ring],
+            ]
+        )[:, :, None]
         # cross(edge, p - start) < 0: p lies right of (outside) that counter-clockwise edge.
-        cross = edges[:, 0] * (points[:, 1:2] - ring[:, 1]) - edges[:, 1] * (
-            points[:, 0:1] - ring[:, 0]
-        )
-        candidates = np.concatenate([ring, points[(cross < 0.0).any(axis=1)]])
-    hull = _monotone_chain(candidates.tolist())
+        cross = ex * (points[:, 1] - sy) - ey * (points[:, 0] - sx)
+        candidates = ring + points[(cross < 0.0).any(axis=0)].tolist()
+    else:
+        candidates = points.tolist()
+    hull = _monotone_chain(candidates)
     if len(hull) >= 3 and _thickness(hull) > _FLAT_M:
         return hull
     if len(hull) == 1 or max(math.dist(hull[0], q) for q in hull) <= 1e-12:
@@ -412,22 +438,41 @@ def objects_in_view(points: np.ndarray, params: AimParams) -> InView | None:
         grouped = xy[np.argsort(labels, kind="stable")]
         ends = np.cumsum(counts).tolist()
         groups = [grouped[ends[k] - counts[k] : ends[k]] for k in kept.tolist()]
-    signed = np.empty(len(kept))
-    nearest = np.empty((len(kept), 2))
-    centroids = np.empty((len(kept), 2))
-    for j, members in enumerate(groups):
-        signed[j], nearest[j] = _hull_distance(_hull(members))
-        centroids[j] = members.mean(axis=0)
-    return InView(signed, nearest, centroids)
+    found = [_hull_distance(_hull(members)) for members in groups]
+    # members.mean(axis=0) without its argument handling: the same sum over the same array,
+    # divided by the count.
+    centroids = [np.add.reduce(members, axis=0) / len(members) for members in groups]
+    return InView(
+        np.array([s for s, _ in found]), np.array([xy for _, xy in found]), np.array(centroids)
+    )
 
 
 def frame_objects(scans: ScanLines, params: AimParams) -> InView | None:
     """The objects in view of one ``lpc/scans`` message (the supporting plane's search seeded
     by its frame); ``ValueError`` if a scan line is malformed. It depends on the frame alone,
     so a replay finds them in its worker processes."""
-    points = capture_points([from_wire(line.points) for line in scans.lines], params)
+    points = capture_points(_line_points(scans), params)
     objects = object_points(points, params, scans.frame_seq)
     return None if objects is None else objects_in_view(objects, params)
+
+
+def _line_points(scans: ScanLines) -> list[np.ndarray]:
+    """The points of each scan line, as ``from_wire`` gives them (and with its errors); one
+    array of them all when every line is float32 (N, 3), as the scans service sends them: one
+    copy and one finiteness test instead of four of each."""
+    wires = [line.points for line in scans.lines]
+    if wires and all(
+        w.dtype == "<f4"
+        and len(w.shape) == 2
+        and w.shape[1] == 3
+        and len(w.data) == 12 * w.shape[0]
+        for w in wires
+    ):
+        points = np.frombuffer(b"".join([w.data for w in wires]), dtype="<f4").reshape(-1, 3)
+        if not np.isfinite(points).all():
+            raise ValueError("array holds NaN or inf")
+        return [points]
+    return [from_wire(w) for w in wires]
 
 
 def _cue(
