@@ -119,8 +119,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 elif isinstance(out, Dropped):
                     bus.health.counters["dropped_frames"] += 1
                 elif isinstance(out, Release) and isinstance(out.result, bytes):
+                    # Decoded for the window; published as the worker encoded it (the
+                    # same bytes: encoding is deterministic), not encoded a second time.
                     message = decode("lpc/reconstruction", out.result)
-                    reconstructions.put(message)
+                    reconstructions.put_encoded(message, out.result)
                     window, target = window_message(window, message)
                     targets.put(target)
                 elif isinstance(out, Release):

@@ -238,9 +238,20 @@ class Publisher:
         self._stream = bus.health.published[key]
 
     def put(self, message: msgspec.Struct) -> None:
+        self._check(message)
+        self._send(message, encode(message))
+
+    def put_encoded(self, message: msgspec.Struct, payload: bytes) -> None:
+        """``put`` of a message that arrived encoded (a worker process's result, decoded only
+        to be read): ``payload`` must be ``encode(message)``, and is sent as it is."""
+        self._check(message)
+        self._send(message, payload)
+
+    def _check(self, message: msgspec.Struct) -> None:
         if not isinstance(message, self.topic.type):
             raise TypeError(f"{self.key} carries {self.topic.type.__name__}, not {type(message)}")
-        payload = encode(message)
+
+    def _send(self, message: msgspec.Struct, payload: bytes) -> None:
         self._zpub.put(payload)
         for router in self._local:
             router.deliver(self.key, payload)

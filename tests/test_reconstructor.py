@@ -13,6 +13,8 @@ import zenoh
 from lpc_core.perception.cloud import reconstruct_cloud
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.pipeline import ScansState, intrinsics_to_message, scans_step
+from lpc_core.perception.reconstruction import LineSummary
+from lpc_core.perception.reconstruction import Reconstruction as CoreReconstruction
 from lpc_core.perception.reconstructor import (
     Dropped,
     PoolParams,
@@ -26,6 +28,7 @@ from lpc_core.perception.reconstructor import (
     reconstruct_cloud_step,
     reconstruct_message,
     reconstruct_step,
+    reconstruction_message,
     scan_lines_from_message,
     warmup_frame,
 )
@@ -178,6 +181,24 @@ def test_reconstruct_step_publishes_reconstruction_then_window() -> None:
     assert not outputs[0][1].reconstructed
     # The message survives the topic's validating decoder.
     assert decode("lpc/reconstruction", encode(rec)) == rec
+
+
+def test_reconstruction_message_encodes_as_what_it_decodes_to() -> None:
+    # The service publishes a worker's bytes as they are, after decoding them for the window:
+    # an int in a float field (a confidence of exactly 1) would decode as 1.0 and the bytes
+    # would no longer be the encoding of the message the window saw.
+    core = CoreReconstruction(
+        shape="sphere",
+        grasp_width_m=0.05,
+        center_m=(0.0, 0.0, 0.2),
+        lines=(
+            LineSummary(angle_deg=0.0, model="circle", params=(0.0, 0.2, 0.025), inlier_fraction=1),
+        ),
+        confidence=1,
+        points=40,
+    )
+    payload = encode(reconstruction_message(core, _message(1, BALL), compute_ms=0))
+    assert encode(decode("lpc/reconstruction", payload)) == payload
 
 
 def test_reconstruct_message_reports_reason_when_nothing_fits() -> None:

@@ -64,7 +64,7 @@ def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
 
 
 def _finite(value: float | None) -> float | None:
-    return value if value is None or math.isfinite(value) else None
+    return None if value is None or not math.isfinite(value) else float(value)
 
 
 def reconstruction_message(
@@ -73,7 +73,9 @@ def reconstruction_message(
     """The ``lpc/reconstruction`` message of one frame.
 
     ``seq``, ``t_ns`` and ``truth`` are those of ``source``, the message reconstructed: the
-    scans (whose ``frame_seq`` names the depth frame) or the depth frame itself.
+    scans (whose ``frame_seq`` names the depth frame) or the depth frame itself. Its float
+    fields hold floats (an int 1 would encode as an int and decode as 1.0): the service
+    publishes a worker's encoding as it is, which must be the encoding of what it decodes to.
     """
     frame_seq = source.frame_seq if isinstance(source, ScanLines) else source.seq
     lines = [
@@ -81,7 +83,7 @@ def reconstruction_message(
             angle_deg=ln.angle_deg,
             model=ln.model,  # type: ignore[arg-type]
             params=[float(v) for v in ln.params if math.isfinite(v)],
-            inlier_fraction=min(max(ln.inlier_fraction, 0.0), 1.0),
+            inlier_fraction=float(min(max(ln.inlier_fraction, 0.0), 1.0)),
             n_points=ln.n_points,
         )
         for ln in result.lines
@@ -97,10 +99,10 @@ def reconstruction_message(
         center_m=None if result.center_m is None else list(result.center_m),
         axis=None if result.axis is None else list(result.axis),
         lines=lines,
-        confidence=min(max(result.confidence, 0.0), 1.0),
+        confidence=float(min(max(result.confidence, 0.0), 1.0)),
         reason=result.reason,
         points=result.points,
-        compute_ms=max(compute_ms, 0.0),
+        compute_ms=float(max(compute_ms, 0.0)),
         truth=source.truth,
     )
 
