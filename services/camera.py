@@ -63,7 +63,7 @@ def _frame(seq: int, t_ns: int, reading: DepthReading, intrinsics, source: str) 
         seq=seq,
         t_ns=t_ns,
         intrinsics=intrinsics,
-        depth=to_wire(reading.depth),
+        depth=to_wire(reading.depth) if reading.wire is None else reading.wire,
         source=source,
         truth=reading.truth,
     )

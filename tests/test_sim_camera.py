@@ -104,6 +104,8 @@ def test_sim_camera_frames_and_truth_reach_the_bus_as_sim_source_renders_them(
         expected = reference.render(frame.seq * period_ns / 1e9, frame.seq)
         depth = np.frombuffer(frame.depth.data, np.uint16).reshape(frame.depth.shape)
         assert np.array_equal(depth, expected.depth), frame.seq
+        # The device's wire array is published as it came: what packing the depth would give.
+        assert frame.depth == to_wire(expected.depth), frame.seq
         assert frame.truth == expected.truth, frame.seq
         assert frame.source == "sim-device"
     assert [f.seq for f in got] == list(range(len(got)))

@@ -110,12 +110,14 @@ class LinkParser:
                 continue
             if len(buffer) < HEADER_BYTES + length:
                 break
-            body = buffer[HEADER_BYTES : HEADER_BYTES + length]  # one copy; msgspec reads it
             if self._skipped:
                 out.append(Rejected(self._skipped, self._why))
                 self._skipped = 0
+            # Decoded in place, through a view released before the buffer shrinks: a slice
+            # would copy the frame once more before msgspec copies its depth out.
             try:
-                out.append(_DECODER.decode(body))
+                with memoryview(buffer) as view, view[HEADER_BYTES : HEADER_BYTES + length] as body:
+                    out.append(_DECODER.decode(body))
             except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                 out.append(Rejected(HEADER_BYTES + length, f"a record that does not decode: {exc}"))
             del buffer[: HEADER_BYTES + length]
