@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
 import msgspec
-import numpy as np
 import zenoh
 
 from schemas import TOPICS, BadMessage, Health, Log, Topic, encode, json_schema, topic_for_key
@@ -174,6 +173,10 @@ class HealthCounters:
     def snapshot(self, now_ns: int, status: str = "ok") -> Health:
         rates = {k: round(s.rate_hz(now_ns), 2) for k, s in self.published.items()}
         latency: dict[str, float] = {}
+        # Imported here: the supervisor imports this module for the bus's configuration and
+        # publishes no health, so it need not load numpy (about 12 MB of its memory).
+        import numpy as np
+
         # One float array, not a list: np.percentile on a list of 4096 floats cost ~180 us.
         samples = np.fromiter(
             itertools.chain.from_iterable(s.latencies_ms for s in self.published.values()),
