@@ -1101,6 +1101,8 @@ def _face_geometry(
         direction = _edge_direction(uv, cropped, tol)
         if direction is None:
             direction = _min_area_direction(uv)
+        else:
+            direction = _unless_rounded(uv, uncut, direction)
         pts_all = pts
         if beyond is not None and len(beyond):
             pts_all = pts + ((beyond - origin) @ to_plane).tolist()
@@ -1176,6 +1178,33 @@ def _trimmed_sides(
             lo = hi = (lo + hi) / 2
         out[2 * k], out[2 * k + 1] = lo, hi
     return out[0], out[1], out[2], out[3]
+
+
+def _unless_rounded(uv: np.ndarray, uncut: list[list[float]], direction: np.ndarray) -> np.ndarray:
+    """``direction``, or the minimum-area rectangle's around the seeds ``uv`` when the best
+    rectangle along ``direction`` leaves an uncut seed farther inside its sides than
+    ``_INSIDE_SIDES`` of the face's width (the smaller extent of that minimum-area rectangle)
+    and the minimum-area rectangle holds the uncut seeds closer to its sides.
+
+    Such a face is no rectangle with its seeds on its sides, and the count of seeds on sides
+    that chose ``direction`` measured nothing: a rounded face (the soap bar, a
+    superellipsoid, whose lines leave the plane along a rounded outline) or seeds moved off
+    the edges by holes and fattening put few seeds within ``edge_tolerance_m`` of any
+    rectangle's sides, and which direction scores best is chance. The soap bar's wrist angle
+    was 29-51 deg off on one or two frames in ten (SGBM 7 and 9, BM 7), its angle SD over 15
+    deg, where the minimum-area rectangle, which follows the outline's elongation, was within
+    5 deg. lpc's noise model leaves seeds at most 0.15 of the width inside (the soap bar)."""
+    if len(uncut) < 3:
+        return direction
+    d = direction.tolist()
+    norm = math.hypot(d[0], d[1])
+    residual = _rectangle_residual(uncut, (d[0] / norm, d[1] / norm))
+    m = _min_area_direction(uv)
+    width = min(float(np.ptp(uv @ m)), float(np.ptp(uv @ _perp(m))))
+    if residual <= _INSIDE_SIDES * width:
+        return direction
+    mx, my = m.tolist()
+    return m if _rectangle_residual(uncut, (mx, my)) < residual else direction
 
 
 def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
@@ -1581,7 +1610,7 @@ def _decide(
         axis = _canonical_axis(solid.axis)
         return Reconstruction(
             shape="cylinder",
-            grasp_width_m=2 * solid.radius,
+            grasp_width_m=_round_width(solid, full, clean, params),
             wrist_angle_rad=_axis_angle(axis),
             center_m=_tuple3(_closest_to_optical_axis(solid.point, axis)),
             axis=_tuple3(axis),
@@ -1699,6 +1728,38 @@ def _camera_facing(
         # and on an object only roughly a cylinder the facing arc alone turns it.
         return replace(full, radius=solid.radius)
     return solid
+
+
+def _span_across(solid: CylinderSolid, points: np.ndarray) -> float:
+    """How far ``points`` spread across the cylinder's axis as seen: along the direction
+    perpendicular to both the axis and the line of sight to it."""
+    centre = _closest_to_optical_axis(solid.point, solid.axis)
+    across = np.cross(solid.axis, centre)
+    norm = float(np.linalg.norm(across))
+    if norm < 1e-9:
+        return 0.0  # the axis lies along the line of sight: nothing spreads across it as seen
+    spread = points @ (across / norm)
+    return float(spread.max() - spread.min())
+
+
+def _round_width(
+    solid: CylinderSolid, full: CylinderSolid, clean: np.ndarray, params: LaserParams
+) -> float:
+    """The diameter of ``solid``, or the spread of the lines' runs across its axis where that
+    is wider than any inlier of ``full`` (the fit on every inlier) could spread.
+
+    No two points within ``solid_threshold_m`` of a cylinder lie farther apart across its axis
+    than its diameter plus twice that. Runs that do are on an object only roughly a cylinder
+    whose pierced arc curves more tightly than the whole (a potato's bumps: the 62 mm sweet
+    potato fitted 30-48 mm on every sensor), and the object is at least as wide as the runs
+    span. Against ``full``, not the camera-facing fit: a matcher's fattening widens the span
+    and ``full`` alike (a 40 mm cylinder under a 7 x 7 window: span 43-44 mm, ``full`` 44-46
+    mm, camera-facing 40 mm); and a stereo matcher's runs mostly end inside the silhouette,
+    where grazing and shadowed rims leave holes."""
+    span = _span_across(solid, clean)
+    if span > 2 * (full.radius + params.solid_threshold_m):
+        return span
+    return 2 * solid.radius
 
 
 def _without_end_plateaus(
@@ -1902,6 +1963,9 @@ def measured_fattening_px(
 
 _PLATEAU_M = 0.0006
 _QUANTUM_M = 0.001
+# A face whose best rectangle leaves a seed this far inside its sides (a fraction of its
+# smaller extent) is taken as rounded: see _unless_rounded.
+_INSIDE_SIDES = 0.25
 _CROSSING_SAMPLES = 1.5
 _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
