@@ -130,6 +130,10 @@ class LaserParams:
     max_axis_guesses: int = 2
     cylinder_points: int = 160
     edge_tolerance_m: float = 0.0015
+    # When two or more seeds lie off the sides their best direction gives them, the direction
+    # is chosen again within this wider tolerance (see _scattered_direction): a stereo
+    # matcher scatters the seeds by its fattening. 0 turns it off.
+    scattered_edge_tolerance_m: float = 0.003
     # A cuboid's width includes the object past the face's edges while the surface falls away
     # steeper than ``bevel_min_rad`` (or within ``bevel_free_depth_m`` of the edge).
     bevels: bool = True
@@ -222,6 +226,7 @@ class LaserParams:
             "silhouette_margin_px",
             "edge_fattening_px",
             "silhouette_tolerance_m",
+            "scattered_edge_tolerance_m",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -959,6 +964,34 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     return grid[_widest_run_middle(top)]
 
 
+def _scattered_direction(
+    uv: np.ndarray, cropped: np.ndarray, direction: np.ndarray, tol: float, wide: float
+) -> np.ndarray:
+    """``direction``, or when two or more uncut seeds lie off every side it gives them (by
+    more than ``tol``), the direction chosen within the wider tolerance ``wide`` if that one
+    puts every uncut seed on a side.
+
+    A stereo matcher moves a seed at an occluding edge by its fattening, which varies along
+    the edge (0-14 px at SGBM 7, sd 4 px), and one at a crease by up to 3 px; the count within
+    1.5 mm then picks among near-ties, by chance, a direction through two seeds that happen to
+    line up (a narrow face's side seeds lie about 40 px apart: 4 px turns such a direction by
+    6 degrees). Counted within the scatter, the seeds of all four sides vote and the
+    least-squares refinement takes them all. A sensor without a matching window leaves at
+    most one seed off (a bevel, a corner) on all but about 1 % of faces, and the outline of a
+    rounded object is no rectangle at either tolerance: the direction stays."""
+    valid = (~cropped).tolist()
+    pts = uv.tolist()
+    need = sum(valid)
+    on, _ = _rectangle_score(pts, valid, direction.tolist(), tol)
+    if on > need - 2:
+        return direction
+    wider = _edge_direction(uv, cropped, wide)
+    if wider is None:
+        return direction
+    on_wide, _ = _rectangle_score(pts, valid, wider.tolist(), wide)
+    return wider if on_wide >= need else direction
+
+
 def _widest_run_middle(flags: np.ndarray) -> int:
     """Index of the middle of the longest circular run of True in ``flags``."""
     n = len(flags)
@@ -1099,6 +1132,9 @@ def _face_geometry(
     else:
         tol = params.edge_tolerance_m
         direction = _edge_direction(uv, cropped, tol)
+        wide = params.scattered_edge_tolerance_m
+        if direction is not None and wide > tol:
+            direction = _scattered_direction(uv, cropped, direction, tol, wide)
         if direction is None:
             direction = _min_area_direction(uv)
         pts_all = pts
