@@ -102,20 +102,21 @@ def test_a_run_ended_inside_the_face_does_not_pull_the_pooled_fit() -> None:
 
 
 def test_an_upright_box_under_semi_global_matching_gets_its_axis() -> None:
-    """SGBM 7, the upright box, trial 1 frame 0: its long sides' seeds scatter by 1-14 px
-    (the background behind its top is far and dim), beyond any tolerance; the count chose a
-    direction 13 degrees off its axis, the fit over every seed on its nearest side 0.2."""
+    """SGBM 7, the upright box, trial 1 frame 4: its long sides' seeds scatter by 1-14 px
+    (the background behind its top is far and dim), beyond any tolerance. Without the
+    scattered rule the direction was 4.5 degrees off its axis (6.9 before the rounded-face
+    rule, which fixed this trial's first frame on its own), with it 2.1."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
     from services.cli import _laser_views as lv
     from services.cli.bench.accuracy import _angle_error
 
-    views = lv.views("functional", 2, 1, 0, names=["cuboid_upright"], sensor=StereoSensor())
-    view = next(v for v in views if v.trial == 1)
+    views = lv.views("functional", 2, 5, 0, names=["cuboid_upright"], sensor=StereoSensor())
+    view = next(v for v in views if (v.trial, v.frame) == (1, 4))
     lines = cut_scan_lines(view.depth, lv.INTRINSICS)
     before = reconstruct_laser(lines, LaserParams(scattered_edge_tolerance_m=0), seed=view.seq)
     after = reconstruct_laser(lines, LaserParams(), seed=view.seq)
     assert before.shape == after.shape == "cuboid"
     truth = view.truth.wrist_angle_rad
-    assert abs(_angle_error(before.wrist_angle_rad, truth)) > 10.0
-    assert abs(_angle_error(after.wrist_angle_rad, truth)) < 1.0
+    assert abs(_angle_error(before.wrist_angle_rad, truth)) > 4.0
+    assert abs(_angle_error(after.wrist_angle_rad, truth)) < 2.5
