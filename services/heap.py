@@ -24,7 +24,7 @@ _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 
 MMAP_THRESHOLD = 4 * 1024 * 1024  # above a 1 MiB chunk, its compressed copy and a frame
-TRIM_THRESHOLD = 32 * 1024 * 1024  # the most a quiet heap keeps beyond what it uses
+TRIM_THRESHOLD = 8 * 1024 * 1024  # the most a quiet heap keeps beyond what it uses
 
 
 def keep_freed_memory(
