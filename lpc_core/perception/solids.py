@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Protocol, Self
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,22 @@ def _solve3(
     x2 = a11 * (b2 * a33 - a23 * b3) + b1 * c12 + a13 * (a21 * b3 - b2 * a31)
     x3 = a11 * (a22 * b3 - b2 * a32) + a12 * (b2 * a31 - a21 * b3) + b1 * c13
     return x1 / det, x2 / det, x3 / det
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> list[float]:
+    """``numpy.linalg.solve(a, b).tolist()`` for one float64 system ``(n, n)`` and one
+    right-hand side ``(n,)``.
+
+    The same LAPACK ``gesv`` through the gufunc ``numpy.linalg.solve`` itself calls, so the
+    same bits, without its argument conversion and error-state set-up: 3 us instead of 10 at
+    this size, and the fits solve 5-15 such systems a frame. A singular system gives the
+    gufunc's NaN result; it (and any non-finite result) is solved again by
+    ``numpy.linalg.solve``, which raises ``LinAlgError`` or returns what it always did.
+    """
+    x = _umath_linalg.solve1(a, b, signature="dd->d").tolist()
+    if all(map(math.isfinite, x)):
+        return x
+    return np.linalg.solve(a, b).tolist()
 
 
 def _smallest_eigenvector(m: list[list[float]]) -> list[float] | None:
@@ -243,12 +260,13 @@ class SphereSolid:
             np.subtract(radius, rho, out=aug[4])
             normal = aug @ aug.T
             try:
-                step = np.linalg.solve(normal[:4, :4], normal[:4, 4])
+                step = _solve(normal[:4, :4], normal[:4, 4])
             except np.linalg.LinAlgError:
                 return FailedSolid("points do not fix a sphere")
             center = center + step[:3]
-            radius += float(step[3])
-            if np.abs(step).max() < 1e-7:
+            radius += step[3]
+            # As numpy's max would, a NaN step does not stop the iteration.
+            if all(abs(v) < 1e-7 for v in step):
                 break
         if not np.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
@@ -310,7 +328,7 @@ class CylinderSolid:
             h = jtj.copy()
             h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
             try:
-                s0, s1, s2, s3, s4 = np.linalg.solve(h, -jtr).tolist()
+                s0, s1, s2, s3, s4 = _solve(h, -jtr)
             except np.linalg.LinAlgError:
                 break
             c, d, e1, e2, radius = state
