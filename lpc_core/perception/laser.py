@@ -58,10 +58,12 @@ from lpc_core.perception.solids import (
     PlaneSolid,
     SphereSolid,
     best_cylinder_axis,
+    column_sums,
     fattening_trim_m,
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
+    squared_norms,
 )
 
 MODELS = ("line", "circle", "ellipse")
@@ -400,7 +402,7 @@ def _runs(
         return [idx]
     a, b = idx[skip], idx[skip + 1]
     d = points[b] - points[a]
-    dist2 = (d * d).sum(axis=1)
+    dist2 = squared_norms(d)
     split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
     ends = split.nonzero()[0]
     breaks = skip[ends].tolist()
@@ -569,7 +571,7 @@ def _prepare_lines(
     sz = np.empty((len(s), 2))
     sz[:, 0], sz[:, 1] = s, points[:, 2]
     d = points[1:] - points[:-1]
-    breaks = ((d * d).sum(axis=1) > params.segment_gap_m**2).nonzero()[0].tolist()
+    breaks = (squared_norms(d) > params.segment_gap_m**2).nonzero()[0].tolist()
     stop = 0
     line_bounds = []
     for n in counts:
@@ -753,7 +755,7 @@ def _straight(sz: np.ndarray, threshold: float) -> bool:
     m = len(sz)
     if m < 3:
         return True
-    d = sz - sz.sum(axis=0) / m
+    d = sz - column_sums(sz) / m
     (sxx, sxy), (_, syy) = (d.T @ d).tolist()
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
     return bool(np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() <= threshold)
@@ -1428,7 +1430,7 @@ def _cylinder_candidate(
     if not lo <= solid.radius <= hi:
         return _Candidate("cylinder", solid=solid, reason=f"radius {solid.radius * 1e3:.0f} mm")
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
-    if (solid.point - clean.mean(axis=0))[2] <= 0:
+    if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
     return _Candidate("cylinder", _fraction(residuals, thr), solid)
 

@@ -41,6 +41,22 @@ def _as_points(points: np.ndarray, minimum: int) -> np.ndarray:
     return points
 
 
+def column_sums(points: np.ndarray) -> np.ndarray:
+    """``points.sum(axis=0)`` of an (N >= 1, D) array of a few columns, to the bit.
+
+    numpy's reduction adds the rows one after another, over an inner loop as long as a row;
+    the running sum down the columns adds in the same order, at a third of the cost on
+    (N, 3) points."""
+    return np.add.accumulate(points, axis=0)[-1]
+
+
+def squared_norms(d: np.ndarray) -> np.ndarray:
+    """``(d * d).sum(axis=1)`` of (N, 3) vectors, to the bit: the same additions (x^2 + y^2,
+    then + z^2) on the columns, at half the cost of numpy's reduction over 3-element rows."""
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    return x * x + y * y + z * z
+
+
 def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing the unit vector ``axis`` to a right-handed basis."""
     e1, e2 = _basis(*(float(v) for v in axis))
@@ -185,7 +201,7 @@ class PlaneSolid:
     @classmethod
     def estimate(cls, points: np.ndarray) -> Self | FailedSolid:
         points = _as_points(points, 3)
-        point = points.sum(axis=0) / len(points)
+        point = column_sums(points) / len(points)
         d = points - point
         found = _smallest_eigenvector((d.T @ d).tolist())
         if found is None:
@@ -274,7 +290,7 @@ class SphereSolid:
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         w = np.asarray(points, dtype=np.float64) - self.center
-        return np.abs(np.sqrt((w * w).sum(axis=1)) - self.radius)
+        return np.abs(np.sqrt(squared_norms(w)) - self.radius)
 
     def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
         """View angle (radians) from each point's ray, seen from the camera at the origin, in
@@ -356,7 +372,7 @@ class CylinderSolid:
         if not math.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
         # Keep the axis point nearest the points' centroid along the axis: a readable centre.
-        mean = (points.sum(axis=0) / len(points)).tolist()
+        mean = (column_sums(points) / len(points)).tolist()
         along = sum((mean[i] - c[i]) * d[i] for i in range(3))
         point = np.array([c[i] + along * d[i] for i in range(3)])
         return cls(point=point, axis=np.array(d), radius=float(radius), cost=cost)
@@ -530,8 +546,10 @@ __all__ = [
     "Solid",
     "SphereSolid",
     "best_cylinder_axis",
+    "column_sums",
     "fit_circle_2d",
     "hemisphere_directions",
     "orthonormal_basis",
     "silhouette_distance",
+    "squared_norms",
 ]
