@@ -354,7 +354,7 @@ class LineModels:
     def step(self) -> float:
         """Median change of s/z between neighbouring samples of the chosen model's run."""
         if self._step is None:
-            self._step = _median_step(self.sz[self.run]) if not self.reason else 0.0
+            self._step = _median_step(self.sz.take(self.run, axis=0)) if not self.reason else 0.0
         return self._step
 
     @property
@@ -377,7 +377,7 @@ class LineModels:
 
     def seeds(self) -> np.ndarray:
         """The extreme inliers: first and last point of the pierced run, shape (2, 3)."""
-        return self.points[[self.run[0], self.run[-1]]]
+        return self.points.take((self.run[0], self.run[-1]), axis=0)
 
 
 def _runs(
@@ -401,7 +401,7 @@ def _runs(
     if not len(skip):
         return [idx]
     a, b = idx[skip], idx[skip + 1]
-    d = points[b] - points[a]
+    d = points.take(b, axis=0) - points.take(a, axis=0)
     dist2 = squared_norms(d)
     split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
     ends = split.nonzero()[0]
@@ -530,7 +530,7 @@ def _second_lines(
     out: list[Any] = [None] * len(lines)
     if not rows:
         return out
-    segments = fit.Segments([lines[k].sz[rest[k]] for k in rows], validated=True)
+    segments = fit.Segments([lines[k].sz.compress(rest[k], axis=0) for k in rows], validated=True)
     for k, found in zip(rows, _fit_batch("line", segments, params, rng), strict=True):
         if found:
             out[k] = replace(found, inliers=found.residuals(lines[k].sz) <= params.threshold_m)
@@ -737,7 +737,7 @@ def _arc_holds(sz: np.ndarray, need: float, params: LaserParams) -> bool:
     for _ in range(2):
         if np.count_nonzero(keep) < 3:
             return False
-        got = fit_circle_2d(sz[keep])
+        got = fit_circle_2d(sz.compress(keep, axis=0))
         if got is None:
             return False
         (cs, cz), radius = got
@@ -855,8 +855,12 @@ def _collect_seeds(
         run = line.run
         # The two ends and their neighbours along the run, as Python floats (a handful of
         # scalars: numpy indexing would cost more than the arithmetic).
-        ends = line.points[[run[0], run[-1]]].tolist()
-        ends_sz = line.sz[[run[0], run[1], run[-1], run[-2]]].tolist() if len(run) > 1 else None
+        ends = line.points.take((run[0], run[-1]), axis=0).tolist()
+        ends_sz = (
+            line.sz.take((run[0], run[1], run[-1], run[-2]), axis=0).tolist()
+            if len(run) > 1
+            else None
+        )
         c, s_ = math.cos(line.angle), math.sin(line.angle)
         for k, sign in ((0, -1.0), (1, 1.0)):
             p = ends[k]
@@ -942,7 +946,7 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     squares; when none scores best (one seed per edge, a face larger than the capture volume),
     the answer is the middle of the widest span of best-scoring directions on a 1-degree grid.
     """
-    valid = uv[~cropped]
+    valid = uv.compress(~cropped, axis=0)
     if len(valid) < 2:
         return None
     i, j = _pairs(len(valid))
@@ -1088,7 +1092,7 @@ def _face_geometry(
     to_plane = np.array([e1, e2]).T
     uv = (seeds.points - origin) @ to_plane
     order = sort_around(uv, np.zeros(2))
-    uv, cropped = uv[order], seeds.cropped[order]
+    uv, cropped = uv.take(order, axis=0), seeds.cropped[order]
     disc = None
     # The seeds (and points beyond the edges) are a handful: Python floats from here on.
     pts = uv.tolist()
@@ -1289,7 +1293,7 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     if fraction >= 1.0 - params.cuboid_margin:
         return _Candidate("cuboid", fraction, first)
     # The planes through two runs' end points, in Python floats (six pairs of 3-vectors).
-    ends = [ln.points[[ln.run[0], ln.run[-1]]].tolist() for ln in lines]
+    ends = [ln.points.take((ln.run[0], ln.run[-1]), axis=0).tolist() for ln in lines]
     normals, points = [first.normal.tolist()], [first.point.tolist()]
     for (p0, p1), (q0, q1) in itertools.combinations(ends, 2):
         a = (p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2])
@@ -1306,7 +1310,7 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
-    inliers = clean[solid.residuals(clean) <= thr]
+    inliers = clean.compress(solid.residuals(clean) <= thr, axis=0)
     if len(inliers) >= 3:
         solid = PlaneSolid.estimate(inliers) or solid
     return _Candidate("cuboid", _fraction(solid.residuals(clean), thr), solid)
@@ -1328,7 +1332,7 @@ def _sphere_candidate(
         return _Candidate("sphere", reason=solid.reason)
     thr = params.solid_threshold_m
     residuals = solid.residuals(clean)
-    inliers = clean[residuals <= thr]
+    inliers = clean.compress(residuals <= thr, axis=0)
     if 4 <= len(inliers) < len(clean):
         refined = SphereSolid.estimate(inliers, init=(solid.center, solid.radius), iterations=1)
         if refined:
@@ -1367,10 +1371,11 @@ def _raw_axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[
     seeds = _collect_seeds(lines, params, extend=False)
     keep = ~seeds.cropped
     if keep.sum() >= 3:
-        plane = PlaneSolid.estimate(seeds.points[keep])
+        uncut = seeds.points.compress(keep, axis=0)
+        plane = PlaneSolid.estimate(uncut)
         if plane:
             origin, e1, e2 = _face_frame(plane)
-            d = seeds.points[keep] - origin
+            d = uncut - origin
             uv = np.column_stack([d @ e1, d @ e2])
             direction = principal_direction(
                 uv[sort_around(uv, np.zeros(2))], params.alpha_max_rad, pick="straightest"
@@ -1420,7 +1425,7 @@ def _cylinder_candidate(
     solid = best
     residuals = best_residuals if step == 1 else solid.residuals(clean)
     keep = residuals <= thr
-    inliers = clean[keep]
+    inliers = clean.compress(keep, axis=0)
     if len(inliers) >= 5 and (step > 1 or not keep.all()):
         # Refit on every inlier: the first fit saw a sample, or outliers.
         refined = CylinderSolid.estimate(inliers, solid.axis, iterations=1)
@@ -1530,7 +1535,7 @@ def _decide(
 ) -> Reconstruction:
     """Fit the solids, fewest parameters first (plane 3, sphere 4, cylinder 5); a richer solid
     must explain more of the lines' points by its margin, so one that cannot is not fitted."""
-    clean = np.concatenate([ln.points[ln.run] for ln in lines])
+    clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
     candidates = {"cuboid": _plane_candidate(lines, clean, params)}
     shape, bar = "cuboid", candidates["cuboid"].score + params.cuboid_margin
     if _polyhedral(lines):
@@ -1681,9 +1686,11 @@ def _camera_facing(
             break
         keep = trusted
         if isinstance(solid, SphereSolid):
-            refit = SphereSolid.estimate(clean[keep], init=(solid.center, solid.radius))
+            refit = SphereSolid.estimate(
+                clean.compress(keep, axis=0), init=(solid.center, solid.radius)
+            )
         else:
-            refit = CylinderSolid.estimate(clean[keep], solid.axis, iterations=2)
+            refit = CylinderSolid.estimate(clean.compress(keep, axis=0), solid.axis, iterations=2)
         if not refit or not lo <= refit.radius <= hi:
             break
         solid = refit
@@ -1770,11 +1777,11 @@ def _plateau_free(
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
                 trimmed = True
-        kept.append(ln.points[keep])
+        kept.append(ln.points.compress(keep, axis=0))
     if not trimmed:
         return None
     points = np.concatenate(kept)
-    near = points[full.residuals(points) <= 3 * params.solid_threshold_m]
+    near = points.compress(full.residuals(points) <= 3 * params.solid_threshold_m, axis=0)
     if len(near) < params.min_points_per_line:
         return None
     if isinstance(full, SphereSolid):
