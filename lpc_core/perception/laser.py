@@ -565,7 +565,7 @@ def _prepare_lines(
     # Scan lines usually arrive sorted along themselves (``scans`` cuts them so): then the sort
     # is a check. Descending steps at the joins between lines do not count.
     descending = s[1:] < s[:-1]
-    descending[np.cumsum(counts[:-1], dtype=np.intp) - 1] = False
+    descending[[end - 1 for end in itertools.accumulate(counts[:-1])]] = False
     if descending.any():
         order = np.lexsort((s, np.repeat(np.arange(len(ok)), counts)))
         points, s = points[order], s[order]
