@@ -50,18 +50,21 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
-from lpc_core.perception.reconstruction import LineSummary, Reconstruction, wrap_half_turn
+from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.solids import (
     CylinderSolid,
     PlaneSolid,
     SphereSolid,
     best_cylinder_axis,
+    column_sums,
     fattening_trim_m,
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
+    squared_norms,
 )
 
 MODELS = ("line", "circle", "ellipse")
@@ -358,7 +361,7 @@ class LineModels:
     def step(self) -> float:
         """Median change of s/z between neighbouring samples of the chosen model's run."""
         if self._step is None:
-            self._step = _median_step(self.sz[self.run]) if not self.reason else 0.0
+            self._step = _median_step(self.sz.take(self.run, axis=0)) if not self.reason else 0.0
         return self._step
 
     @property
@@ -381,7 +384,7 @@ class LineModels:
 
     def seeds(self) -> np.ndarray:
         """The extreme inliers: first and last point of the pierced run, shape (2, 3)."""
-        return self.points[[self.run[0], self.run[-1]]]
+        return self.points.take((self.run[0], self.run[-1]), axis=0)
 
 
 def _runs(
@@ -405,8 +408,8 @@ def _runs(
     if not len(skip):
         return [idx]
     a, b = idx[skip], idx[skip + 1]
-    d = points[b] - points[a]
-    dist2 = (d * d).sum(axis=1)
+    d = points.take(b, axis=0) - points.take(a, axis=0)
+    dist2 = squared_norms(d)
     split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
     ends = split.nonzero()[0]
     breaks = skip[ends].tolist()
@@ -534,7 +537,7 @@ def _second_lines(
     out: list[Any] = [None] * len(lines)
     if not rows:
         return out
-    segments = fit.Segments([lines[k].sz[rest[k]] for k in rows], validated=True)
+    segments = fit.Segments([lines[k].sz.compress(rest[k], axis=0) for k in rows], validated=True)
     for k, found in zip(rows, _fit_batch("line", segments, params, rng), strict=True):
         if found:
             out[k] = replace(found, inliers=found.residuals(lines[k].sz) <= params.threshold_m)
@@ -568,14 +571,14 @@ def _prepare_lines(
     # Scan lines usually arrive sorted along themselves (``scans`` cuts them so): then the sort
     # is a check. Descending steps at the joins between lines do not count.
     descending = s[1:] < s[:-1]
-    descending[np.cumsum(counts[:-1], dtype=np.intp) - 1] = False
+    descending[[end - 1 for end in itertools.accumulate(counts[:-1])]] = False
     if descending.any():
         order = np.lexsort((s, np.repeat(np.arange(len(ok)), counts)))
         points, s = points[order], s[order]
     sz = np.empty((len(s), 2))
     sz[:, 0], sz[:, 1] = s, points[:, 2]
     d = points[1:] - points[:-1]
-    breaks = ((d * d).sum(axis=1) > params.segment_gap_m**2).nonzero()[0].tolist()
+    breaks = (squared_norms(d) > params.segment_gap_m**2).nonzero()[0].tolist()
     stop = 0
     line_bounds = []
     for n in counts:
@@ -741,7 +744,7 @@ def _arc_holds(sz: np.ndarray, need: float, params: LaserParams) -> bool:
     for _ in range(2):
         if np.count_nonzero(keep) < 3:
             return False
-        got = fit_circle_2d(sz[keep])
+        got = fit_circle_2d(sz.compress(keep, axis=0))
         if got is None:
             return False
         (cs, cz), radius = got
@@ -759,7 +762,7 @@ def _straight(sz: np.ndarray, threshold: float) -> bool:
     m = len(sz)
     if m < 3:
         return True
-    d = sz - sz.sum(axis=0) / m
+    d = sz - column_sums(sz) / m
     (sxx, sxy), (_, syy) = (d.T @ d).tolist()
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
     return bool(np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() <= threshold)
@@ -859,8 +862,12 @@ def _collect_seeds(
         run = line.run
         # The two ends and their neighbours along the run, as Python floats (a handful of
         # scalars: numpy indexing would cost more than the arithmetic).
-        ends = line.points[[run[0], run[-1]]].tolist()
-        ends_sz = line.sz[[run[0], run[1], run[-1], run[-2]]].tolist() if len(run) > 1 else None
+        ends = line.points.take((run[0], run[-1]), axis=0).tolist()
+        ends_sz = (
+            line.sz.take((run[0], run[1], run[-1], run[-2]), axis=0).tolist()
+            if len(run) > 1
+            else None
+        )
         c, s_ = math.cos(line.angle), math.sin(line.angle)
         for k, sign in ((0, -1.0), (1, 1.0)):
             p = ends[k]
@@ -946,7 +953,7 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     squares; when none scores best (one seed per edge, a face larger than the capture volume),
     the answer is the middle of the widest span of best-scoring directions on a 1-degree grid.
     """
-    valid = uv[~cropped]
+    valid = uv.compress(~cropped, axis=0)
     if len(valid) < 2:
         return None
     i, j = _pairs(len(valid))
@@ -1170,7 +1177,7 @@ def _face_geometry(
     to_plane = np.array([e1, e2]).T
     uv = (seeds.points - origin) @ to_plane
     order = sort_around(uv, np.zeros(2))
-    uv, cropped = uv[order], seeds.cropped[order]
+    uv, cropped = uv.take(order, axis=0), seeds.cropped[order]
     disc = None
     # The seeds (and points beyond the edges) are a handful: Python floats from here on.
     pts = uv.tolist()
@@ -1403,7 +1410,7 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     if fraction >= 1.0 - params.cuboid_margin:
         return _Candidate("cuboid", fraction, first)
     # The planes through two runs' end points, in Python floats (six pairs of 3-vectors).
-    ends = [ln.points[[ln.run[0], ln.run[-1]]].tolist() for ln in lines]
+    ends = [ln.points.take((ln.run[0], ln.run[-1]), axis=0).tolist() for ln in lines]
     normals, points = [first.normal.tolist()], [first.point.tolist()]
     for (p0, p1), (q0, q1) in itertools.combinations(ends, 2):
         a = (p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2])
@@ -1420,7 +1427,7 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
-    inliers = clean[solid.residuals(clean) <= thr]
+    inliers = clean.compress(solid.residuals(clean) <= thr, axis=0)
     if len(inliers) >= 3:
         solid = PlaneSolid.estimate(inliers) or solid
     return _Candidate("cuboid", _fraction(solid.residuals(clean), thr), solid)
@@ -1442,7 +1449,7 @@ def _sphere_candidate(
         return _Candidate("sphere", reason=solid.reason)
     thr = params.solid_threshold_m
     residuals = solid.residuals(clean)
-    inliers = clean[residuals <= thr]
+    inliers = clean.compress(residuals <= thr, axis=0)
     if 4 <= len(inliers) < len(clean):
         refined = SphereSolid.estimate(inliers, init=(solid.center, solid.radius), iterations=1)
         if refined:
@@ -1481,10 +1488,11 @@ def _raw_axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[
     seeds = _collect_seeds(lines, params, extend=False)
     keep = ~seeds.cropped
     if keep.sum() >= 3:
-        plane = PlaneSolid.estimate(seeds.points[keep])
+        uncut = seeds.points.compress(keep, axis=0)
+        plane = PlaneSolid.estimate(uncut)
         if plane:
             origin, e1, e2 = _face_frame(plane)
-            d = seeds.points[keep] - origin
+            d = uncut - origin
             uv = np.column_stack([d @ e1, d @ e2])
             direction = principal_direction(
                 uv[sort_around(uv, np.zeros(2))], params.alpha_max_rad, pick="straightest"
@@ -1534,7 +1542,7 @@ def _cylinder_candidate(
     solid = best
     residuals = best_residuals if step == 1 else solid.residuals(clean)
     keep = residuals <= thr
-    inliers = clean[keep]
+    inliers = clean.compress(keep, axis=0)
     if len(inliers) >= 5 and (step > 1 or not keep.all()):
         # Refit on every inlier: the first fit saw a sample, or outliers.
         refined = CylinderSolid.estimate(inliers, solid.axis, iterations=1)
@@ -1544,7 +1552,7 @@ def _cylinder_candidate(
     if not lo <= solid.radius <= hi:
         return _Candidate("cylinder", solid=solid, reason=f"radius {solid.radius * 1e3:.0f} mm")
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
-    if (solid.point - clean.mean(axis=0))[2] <= 0:
+    if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
     return _Candidate("cylinder", _fraction(residuals, thr), solid)
 
@@ -1644,7 +1652,7 @@ def _decide(
 ) -> Reconstruction:
     """Fit the solids, fewest parameters first (plane 3, sphere 4, cylinder 5); a richer solid
     must explain more of the lines' points by its margin, so one that cannot is not fitted."""
-    clean = np.concatenate([ln.points[ln.run] for ln in lines])
+    clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
     candidates = {"cuboid": _plane_candidate(lines, clean, params)}
     shape, bar = "cuboid", candidates["cuboid"].score + params.cuboid_margin
     if _polyhedral(lines):
@@ -1795,9 +1803,11 @@ def _camera_facing(
             break
         keep = trusted
         if isinstance(solid, SphereSolid):
-            refit = SphereSolid.estimate(clean[keep], init=(solid.center, solid.radius))
+            refit = SphereSolid.estimate(
+                clean.compress(keep, axis=0), init=(solid.center, solid.radius)
+            )
         else:
-            refit = CylinderSolid.estimate(clean[keep], solid.axis, iterations=2)
+            refit = CylinderSolid.estimate(clean.compress(keep, axis=0), solid.axis, iterations=2)
         if not refit or not lo <= refit.radius <= hi:
             break
         solid = refit
@@ -1916,11 +1926,11 @@ def _plateau_free(
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
                 trimmed = True
-        kept.append(ln.points[keep])
+        kept.append(ln.points.compress(keep, axis=0))
     if not trimmed:
         return None
     points = np.concatenate(kept)
-    near = points[full.residuals(points) <= 3 * params.solid_threshold_m]
+    near = points.compress(full.residuals(points) <= 3 * params.solid_threshold_m, axis=0)
     if len(near) < params.min_points_per_line:
         return None
     if isinstance(full, SphereSolid):
@@ -2002,7 +2012,7 @@ def _fattening(lines: list[LineModels]) -> float:
         q = ln.sz[:, 0] / ln.sz[:, 1]
         inv = 1.0 / ln.sz[:, 1]
         inner = run[n // 4 : n - n // 4]
-        a, b = np.polyfit(q[inner], inv[inner], 1)
+        a, b = _fit_affine(q[inner], inv[inner])
         if a == 0:
             continue
         for end, inward, first in ((0, 1, run[0]), (last, -1, run[-1])):
@@ -2027,7 +2037,31 @@ def _fattening(lines: list[LineModels]) -> float:
                 # far as a fattening along rows or columns reaches.
                 # The plateau's first sample is the face's last: the edge lies half a sample on.
                 found.append(abs(q[end] - q_cross) / ln.step - 0.5)
-    return float(np.median(found)) if found else 0.0
+    return float(median(found)) if found else 0.0
+
+
+def _fit_affine(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """``np.polyfit(x, y, 1)``: slope and intercept, to the bit.
+
+    The same scaled Vandermonde system solved by the same LAPACK least squares (``gelsd``,
+    through the gufunc ``numpy.linalg.lstsq`` calls), without the wrappers' checks and
+    error-state set-up, which cost more than the solve (173 k instructions a call, this
+    about 70 k). A rank-deficient or failed fit goes through ``np.polyfit`` itself, which
+    warns or raises as it always did.
+    """
+    n = len(x)
+    lhs = np.empty((n, 2))
+    lhs[:, 0], lhs[:, 1] = x, 1.0
+    scale = np.sqrt(column_sums(lhs * lhs))
+    lhs /= scale
+    solution, _, rank, _ = _umath_linalg.lstsq(lhs, y[:, None], n * _EPS, signature="ddd->ddid")
+    a, b = (solution[:, 0] / scale).tolist()
+    if rank != 2 or not (math.isfinite(a) and math.isfinite(b)):
+        a, b = np.polyfit(x, y, 1).tolist()
+    return a, b
+
+
+_EPS = float(np.finfo(np.float64).eps)
 
 
 def measured_fattening_px(

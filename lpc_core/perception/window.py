@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lpc_core.perception.reconstruction import Reconstruction, Shape, wrap_half_turn
+from lpc_core.perception.reconstruction import Reconstruction, Shape, median, wrap_half_turn
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -88,7 +88,7 @@ def axial_median(angles_rad: np.ndarray) -> float:
     doubled = 2.0 * angles
     reference = math.atan2(float(np.sin(doubled).sum()), float(np.cos(doubled).sum()))
     offsets = (doubled - reference + np.pi) % (2 * np.pi) - np.pi
-    return wrap_half_turn((reference + float(np.median(offsets))) / 2.0)
+    return wrap_half_turn((reference + median(offsets.tolist())) / 2.0)
 
 
 def _majority(entries: tuple[WindowEntry, ...]) -> tuple[Shape, int]:
@@ -123,7 +123,7 @@ def window_step(
         same = [e for e in entries if e.shape == shape]
         widths = [e.grasp_width_m for e in same if e.grasp_width_m is not None]
         angles = [e.wrist_angle_rad for e in same if e.wrist_angle_rad is not None]
-        width = float(np.median(widths)) if widths else None
+        width = median(widths) if widths else None
         if shape != "sphere" and angles:
             angle = axial_median(np.array(angles))
     reconstructed = shape != "none" and len(entries) == params.size and agree >= params.min_agree
