@@ -1,6 +1,9 @@
 """Bus message schemas: one msgspec Struct per topic, and the registry from key to type."""
 
-from schemas.arrays import from_wire, to_wire
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
 from schemas.messages import (
     AimCue,
     CameraIntrinsics,
@@ -31,6 +34,9 @@ from schemas.registry import (
     topic_for_key,
 )
 
+if TYPE_CHECKING:
+    from schemas.arrays import from_wire, to_wire
+
 __all__ = [
     "TOPICS",
     "AimCue",
@@ -60,3 +66,13 @@ __all__ = [
     "to_wire",
     "topic_for_key",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # The array conversions load numpy (about 12 MB of a process's memory) on first use, so
+    # that processes which only pass small messages (the supervisor, the hand's bridge) need not.
+    if name in ("from_wire", "to_wire"):
+        from schemas import arrays
+
+        return getattr(arrays, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -48,10 +48,12 @@ from services.drivers.depth import (
     SimDeviceSource,
     SimSource,
     SourceUnavailable,
-    add_realsense_arguments,
-    add_sensor_arguments,
     default_sim_socket,
     skip_missed_slots,
+)
+from services.drivers.depth_flags import (
+    add_realsense_arguments,
+    add_sensor_arguments,
     stereo_sensor,
 )
 from services.drivers.errors import OperationError

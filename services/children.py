@@ -10,17 +10,20 @@ import signal
 import subprocess
 
 
-def die_with_parent(sig: int = signal.SIGTERM) -> None:
+def die_with_parent(sig: int = signal.SIGTERM, parent_pid: int | None = None) -> None:
     """Ask the kernel for ``sig`` when the parent process dies (Linux; elsewhere nothing), so
     that no child outlives a supervisor, a service or a replay killed with SIGKILL.
 
     A spawned worker asks only once it has imported its modules (seconds on a loaded board): if
-    its parent died meanwhile, it gets ``sig`` now."""
+    its parent (``parent_pid``, or ``multiprocessing``'s parent) died meanwhile, it gets ``sig``
+    now."""
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(1, sig)  # PR_SET_PDEATHSIG
-    parent = multiprocessing.parent_process()
-    if parent is not None and parent.pid is not None and os.getppid() != parent.pid:
+    if parent_pid is None:
+        parent = multiprocessing.parent_process()
+        parent_pid = None if parent is None else parent.pid
+    if parent_pid is not None and os.getppid() != parent_pid:
         os.kill(os.getpid(), sig)
 
 

@@ -34,6 +34,7 @@ from typing import Any
 
 import zenoh
 
+from services.heap import keep_freed_memory
 from services.runtime import (
     HEALTH_PERIOD_S,
     Bus,
@@ -318,6 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     # may wait that long for the loop to let go. lpc bench footprint --cpus 1.0 --together
     # --record (loaded machine, one run each): camera 62 -> 70 Hz at 1 ms.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
+    keep_freed_memory()  # as each service's own process does (services.runtime.run_service)
     with contextlib.suppress(KeyboardInterrupt):
         return asyncio.run(run_container(loaded, args, control_loop=control))
     return 0

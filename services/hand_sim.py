@@ -8,12 +8,15 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from typing import TYPE_CHECKING
 
-from services.drivers.ability_sim import AbilitySim
 from services.drivers.errors import DriverError
 from services.drivers.hand import BACKENDS
 from services.drivers.hand_sim import SimulatedHand
 from services.runtime import Bus, run_service, service_parser
+
+if TYPE_CHECKING:
+    from services.drivers.ability_sim import AbilitySim
 
 
 async def follow_grasps(

@@ -12,6 +12,12 @@ reported for the job it held (``on_done(tag, "worker ... died")``) and started a
 that dies before it is ready (its initializer failed) fails the pool instead: ``ready()`` and
 ``submit()`` raise ``RuntimeError`` saying so, and the service stops with it, to be restarted
 with backoff by its supervisor rather than respawning a broken worker in a loop.
+
+Workers are plain ``python -m services.pipe_pool FD`` processes on one end of a socket pair,
+not ``multiprocessing``'s spawned ones. A spawned child first imports its parent's main module
+(the service, with Zenoh: 12 MB a worker) and brings a resource-tracker process along (13 MB)
+that nothing here uses. The worker gets the parent's ``sys.path``, then the pickled initializer,
+over the socket, so it imports only what ``initializer`` needs.
 """
 
 from __future__ import annotations
@@ -19,7 +25,11 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
-import multiprocessing
+import os
+import pickle
+import socket
+import subprocess
+import sys
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any
@@ -31,9 +41,12 @@ Work = Callable[[bytes], bytes | str]
 _RESULT, _ERROR, _READY = b"R", b"E", b"W"
 
 
-def _worker_main(conn: Connection, initializer: Callable[..., Work], initargs: tuple) -> None:
+def _worker_main(fd: int, parent_pid: int) -> None:
     # A worker must not outlive its service, even one killed with SIGKILL.
-    die_with_parent()
+    die_with_parent(parent_pid=parent_pid)
+    conn = Connection(fd)
+    sys.path[:] = pickle.loads(conn.recv_bytes())
+    initializer, initargs = pickle.loads(conn.recv_bytes())
     work = initializer(*initargs)
     conn.send_bytes(_READY)
     while True:
@@ -49,7 +62,7 @@ def _worker_main(conn: Connection, initializer: Callable[..., Work], initargs: t
 
 
 class _Worker:
-    def __init__(self, process: multiprocessing.process.BaseProcess, conn: Connection) -> None:
+    def __init__(self, process: subprocess.Popen[bytes], conn: Connection) -> None:
         self.process = process
         self.conn = conn
         self.ready = False
@@ -70,11 +83,15 @@ class PipePool:
     ) -> None:
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
+        if getattr(initializer, "__module__", None) == "__main__":
+            raise ValueError(
+                f"initializer {initializer.__qualname__} must be importable by the workers: "
+                "define it in a module, not in the script that runs"
+            )
         self._loop = asyncio.get_running_loop()
-        # Spawned: forking after a Zenoh session is open hangs.
-        self._context = multiprocessing.get_context("spawn")
-        self._initializer = initializer
-        self._initargs = initargs
+        # Pickled once, as a spawned process would get it; a new interpreter, not a fork:
+        # forking after a Zenoh session is open hangs.
+        self._setup = (pickle.dumps(sys.path), pickle.dumps((initializer, initargs)))
         self._on_done = on_done
         self._all_ready = asyncio.Event()
         self.failed: str | None = None
@@ -83,17 +100,16 @@ class PipePool:
         self._workers = [self._start() for _ in range(workers)]
 
     def _start(self) -> _Worker:
-        ours, theirs = self._context.Pipe()
-        process = self._context.Process(
-            target=_worker_main,
-            args=(theirs, self._initializer, self._initargs),
-            name="lpc-worker",
-            daemon=True,
-        )
-        process.start()
-        theirs.close()
-        worker = _Worker(process, ours)
-        self._loop.add_reader(ours.fileno(), self._readable, worker)
+        ours, theirs = socket.socketpair()
+        with theirs:
+            fd = theirs.fileno()
+            argv = [sys.executable, "-m", "services.pipe_pool", str(fd), str(os.getpid())]
+            process = subprocess.Popen(argv, pass_fds=(fd,))
+        worker = _Worker(process, Connection(ours.detach()))
+        for part in self._setup:
+            # Before the reader is added: the worker reads these first, whatever it sends.
+            worker.conn.send_bytes(part)
+        self._loop.add_reader(worker.conn.fileno(), self._readable, worker)
         return worker
 
     async def ready(self) -> None:
@@ -141,7 +157,7 @@ class PipePool:
         self._stop(worker, grace_s=2.0)
         if self._closed or worker not in self._workers:
             return
-        code = worker.process.exitcode
+        code = worker.process.returncode
         for tag in worker.jobs:
             self._on_done(tag, f"worker {worker.process.pid} died (exit code {code})")
         if not worker.ready:
@@ -158,17 +174,23 @@ class PipePool:
         with contextlib.suppress(ValueError, OSError):  # already removed or closed
             self._loop.remove_reader(worker.conn.fileno())
         worker.conn.close()
-        worker.process.join(grace_s)
-        if worker.process.is_alive():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            worker.process.wait(grace_s)
+        if worker.process.poll() is None:
             worker.process.terminate()
-        worker.process.join(0.1)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                worker.process.wait(0.1)
 
     @property
     def pids(self) -> list[int]:
-        return [w.process.pid for w in self._workers if w.process.pid is not None]
+        return [w.process.pid for w in self._workers]
 
     def close(self) -> None:
         """Stop every worker; a job still running is lost (the service is stopping)."""
         self._closed = True
         for worker in self._workers:
             self._stop(worker)
+
+
+if __name__ == "__main__":
+    _worker_main(int(sys.argv[1]), int(sys.argv[2]))

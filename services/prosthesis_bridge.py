@@ -19,8 +19,6 @@ from collections.abc import Callable
 
 from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisState
-from services.drivers.ability import open_ability
-from services.drivers.ability_sim import AbilitySim
 from services.drivers.hand import BACKENDS, DEFAULT_CHANNEL, HandLink, open_hand
 from services.drivers.hand_sim import SimulatedHand
 from services.hand_sim import follow_grasps
@@ -61,6 +59,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         sim.start()
     hand_port = getattr(args, "hand_port", None)  # callers that build the args may omit both
     if getattr(args, "hand", "can") == "ability":
+        # Imported only for this hand: its protocol needs numpy, which a bridge for a hand on
+        # CAN need not load (about 12 MB of the process's memory).
+        from services.drivers.ability import open_ability
+        from services.drivers.ability_sim import AbilitySim
+
         # The fingers on serial, the wrist on CAN: one driver, one link, one watchdog.
         if hand_port is None:
             fingers = AbilitySim(object_mm=args.object_mm)

@@ -17,12 +17,8 @@ import asyncio
 import os
 import sys
 import time
-from collections.abc import Callable
-
-import msgspec
 
 from lpc_core.perception.laser import LaserParams
-from lpc_core.perception.pipeline import ScansState, scans_step
 from lpc_core.perception.reconstructor import (
     INPUT_TOPICS,
     Dropped,
@@ -33,43 +29,14 @@ from lpc_core.perception.reconstructor import (
     Submit,
     frame_arrived,
     frame_done,
-    reconstruct_cloud_message,
-    reconstruct_message,
-    warmup_frame,
     window_message,
 )
 from lpc_core.perception.window import WindowState
-from schemas import BadMessage, decode, encode
+from schemas import decode
 from services.mcap_log import read_header
 from services.pipe_pool import PipePool
+from services.reconstructor_worker import init_worker
 from services.runtime import Bus, service_main, service_parser
-
-_METHOD = "laser"
-_PARAMS = LaserParams()
-
-
-def _init_worker(method: str, params: LaserParams) -> Callable[[bytes], bytes | str]:
-    global _METHOD, _PARAMS
-    _METHOD, _PARAMS = method, params
-    # Pay the imports and first calls now, before the service subscribes.
-    frame = warmup_frame()
-    work(encode(frame if method == "cloud" else scans_step(ScansState(), frame, 0)[1]))
-    return work
-
-
-def work(payload: bytes) -> bytes | str:
-    """In a worker: one input payload to an encoded reconstruction, or why not."""
-    try:
-        message = decode(INPUT_TOPICS[_METHOD], payload)
-        start = time.process_time()
-        if _METHOD == "cloud":
-            result = reconstruct_cloud_message(message)
-        else:
-            result = reconstruct_message(message, _PARAMS)
-        compute_ms = 1000.0 * (time.process_time() - start)
-        return encode(msgspec.structs.replace(result, compute_ms=compute_ms))
-    except (BadMessage, ValueError) as exc:
-        return str(exc)
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
@@ -85,7 +52,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         inbox.put_nowait(("done", seq, result))
 
     started = time.monotonic()
-    pool = PipePool(args.workers, _init_worker, (args.method, initial_state(args).params), finished)
+    pool = PipePool(args.workers, init_worker, (args.method, initial_state(args).params), finished)
 
     async def pump() -> None:
         # Depth frames are big: keep the newest only. Scans all queue, for in-order release.

@@ -26,6 +26,12 @@ one core at 90 Hz against 14% at level 3. The files read with any zstd decoder (
 ``mcap`` reader included). The whole recorder took 18-26% of one core on the full live mix
 (depth and scans at 90 Hz, EMG and hand state at 100 Hz, cue and tactor command at 90 Hz) at
 level 3.
+
+Most of what was left beside zstd was the kernel's: each chunk, its compressed copy and each
+frame's payload were new pages, faulted in and zeroed (71 page faults a frame, ``perf record``:
+``exc_page_fault``, ``clear_page_erms``, ``__do_sys_brk``), because glibc handed the freed heap
+back after every chunk. ``services.heap.keep_freed_memory`` keeps it: the write loop went from
+0.89 to 0.54 ms of CPU a frame at level 1 (0.43 to 0.16 ms uncompressed), RSS unchanged.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import time
 from pathlib import Path
 
 from lpc_core.gaps import GapState, gap_step
+from services.heap import keep_freed_memory
 from services.mcap_log import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -62,6 +69,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     # Never overwrite a recording: a recorder restarted after a crash (or a second session
     # with the same --out) writes beside the file its predecessor left, not over it.
     out = free_path(Path(args.out))
+    # Chunks, their compressed copies and the frames' payloads are allocated and freed at
+    # 90 Hz: without this, each costs its pages faulted in again (services/heap.py).
+    keep_freed_memory()
     writer = LogWriter(
         out, compression=args.compression, max_bytes=max_bytes, zstd_level=args.zstd_level
     )

@@ -477,7 +477,8 @@ def test_find_support_plane_keeps_a_sparse_dot_table_with_a_noise_tail() -> None
     the 3 % the sample was held to. The table was kept, the ball merged with it and the frame
     came out a 147 mm box."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoRig, StereoSensor
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import StereoRig
     from services.cli import _laser_views as lv
 
     sensor = StereoSensor(rig=StereoRig(dot_density=0.04))

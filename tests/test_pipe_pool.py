@@ -1,4 +1,4 @@
-"""PipePool with real spawned workers: results, failures and a worker killed mid-job."""
+"""PipePool with real worker processes: results, failures and a worker killed mid-job."""
 
 from __future__ import annotations
 
@@ -108,8 +108,7 @@ def test_results_sent_before_a_worker_died_are_kept_when_a_submit_finds_it_dead(
                 pool.submit(1, b"die")
                 # Block the loop until it has exited, so that nothing reads the pipe meanwhile.
                 process = pool._workers[0].process
-                process.join(30)
-                assert process.exitcode == 3
+                assert process.wait(30) == 3
                 pool.submit(2, b"b")
                 await done.until(3)
         finally:

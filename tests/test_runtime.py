@@ -10,6 +10,7 @@ import threading
 import time
 
 import msgspec
+import numpy as np
 import pytest
 import zenoh
 
@@ -173,3 +174,14 @@ def test_health_rate_and_latency_cover_the_window_only() -> None:
     assert snapshot.rates_hz["lpc/emg"] == 100.0
     assert snapshot.rates_hz["lpc/prosthesis/command"] == 0.0
     assert snapshot.latency_ms == {"p50": 3.0, "p99": 100.0}
+
+
+def test_health_latency_percentiles_are_numpys_linear_ones() -> None:
+    from services.runtime import _quantile
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 2048, 4096):
+        ordered = sorted(rng.exponential(2.0, n).tolist())
+        expected = np.percentile(ordered, [50, 99])
+        got = [_quantile(ordered, 0.50), _quantile(ordered, 0.99)]
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)

@@ -17,14 +17,8 @@ pytest.importorskip("cv2", reason="the stereo camera needs OpenCV: pip install '
 
 from lpc_core.sim import scene
 from lpc_core.sim.simcam import SimCamera
-from lpc_core.sim.stereo import (
-    Matcher,
-    StereoRig,
-    StereoSensor,
-    disparity_to_depth,
-    match,
-    render_ir,
-)
+from lpc_core.sim.stereo import StereoSensor, disparity_to_depth, match, render_ir
+from lpc_core.sim.stereo_settings import Matcher, StereoRig
 from services.cli.bench import stereo as bench
 
 K = bench.INTRINSICS

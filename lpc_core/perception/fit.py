@@ -1091,7 +1091,7 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
 
         picks = pick_rows(inl, residual_sums)
         k, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
-        params = np.stack([cx[k, i], cy[k, i], r[k, i]], axis=1).tolist()
+        params = zip(cx[k, i].tolist(), cy[k, i].tolist(), r[k, i].tolist(), strict=True)
         return [
             None if c == 0 else (c, total, tuple(p))
             for (_, c, total), p in zip(picks, params, strict=True)

@@ -50,18 +50,21 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
-from lpc_core.perception.reconstruction import LineSummary, Reconstruction, wrap_half_turn
+from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.solids import (
     CylinderSolid,
     PlaneSolid,
     SphereSolid,
     best_cylinder_axis,
+    column_sums,
     fattening_trim_m,
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
+    squared_norms,
 )
 
 MODELS = ("line", "circle", "ellipse")
@@ -130,6 +133,11 @@ class LaserParams:
     max_axis_guesses: int = 2
     cylinder_points: int = 160
     edge_tolerance_m: float = 0.0015
+    # When two or more seeds lie off the sides their best direction gives them, the direction
+    # is chosen again within this wider tolerance, or by every seed's least-squares fit to its
+    # nearest side (see _scattered_direction): a stereo matcher scatters the seeds by its
+    # fattening. 0 turns both off.
+    scattered_edge_tolerance_m: float = 0.003
     # A cuboid's width includes the object past the face's edges while the surface falls away
     # steeper than ``bevel_min_rad`` (or within ``bevel_free_depth_m`` of the edge).
     bevels: bool = True
@@ -222,6 +230,7 @@ class LaserParams:
             "silhouette_margin_px",
             "edge_fattening_px",
             "silhouette_tolerance_m",
+            "scattered_edge_tolerance_m",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -352,7 +361,7 @@ class LineModels:
     def step(self) -> float:
         """Median change of s/z between neighbouring samples of the chosen model's run."""
         if self._step is None:
-            self._step = _median_step(self.sz[self.run]) if not self.reason else 0.0
+            self._step = _median_step(self.sz.take(self.run, axis=0)) if not self.reason else 0.0
         return self._step
 
     @property
@@ -375,7 +384,7 @@ class LineModels:
 
     def seeds(self) -> np.ndarray:
         """The extreme inliers: first and last point of the pierced run, shape (2, 3)."""
-        return self.points[[self.run[0], self.run[-1]]]
+        return self.points.take((self.run[0], self.run[-1]), axis=0)
 
 
 def _runs(
@@ -399,8 +408,8 @@ def _runs(
     if not len(skip):
         return [idx]
     a, b = idx[skip], idx[skip + 1]
-    d = points[b] - points[a]
-    dist2 = (d * d).sum(axis=1)
+    d = points.take(b, axis=0) - points.take(a, axis=0)
+    dist2 = squared_norms(d)
     split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
     ends = split.nonzero()[0]
     breaks = skip[ends].tolist()
@@ -528,7 +537,7 @@ def _second_lines(
     out: list[Any] = [None] * len(lines)
     if not rows:
         return out
-    segments = fit.Segments([lines[k].sz[rest[k]] for k in rows], validated=True)
+    segments = fit.Segments([lines[k].sz.compress(rest[k], axis=0) for k in rows], validated=True)
     for k, found in zip(rows, _fit_batch("line", segments, params, rng), strict=True):
         if found:
             out[k] = replace(found, inliers=found.residuals(lines[k].sz) <= params.threshold_m)
@@ -562,14 +571,14 @@ def _prepare_lines(
     # Scan lines usually arrive sorted along themselves (``scans`` cuts them so): then the sort
     # is a check. Descending steps at the joins between lines do not count.
     descending = s[1:] < s[:-1]
-    descending[np.cumsum(counts[:-1], dtype=np.intp) - 1] = False
+    descending[[end - 1 for end in itertools.accumulate(counts[:-1])]] = False
     if descending.any():
         order = np.lexsort((s, np.repeat(np.arange(len(ok)), counts)))
         points, s = points[order], s[order]
     sz = np.empty((len(s), 2))
     sz[:, 0], sz[:, 1] = s, points[:, 2]
     d = points[1:] - points[:-1]
-    breaks = ((d * d).sum(axis=1) > params.segment_gap_m**2).nonzero()[0].tolist()
+    breaks = (squared_norms(d) > params.segment_gap_m**2).nonzero()[0].tolist()
     stop = 0
     line_bounds = []
     for n in counts:
@@ -735,7 +744,7 @@ def _arc_holds(sz: np.ndarray, need: float, params: LaserParams) -> bool:
     for _ in range(2):
         if np.count_nonzero(keep) < 3:
             return False
-        got = fit_circle_2d(sz[keep])
+        got = fit_circle_2d(sz.compress(keep, axis=0))
         if got is None:
             return False
         (cs, cz), radius = got
@@ -753,7 +762,7 @@ def _straight(sz: np.ndarray, threshold: float) -> bool:
     m = len(sz)
     if m < 3:
         return True
-    d = sz - sz.sum(axis=0) / m
+    d = sz - column_sums(sz) / m
     (sxx, sxy), (_, syy) = (d.T @ d).tolist()
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
     return bool(np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() <= threshold)
@@ -853,8 +862,12 @@ def _collect_seeds(
         run = line.run
         # The two ends and their neighbours along the run, as Python floats (a handful of
         # scalars: numpy indexing would cost more than the arithmetic).
-        ends = line.points[[run[0], run[-1]]].tolist()
-        ends_sz = line.sz[[run[0], run[1], run[-1], run[-2]]].tolist() if len(run) > 1 else None
+        ends = line.points.take((run[0], run[-1]), axis=0).tolist()
+        ends_sz = (
+            line.sz.take((run[0], run[1], run[-1], run[-2]), axis=0).tolist()
+            if len(run) > 1
+            else None
+        )
         c, s_ = math.cos(line.angle), math.sin(line.angle)
         for k, sign in ((0, -1.0), (1, 1.0)):
             p = ends[k]
@@ -940,7 +953,7 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     squares; when none scores best (one seed per edge, a face larger than the capture volume),
     the answer is the middle of the widest span of best-scoring directions on a 1-degree grid.
     """
-    valid = uv[~cropped]
+    valid = uv.compress(~cropped, axis=0)
     if len(valid) < 2:
         return None
     i, j = _pairs(len(valid))
@@ -957,6 +970,84 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
         return refined if (r_on, r_shared) >= (on[best], shared[best]) else pairs[best]
     top = (on[len(pairs) :] == on[best]) & (shared[len(pairs) :] == shared[best])
     return grid[_widest_run_middle(top)]
+
+
+def _scattered_direction(
+    uv: np.ndarray, cropped: np.ndarray, direction: np.ndarray, tol: float, wide: float
+) -> np.ndarray:
+    """``direction``, or when two or more uncut seeds lie off every side it gives them (by
+    more than ``tol``), a direction that lets every seed vote: the one chosen within the wider
+    tolerance ``wide`` if it puts every uncut seed on a side, else the least-squares fit of
+    each uncut seed to its nearest side (``_pooled_sides_direction``) if it leaves as many
+    seeds within ``tol`` of a side as ``direction`` does.
+
+    A stereo matcher moves a seed at an occluding edge by its fattening, which varies along
+    the edge (0-14 px at SGBM 7, sd 4 px), and one at a crease by up to 3 px; the count within
+    1.5 mm then picks among near-ties, by chance, a direction through two seeds that happen to
+    line up (a narrow face's side seeds lie about 40 px apart: 4 px turns such a direction by
+    6 degrees). Where the background is far and dim the scatter exceeds any tolerance; pooled
+    over every seed of all sides it averages out (given each seed's true side, such a fit put
+    the upright box's axis 1.8 degrees off on average at SGBM 7, against 5.2 for the count). A
+    matcher's hole that ends a run inside the face gives a seed no side holds, which would
+    pull that fit: it must not lose seeds the count holds. A sensor without a matching
+    window leaves at most one seed off (a bevel, a corner) on all but about 1 % of faces."""
+    valid = (~cropped).tolist()
+    pts = uv.tolist()
+    need = sum(valid)
+    on, _ = _rectangle_score(pts, valid, direction.tolist(), tol)
+    if on > need - 2:
+        return direction
+    wider = _edge_direction(uv, cropped, wide)
+    if wider is not None:
+        on_wide, _ = _rectangle_score(pts, valid, wider.tolist(), wide)
+        if on_wide >= need:
+            return wider
+    pooled = _pooled_sides_direction(uv, cropped, direction)
+    on_pooled, _ = _rectangle_score(pts, valid, pooled.tolist(), tol)
+    return pooled if on_pooled >= on else direction
+
+
+def _pooled_sides_direction(
+    uv: np.ndarray, cropped: np.ndarray, direction: np.ndarray, passes: int = 3
+) -> np.ndarray:
+    """Total least squares of the rectangle's direction over every uncut seed, each on the
+    nearest side of the seeds' bounding rectangle along the current direction (the sides
+    across it turned by 90 degrees), from ``direction``; the sides are assigned again after
+    each fit, at most ``passes`` times. In Python floats: a handful of seeds."""
+    pts = uv.tolist()
+    uncut = [not c for c in cropped.tolist()]
+    dx, dy = direction.tolist()
+    norm = math.hypot(dx, dy)
+    ux, uy = dx / norm, dy / norm
+    sides: list[int] = []
+    for _ in range(passes):
+        a = [x * ux + y * uy for x, y in pts]
+        b = [y * ux - x * uy for x, y in pts]
+        alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
+        nearest = []
+        for p, q, ok in zip(a, b, uncut, strict=True):
+            d = (p - alo, ahi - p, q - blo, bhi - q)
+            nearest.append(d.index(min(d)) if ok else -1)
+        if nearest == sides:
+            break
+        sides = nearest
+        sxx = sxy = syy = 0.0
+        for k in range(4):
+            members = [p for p, side in zip(pts, sides, strict=True) if side == k]
+            if len(members) < 2:
+                continue
+            mx = sum(p[0] for p in members) / len(members)
+            my = sum(p[1] for p in members) / len(members)
+            for x, y in members:
+                # Sides 0 and 1 (a = const) run across u: turned by 90 degrees they vote for it.
+                cx, cy = (-(y - my), x - mx) if k < 2 else (x - mx, y - my)
+                sxx, sxy, syy = sxx + cx * cx, sxy + cx * cy, syy + cy * cy
+        if sxx + syy == 0:
+            break
+        phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+        rx, ry = math.cos(phi), math.sin(phi)
+        ux, uy = (rx, ry) if rx * ux + ry * uy >= 0 else (-rx, -ry)
+    return np.array([ux, uy])
 
 
 def _widest_run_middle(flags: np.ndarray) -> int:
@@ -1086,7 +1177,7 @@ def _face_geometry(
     to_plane = np.array([e1, e2]).T
     uv = (seeds.points - origin) @ to_plane
     order = sort_around(uv, np.zeros(2))
-    uv, cropped = uv[order], seeds.cropped[order]
+    uv, cropped = uv.take(order, axis=0), seeds.cropped[order]
     disc = None
     # The seeds (and points beyond the edges) are a handful: Python floats from here on.
     pts = uv.tolist()
@@ -1099,8 +1190,13 @@ def _face_geometry(
     else:
         tol = params.edge_tolerance_m
         direction = _edge_direction(uv, cropped, tol)
+        wide = params.scattered_edge_tolerance_m
+        if direction is not None and wide > tol:
+            direction = _scattered_direction(uv, cropped, direction, tol, wide)
         if direction is None:
             direction = _min_area_direction(uv)
+        else:
+            direction = _unless_rounded(uv, uncut, direction)
         pts_all = pts
         if beyond is not None and len(beyond):
             pts_all = pts + ((beyond - origin) @ to_plane).tolist()
@@ -1176,6 +1272,33 @@ def _trimmed_sides(
             lo = hi = (lo + hi) / 2
         out[2 * k], out[2 * k + 1] = lo, hi
     return out[0], out[1], out[2], out[3]
+
+
+def _unless_rounded(uv: np.ndarray, uncut: list[list[float]], direction: np.ndarray) -> np.ndarray:
+    """``direction``, or the minimum-area rectangle's around the seeds ``uv`` when the best
+    rectangle along ``direction`` leaves an uncut seed farther inside its sides than
+    ``_INSIDE_SIDES`` of the face's width (the smaller extent of that minimum-area rectangle)
+    and the minimum-area rectangle holds the uncut seeds closer to its sides.
+
+    Such a face is no rectangle with its seeds on its sides, and the count of seeds on sides
+    that chose ``direction`` measured nothing: a rounded face (the soap bar, a
+    superellipsoid, whose lines leave the plane along a rounded outline) or seeds moved off
+    the edges by holes and fattening put few seeds within ``edge_tolerance_m`` of any
+    rectangle's sides, and which direction scores best is chance. The soap bar's wrist angle
+    was 29-51 deg off on one or two frames in ten (SGBM 7 and 9, BM 7), its angle SD over 15
+    deg, where the minimum-area rectangle, which follows the outline's elongation, was within
+    5 deg. lpc's noise model leaves seeds at most 0.15 of the width inside (the soap bar)."""
+    if len(uncut) < 3:
+        return direction
+    d = direction.tolist()
+    norm = math.hypot(d[0], d[1])
+    residual = _rectangle_residual(uncut, (d[0] / norm, d[1] / norm))
+    m = _min_area_direction(uv)
+    width = min(float(np.ptp(uv @ m)), float(np.ptp(uv @ _perp(m))))
+    if residual <= _INSIDE_SIDES * width:
+        return direction
+    mx, my = m.tolist()
+    return m if _rectangle_residual(uncut, (mx, my)) < residual else direction
 
 
 def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
@@ -1287,7 +1410,7 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     if fraction >= 1.0 - params.cuboid_margin:
         return _Candidate("cuboid", fraction, first)
     # The planes through two runs' end points, in Python floats (six pairs of 3-vectors).
-    ends = [ln.points[[ln.run[0], ln.run[-1]]].tolist() for ln in lines]
+    ends = [ln.points.take((ln.run[0], ln.run[-1]), axis=0).tolist() for ln in lines]
     normals, points = [first.normal.tolist()], [first.point.tolist()]
     for (p0, p1), (q0, q1) in itertools.combinations(ends, 2):
         a = (p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2])
@@ -1304,7 +1427,7 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
-    inliers = clean[solid.residuals(clean) <= thr]
+    inliers = clean.compress(solid.residuals(clean) <= thr, axis=0)
     if len(inliers) >= 3:
         solid = PlaneSolid.estimate(inliers) or solid
     return _Candidate("cuboid", _fraction(solid.residuals(clean), thr), solid)
@@ -1326,7 +1449,7 @@ def _sphere_candidate(
         return _Candidate("sphere", reason=solid.reason)
     thr = params.solid_threshold_m
     residuals = solid.residuals(clean)
-    inliers = clean[residuals <= thr]
+    inliers = clean.compress(residuals <= thr, axis=0)
     if 4 <= len(inliers) < len(clean):
         refined = SphereSolid.estimate(inliers, init=(solid.center, solid.radius), iterations=1)
         if refined:
@@ -1365,10 +1488,11 @@ def _raw_axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[
     seeds = _collect_seeds(lines, params, extend=False)
     keep = ~seeds.cropped
     if keep.sum() >= 3:
-        plane = PlaneSolid.estimate(seeds.points[keep])
+        uncut = seeds.points.compress(keep, axis=0)
+        plane = PlaneSolid.estimate(uncut)
         if plane:
             origin, e1, e2 = _face_frame(plane)
-            d = seeds.points[keep] - origin
+            d = uncut - origin
             uv = np.column_stack([d @ e1, d @ e2])
             direction = principal_direction(
                 uv[sort_around(uv, np.zeros(2))], params.alpha_max_rad, pick="straightest"
@@ -1418,7 +1542,7 @@ def _cylinder_candidate(
     solid = best
     residuals = best_residuals if step == 1 else solid.residuals(clean)
     keep = residuals <= thr
-    inliers = clean[keep]
+    inliers = clean.compress(keep, axis=0)
     if len(inliers) >= 5 and (step > 1 or not keep.all()):
         # Refit on every inlier: the first fit saw a sample, or outliers.
         refined = CylinderSolid.estimate(inliers, solid.axis, iterations=1)
@@ -1428,7 +1552,7 @@ def _cylinder_candidate(
     if not lo <= solid.radius <= hi:
         return _Candidate("cylinder", solid=solid, reason=f"radius {solid.radius * 1e3:.0f} mm")
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
-    if (solid.point - clean.mean(axis=0))[2] <= 0:
+    if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
     return _Candidate("cylinder", _fraction(residuals, thr), solid)
 
@@ -1528,7 +1652,7 @@ def _decide(
 ) -> Reconstruction:
     """Fit the solids, fewest parameters first (plane 3, sphere 4, cylinder 5); a richer solid
     must explain more of the lines' points by its margin, so one that cannot is not fitted."""
-    clean = np.concatenate([ln.points[ln.run] for ln in lines])
+    clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
     candidates = {"cuboid": _plane_candidate(lines, clean, params)}
     shape, bar = "cuboid", candidates["cuboid"].score + params.cuboid_margin
     if _polyhedral(lines):
@@ -1581,7 +1705,7 @@ def _decide(
         axis = _canonical_axis(solid.axis)
         return Reconstruction(
             shape="cylinder",
-            grasp_width_m=2 * solid.radius,
+            grasp_width_m=_round_width(solid, full, clean, params),
             wrist_angle_rad=_axis_angle(axis),
             center_m=_tuple3(_closest_to_optical_axis(solid.point, axis)),
             axis=_tuple3(axis),
@@ -1679,9 +1803,11 @@ def _camera_facing(
             break
         keep = trusted
         if isinstance(solid, SphereSolid):
-            refit = SphereSolid.estimate(clean[keep], init=(solid.center, solid.radius))
+            refit = SphereSolid.estimate(
+                clean.compress(keep, axis=0), init=(solid.center, solid.radius)
+            )
         else:
-            refit = CylinderSolid.estimate(clean[keep], solid.axis, iterations=2)
+            refit = CylinderSolid.estimate(clean.compress(keep, axis=0), solid.axis, iterations=2)
         if not refit or not lo <= refit.radius <= hi:
             break
         solid = refit
@@ -1699,6 +1825,38 @@ def _camera_facing(
         # and on an object only roughly a cylinder the facing arc alone turns it.
         return replace(full, radius=solid.radius)
     return solid
+
+
+def _span_across(solid: CylinderSolid, points: np.ndarray) -> float:
+    """How far ``points`` spread across the cylinder's axis as seen: along the direction
+    perpendicular to both the axis and the line of sight to it."""
+    centre = _closest_to_optical_axis(solid.point, solid.axis)
+    across = np.cross(solid.axis, centre)
+    norm = float(np.linalg.norm(across))
+    if norm < 1e-9:
+        return 0.0  # the axis lies along the line of sight: nothing spreads across it as seen
+    spread = points @ (across / norm)
+    return float(spread.max() - spread.min())
+
+
+def _round_width(
+    solid: CylinderSolid, full: CylinderSolid, clean: np.ndarray, params: LaserParams
+) -> float:
+    """The diameter of ``solid``, or the spread of the lines' runs across its axis where that
+    is wider than any inlier of ``full`` (the fit on every inlier) could spread.
+
+    No two points within ``solid_threshold_m`` of a cylinder lie farther apart across its axis
+    than its diameter plus twice that. Runs that do are on an object only roughly a cylinder
+    whose pierced arc curves more tightly than the whole (a potato's bumps: the 62 mm sweet
+    potato fitted 30-48 mm on every sensor), and the object is at least as wide as the runs
+    span. Against ``full``, not the camera-facing fit: a matcher's fattening widens the span
+    and ``full`` alike (a 40 mm cylinder under a 7 x 7 window: span 43-44 mm, ``full`` 44-46
+    mm, camera-facing 40 mm); and a stereo matcher's runs mostly end inside the silhouette,
+    where grazing and shadowed rims leave holes."""
+    span = _span_across(solid, clean)
+    if span > 2 * (full.radius + params.solid_threshold_m):
+        return span
+    return 2 * solid.radius
 
 
 def _without_end_plateaus(
@@ -1768,11 +1926,11 @@ def _plateau_free(
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
                 trimmed = True
-        kept.append(ln.points[keep])
+        kept.append(ln.points.compress(keep, axis=0))
     if not trimmed:
         return None
     points = np.concatenate(kept)
-    near = points[full.residuals(points) <= 3 * params.solid_threshold_m]
+    near = points.compress(full.residuals(points) <= 3 * params.solid_threshold_m, axis=0)
     if len(near) < params.min_points_per_line:
         return None
     if isinstance(full, SphereSolid):
@@ -1854,7 +2012,7 @@ def _fattening(lines: list[LineModels]) -> float:
         q = ln.sz[:, 0] / ln.sz[:, 1]
         inv = 1.0 / ln.sz[:, 1]
         inner = run[n // 4 : n - n // 4]
-        a, b = np.polyfit(q[inner], inv[inner], 1)
+        a, b = _fit_affine(q[inner], inv[inner])
         if a == 0:
             continue
         for end, inward, first in ((0, 1, run[0]), (last, -1, run[-1])):
@@ -1879,7 +2037,31 @@ def _fattening(lines: list[LineModels]) -> float:
                 # far as a fattening along rows or columns reaches.
                 # The plateau's first sample is the face's last: the edge lies half a sample on.
                 found.append(abs(q[end] - q_cross) / ln.step - 0.5)
-    return float(np.median(found)) if found else 0.0
+    return float(median(found)) if found else 0.0
+
+
+def _fit_affine(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """``np.polyfit(x, y, 1)``: slope and intercept, to the bit.
+
+    The same scaled Vandermonde system solved by the same LAPACK least squares (``gelsd``,
+    through the gufunc ``numpy.linalg.lstsq`` calls), without the wrappers' checks and
+    error-state set-up, which cost more than the solve (173 k instructions a call, this
+    about 70 k). A rank-deficient or failed fit goes through ``np.polyfit`` itself, which
+    warns or raises as it always did.
+    """
+    n = len(x)
+    lhs = np.empty((n, 2))
+    lhs[:, 0], lhs[:, 1] = x, 1.0
+    scale = np.sqrt(column_sums(lhs * lhs))
+    lhs /= scale
+    solution, _, rank, _ = _umath_linalg.lstsq(lhs, y[:, None], n * _EPS, signature="ddd->ddid")
+    a, b = (solution[:, 0] / scale).tolist()
+    if rank != 2 or not (math.isfinite(a) and math.isfinite(b)):
+        a, b = np.polyfit(x, y, 1).tolist()
+    return a, b
+
+
+_EPS = float(np.finfo(np.float64).eps)
 
 
 def measured_fattening_px(
@@ -1902,6 +2084,9 @@ def measured_fattening_px(
 
 _PLATEAU_M = 0.0006
 _QUANTUM_M = 0.001
+# A face whose best rectangle leaves a seed this far inside its sides (a fraction of its
+# smaller extent) is taken as rounded: see _unless_rounded.
+_INSIDE_SIDES = 0.25
 _CROSSING_SAMPLES = 1.5
 _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's

@@ -167,10 +167,12 @@ class Segments:
         out.points = [self.points[r] for r in rows]
         out.n = [self.n[r] for r in rows]
         out.count, out.width = len(out.n), self.width
-        out.valid, out.x, out.y = self.valid[idx], self.x[idx], self.y[idx]
-        out.ox, out.oy = self.ox[idx], self.oy[idx]
+        out.valid, out.x, out.y = (a.take(idx, axis=0) for a in (self.valid, self.x, self.y))
+        out.ox, out.oy = self.ox.take(idx, axis=0), self.oy.take(idx, axis=0)
         out.mean = [self.mean[r] for r in rows]
-        out._bases = {k: v[idx] for k, v in self._bases.items() if not k.startswith("offsets")}
+        out._bases = {
+            k: v.take(idx, axis=0) for k, v in self._bases.items() if not k.startswith("offsets")
+        }
         return out
 
     def offsets(self, count: int) -> np.ndarray:
@@ -233,7 +235,7 @@ Scorer = Callable[[np.ndarray, np.ndarray | None], list[Best | None]]
 def on_rows(rows: np.ndarray | None, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     """A scorer's per-line ``arrays`` (lines on the first axis) cut to the lines ``rows``
     still searched; None keeps every line."""
-    return arrays if rows is None else tuple(a[rows] for a in arrays)
+    return arrays if rows is None else tuple(a.take(rows, axis=0) for a in arrays)
 
 
 def ransac(

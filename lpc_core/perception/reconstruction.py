@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -64,3 +66,14 @@ class Reconstruction:
 def wrap_half_turn(angle_rad: float) -> float:
     """Wrap an axis angle to [-pi/2, pi/2): an axis and its reverse are the same axis."""
     return float((angle_rad + np.pi / 2) % np.pi - np.pi / 2)
+
+
+def median(values: Iterable[float]) -> float:
+    """``float(np.median(values))`` of a few floats (at least one), to the bit: the middle
+    value, or the sum of the middle two halved, as numpy's mean of two adds and divides; NaN
+    if any is NaN. Sorting a short list costs a tenth of ``np.median`` (130 k instructions)."""
+    ordered = sorted(values)
+    if any(math.isnan(v) for v in ordered):
+        return math.nan
+    half = len(ordered) // 2
+    return ordered[half] if len(ordered) % 2 else (ordered[half - 1] + ordered[half]) / 2

@@ -59,8 +59,8 @@ def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
             raise ValueError(f"scan line points must be (N, 3), got {array.shape}")
         points.append(array)
     angles = np.radians([line.angle_deg for line in message.lines])
-    empty = tuple(np.empty(0, dtype=np.int64) for _ in points)
-    return CoreScanLines(angles_rad=angles, points=tuple(points), pixels=empty)
+    no_pixels = np.empty(0, dtype=np.int64)
+    return CoreScanLines(angles_rad=angles, points=tuple(points), pixels=(no_pixels,) * len(points))
 
 
 def _finite(value: float | None) -> float | None:

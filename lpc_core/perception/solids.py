@@ -40,6 +40,22 @@ def _as_points(points: np.ndarray, minimum: int) -> np.ndarray:
     return points
 
 
+def column_sums(points: np.ndarray) -> np.ndarray:
+    """``points.sum(axis=0)`` of an (N >= 1, D) array of a few columns, to the bit.
+
+    numpy's reduction adds the rows one after another, over an inner loop as long as a row;
+    the running sum down the columns adds in the same order, at a third of the cost on
+    (N, 3) points."""
+    return np.add.accumulate(points, axis=0)[-1]
+
+
+def squared_norms(d: np.ndarray) -> np.ndarray:
+    """``(d * d).sum(axis=1)`` of (N, 3) vectors, to the bit: the same additions (x^2 + y^2,
+    then + z^2) on the columns, at half the cost of numpy's reduction over 3-element rows."""
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    return x * x + y * y + z * z
+
+
 def orthonormal_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors completing the unit vector ``axis`` to a right-handed basis."""
     e1, e2 = _basis(*(float(v) for v in axis))
@@ -114,6 +130,15 @@ def _solve3(
     return x1 / det, x2 / det, x3 / det
 
 
+def _solve(a: np.ndarray, b: np.ndarray) -> list[float]:
+    """``numpy.linalg.solve(a, b)`` as Python floats; ``LinAlgError`` for a singular system.
+
+    Calling numpy's private gufunc (``numpy.linalg._umath_linalg``) directly saved 7 of the
+    10 us of each call, 1.9 % of the reconstruction's instructions; not worth a private API
+    that a numpy upgrade may rename, in the process that stops the hand's pre-shape."""
+    return np.linalg.solve(a, b).tolist()
+
+
 def _smallest_eigenvector(m: list[list[float]]) -> list[float] | None:
     """Unit eigenvector of the smallest eigenvalue of a symmetric positive semi-definite 3x3
     matrix, in closed form (Python floats: a tenth of ``numpy.linalg.eigh`` at this size);
@@ -168,7 +193,7 @@ class PlaneSolid:
     @classmethod
     def estimate(cls, points: np.ndarray) -> Self | FailedSolid:
         points = _as_points(points, 3)
-        point = points.sum(axis=0) / len(points)
+        point = column_sums(points) / len(points)
         d = points - point
         found = _smallest_eigenvector((d.T @ d).tolist())
         if found is None:
@@ -243,12 +268,13 @@ class SphereSolid:
             np.subtract(radius, rho, out=aug[4])
             normal = aug @ aug.T
             try:
-                step = np.linalg.solve(normal[:4, :4], normal[:4, 4])
+                step = _solve(normal[:4, :4], normal[:4, 4])
             except np.linalg.LinAlgError:
                 return FailedSolid("points do not fix a sphere")
             center = center + step[:3]
-            radius += float(step[3])
-            if np.abs(step).max() < 1e-7:
+            radius += step[3]
+            # As numpy's max would, a NaN step does not stop the iteration.
+            if all(abs(v) < 1e-7 for v in step):
                 break
         if not np.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
@@ -256,7 +282,7 @@ class SphereSolid:
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         w = np.asarray(points, dtype=np.float64) - self.center
-        return np.abs(np.sqrt((w * w).sum(axis=1)) - self.radius)
+        return np.abs(np.sqrt(squared_norms(w)) - self.radius)
 
     def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
         """View angle (radians) from each point's ray, seen from the camera at the origin, in
@@ -310,7 +336,7 @@ class CylinderSolid:
             h = jtj.copy()
             h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
             try:
-                s0, s1, s2, s3, s4 = np.linalg.solve(h, -jtr).tolist()
+                s0, s1, s2, s3, s4 = _solve(h, -jtr)
             except np.linalg.LinAlgError:
                 break
             c, d, e1, e2, radius = state
@@ -338,7 +364,7 @@ class CylinderSolid:
         if not math.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
         # Keep the axis point nearest the points' centroid along the axis: a readable centre.
-        mean = (points.sum(axis=0) / len(points)).tolist()
+        mean = (column_sums(points) / len(points)).tolist()
         along = sum((mean[i] - c[i]) * d[i] for i in range(3))
         point = np.array([c[i] + along * d[i] for i in range(3)])
         return cls(point=point, axis=np.array(d), radius=float(radius), cost=cost)
@@ -512,8 +538,10 @@ __all__ = [
     "Solid",
     "SphereSolid",
     "best_cylinder_axis",
+    "column_sums",
     "fit_circle_2d",
     "hemisphere_directions",
     "orthonormal_basis",
     "silhouette_distance",
+    "squared_norms",
 ]

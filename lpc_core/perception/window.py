@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lpc_core.perception.reconstruction import Reconstruction, Shape, wrap_half_turn
+from lpc_core.perception.reconstruction import Reconstruction, Shape, median, wrap_half_turn
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -75,19 +75,6 @@ class WindowResult:
         return None if self.wrist_angle_rad is None else math.degrees(self.wrist_angle_rad)
 
 
-def _median(values: list[float]) -> float:
-    """``np.median`` of a few floats, as numpy computes it, without the array set-up that
-    cost a window step more than the rest of it: the mean of the middle value or two (numpy's
-    sum starts from +0.0, so a -0.0 comes out +0.0), NaN if one is NaN."""
-    if any(math.isnan(v) for v in values):
-        return math.nan
-    ordered = sorted(values)
-    half = len(ordered) // 2
-    if len(ordered) % 2:
-        return 0.0 + ordered[half]
-    return (0.0 + ordered[half - 1] + ordered[half]) / 2.0
-
-
 def axial_median(angles_rad: np.ndarray) -> float:
     """Median of axis angles (period pi), in [-pi/2, pi/2).
 
@@ -100,7 +87,7 @@ def axial_median(angles_rad: np.ndarray) -> float:
     doubled = 2.0 * angles
     reference = math.atan2(float(np.sin(doubled).sum()), float(np.cos(doubled).sum()))
     offsets = (doubled - reference + np.pi) % (2 * np.pi) - np.pi
-    return wrap_half_turn((reference + _median(offsets.tolist())) / 2.0)
+    return wrap_half_turn((reference + median(offsets.tolist())) / 2.0)
 
 
 def _majority(entries: tuple[WindowEntry, ...]) -> tuple[Shape, int]:
@@ -136,7 +123,7 @@ def window_step(
         same = [e for e in entries if e.shape == shape]
         widths = [e.grasp_width_m for e in same if e.grasp_width_m is not None]
         angles = [e.wrist_angle_rad for e in same if e.wrist_angle_rad is not None]
-        width = _median(widths) if widths else None
+        width = median(widths) if widths else None
         if shape != "sphere" and angles:
             angle = axial_median(np.array(angles))
     reconstructed = shape != "none" and len(entries) == params.size and agree >= params.min_agree

@@ -17,11 +17,9 @@ import threading
 from services.drivers.depth import (
     SimSource,
     SourceUnavailable,
-    add_sensor_arguments,
     default_sim_socket,
-    sensor_label,
-    stereo_sensor,
 )
+from services.drivers.depth_flags import add_sensor_arguments, sensor_label, stereo_sensor
 from services.drivers.sim_camera import SimCameraDevice, stderr_log
 
 

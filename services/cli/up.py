@@ -25,7 +25,7 @@ import zenoh
 
 from schemas import Health, decode
 from services.children import die_with_parent
-from services.drivers.depth import (
+from services.drivers.depth_flags import (
     add_realsense_arguments,
     add_sensor_arguments,
     realsense_argv,

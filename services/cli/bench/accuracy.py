@@ -43,6 +43,8 @@ from services.cli import _laser_views as lv
 from services.drivers.depth import (
     SoftwareFilters,
     SourceUnavailable,
+)
+from services.drivers.depth_flags import (
     add_sensor_arguments,
     rs_filters_arg,
     sensor_label,

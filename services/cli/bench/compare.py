@@ -29,7 +29,7 @@ import numpy as np
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.reconstruction import SHAPES, Reconstruction
 from lpc_core.sim.stereo import StereoSensor
-from services.drivers.depth import add_sensor_arguments, sensor_label, stereo_sensor
+from services.drivers.depth_flags import add_sensor_arguments, sensor_label, stereo_sensor
 
 # The paper's figures (Results), for the printout.
 PAPER = {

@@ -233,8 +233,8 @@ def _process_name(proc: Any, names: dict[int, str]) -> str:
         cmdline = proc.cmdline()
     except Exception:  # psutil.Error, and a process gone between listing and asking
         return "?"
-    if "-m" in cmdline:
-        module = cmdline[cmdline.index("-m") + 1]
+    module = cmdline[cmdline.index("-m") + 1] if "-m" in cmdline else None
+    if module is not None and module != "services.pipe_pool":
         for name, spec in SERVICES.items():
             if spec.module == module:
                 return name

@@ -113,8 +113,10 @@ def _retimed(frame: DepthFrame, seq: int, t_ns: int) -> DepthFrame:
 def bench_write(
     frames: list[DepthFrame], n: int, workdir: Path, zstd_levels: list[int] | None = None
 ) -> None:
+    from services.heap import keep_freed_memory
     from services.mcap_log import LogWriter
 
+    keep_freed_memory()  # as the recorder does
     payloads = [encode(_retimed(frames[i % len(frames)], i, i)) for i in range(n)]
     size = len(payloads[0])
     print(f"write: {n} depth frames of {size / 1e3:.0f} KB per compression, 1 MiB chunks, to disk")

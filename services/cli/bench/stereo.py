@@ -31,7 +31,8 @@ import numpy as np
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.sim import scene
-from lpc_core.sim.stereo import MATCHERS, Matcher, StereoRig, StereoSensor, match
+from lpc_core.sim.stereo import StereoSensor, match
+from lpc_core.sim.stereo_settings import MATCHERS, Matcher, StereoRig
 
 INTRINSICS = Intrinsics()
 POSE = np.eye(4)
