@@ -107,3 +107,24 @@ def test_window_params_reject_bad_values() -> None:
         WindowParams(size=5, min_agree=6)
     with pytest.raises(ValueError, match="size"):
         WindowParams(size=0, min_agree=1)
+
+
+def test_median_is_numpys_to_the_bit() -> None:
+    """``reconstruction.median`` replaces ``np.median`` in the window and the fattening
+    estimate, whose outputs are compared byte for byte in the golden replays."""
+    import math
+    import random
+
+    from lpc_core.perception.reconstruction import median
+
+    rng = random.Random(7)
+    pool = [-0.0, 0.0, 1.5, -2.25, math.inf, -math.inf]
+    cases = [[-0.0], [-0.0, -0.0], [0.0, -0.0, -0.0], [1.0, -1.0]]
+    cases += [[rng.choice([*pool, rng.uniform(-5, 5)]) for _ in range(rng.randint(1, 9))]
+              for _ in range(20_000)]  # fmt: skip
+    with np.errstate(invalid="ignore"):  # inf - inf in numpy's mean of the middle two
+        for values in cases:
+            want, got = float(np.median(values)), median(values)
+            assert (math.isnan(want) and math.isnan(got)) or (
+                want == got and math.copysign(1, want) == math.copysign(1, got)
+            ), values

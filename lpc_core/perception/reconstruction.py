@@ -76,4 +76,7 @@ def median(values: Iterable[float]) -> float:
     if any(math.isnan(v) for v in ordered):
         return math.nan
     half = len(ordered) // 2
-    return ordered[half] if len(ordered) % 2 else (ordered[half - 1] + ordered[half]) / 2
+    # Sums start from +0.0, as numpy's do: the median of [-0.0] is +0.0.
+    if len(ordered) % 2:
+        return 0.0 + ordered[half]
+    return (0.0 + ordered[half - 1] + ordered[half]) / 2
