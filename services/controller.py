@@ -97,7 +97,10 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             if isinstance(out, ControllerState) and out.event:
                 bus.log("info", f"{out.previous} -> {out.state} on {out.event}: {out.reason}")
 
+    # Each input carries the time it happened (received, or the tick's time), so that a stall
+    # of this process is not taken for silence of its inputs.
     async def pump(key: str, latest: bool) -> None:
+        # EMG is FIFO: the detector's timing rules need every sample, in order.
         sub = bus.subscribe(key, latest=latest)
         while True:
             _, message, received_ns = await sub.receive()
@@ -108,6 +111,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         while True:
             t_ns = max(t_ns + TICK_NS, bus.clock.now_ns() - TICK_NS)
             await bus.clock.sleep_until(t_ns)
+            # Its lateness is the camera's cue to shed frames (lpc_core.perception.shedding).
             bus.health.counters["ticks"] += 1
             if bus.clock.now_ns() - t_ns > TICK_NS:
                 bus.health.counters["late_ticks"] += 1
