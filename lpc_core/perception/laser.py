@@ -1021,32 +1021,19 @@ def _pooled_sides_direction(
     ux, uy = dx / norm, dy / norm
     sides: list[int] = []
     for _ in range(passes):
-        a = [x * ux + y * uy for x, y in pts]
-        b = [y * ux - x * uy for x, y in pts]
-        alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
-        nearest = []
-        for p, q, ok in zip(a, b, uncut, strict=True):
-            d = (p - alo, ahi - p, q - blo, bhi - q)
-            nearest.append(d.index(min(d)) if ok else -1)
+        nearest = [
+            d.index(min(d)) if ok else -1
+            for d, ok in zip(_side_distances(pts, (ux, uy)), uncut, strict=True)
+        ]
         if nearest == sides:
             break
         sides = nearest
-        sxx = sxy = syy = 0.0
-        for k in range(4):
-            members = [p for p, side in zip(pts, sides, strict=True) if side == k]
-            if len(members) < 2:
-                continue
-            mx = sum(p[0] for p in members) / len(members)
-            my = sum(p[1] for p in members) / len(members)
-            for x, y in members:
-                # Sides 0 and 1 (a = const) run across u: turned by 90 degrees they vote for it.
-                cx, cy = (-(y - my), x - mx) if k < 2 else (x - mx, y - my)
-                sxx, sxy, syy = sxx + cx * cx, sxy + cx * cy, syy + cy * cy
+        # Sides 0 and 1 run across u: turned by 90 degrees they vote for it.
+        groups = [([p for p, s in zip(pts, sides, strict=True) if s == k], k < 2) for k in range(4)]
+        sxx, sxy, syy, _ = _sides_scatter(groups)
         if sxx + syy == 0:
             break
-        phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-        rx, ry = math.cos(phi), math.sin(phi)
-        ux, uy = (rx, ry) if rx * ux + ry * uy >= 0 else (-rx, -ry)
+        ux, uy = _principal_axis(sxx, sxy, syy, (ux, uy))
     return np.array([ux, uy])
 
 
@@ -1113,25 +1100,46 @@ def _refine_direction(uv: np.ndarray, direction: np.ndarray, tol: float) -> np.n
     pts = uv.tolist()
     a = [x * ux + y * uy for x, y in pts]
     b = [y * ux - x * uy for x, y in pts]  # along _perp(u) = (-uy, ux)
-    sxx = sxy = syy = 0.0
-    groups = 0
+    groups = []
     for c, turn in ((b, False), (a, True)):
         lo, hi = min(c), max(c)
         for side in ([v - lo <= tol for v in c], [hi - v <= tol for v in c]):
-            members = [p for p, f in zip(pts, side, strict=True) if f]
-            if len(members) < 2:
-                continue
-            groups += 1
-            mx = sum(p[0] for p in members) / len(members)
-            my = sum(p[1] for p in members) / len(members)
-            for x, y in members:
-                cx, cy = (-(y - my), x - mx) if turn else (x - mx, y - my)
-                sxx, sxy, syy = sxx + cx * cx, sxy + cx * cy, syy + cy * cy
-    if not groups:
+            groups.append(([p for p, f in zip(pts, side, strict=True) if f], turn))
+    sxx, sxy, syy, voted = _sides_scatter(groups)
+    if not voted:
         return np.array([ux, uy])
-    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)  # the larger eigenvalue's eigenvector
+    return np.array(_principal_axis(sxx, sxy, syy, (ux, uy)))
+
+
+def _sides_scatter(
+    groups: list[tuple[list[list[float]], bool]],
+) -> tuple[float, float, float, int]:
+    """The 2x2 scatter sums of seeds grouped by the rectangle side they lie on, each group
+    about its own mean, those of a group marked ``turn`` (a side across the direction) turned
+    by 90 degrees so that they vote for it too; and how many groups voted (two seeds or more).
+    In Python floats: a handful of seeds."""
+    sxx = sxy = syy = 0.0
+    voted = 0
+    for members, turn in groups:
+        if len(members) < 2:
+            continue
+        voted += 1
+        mx = sum(p[0] for p in members) / len(members)
+        my = sum(p[1] for p in members) / len(members)
+        for x, y in members:
+            cx, cy = (-(y - my), x - mx) if turn else (x - mx, y - my)
+            sxx, sxy, syy = sxx + cx * cx, sxy + cx * cy, syy + cy * cy
+    return sxx, sxy, syy, voted
+
+
+def _principal_axis(
+    sxx: float, sxy: float, syy: float, u: tuple[float, float]
+) -> tuple[float, float]:
+    """The larger eigenvalue's unit eigenvector of ``[[sxx, sxy], [sxy, syy]]`` in closed form,
+    on the side of ``u``."""
+    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
     rx, ry = math.cos(phi), math.sin(phi)
-    return np.array([rx, ry] if rx * ux + ry * uy >= 0 else [-rx, -ry])
+    return (rx, ry) if rx * u[0] + ry * u[1] >= 0 else (-rx, -ry)
 
 
 def _min_area_direction(uv: np.ndarray) -> np.ndarray:
@@ -1301,14 +1309,22 @@ def _unless_rounded(uv: np.ndarray, uncut: list[list[float]], direction: np.ndar
     return m if _rectangle_residual(uncut, (mx, my)) < residual else direction
 
 
-def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
-    """Largest distance of the points ``pts`` to the nearest side of their bounding rectangle
-    along the unit direction ``u``."""
+def _side_distances(
+    pts: list[list[float]], u: tuple[float, float]
+) -> list[tuple[float, float, float, float]]:
+    """Each point's distances to the four sides of the points' bounding rectangle along the
+    unit direction ``u``: the two across ``u``, then the two along it."""
     ux, uy = u
     a = [x * ux + y * uy for x, y in pts]
     b = [y * ux - x * uy for x, y in pts]
     alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
-    return max(min(p - alo, ahi - p, q - blo, bhi - q) for p, q in zip(a, b, strict=True))
+    return [(p - alo, ahi - p, q - blo, bhi - q) for p, q in zip(a, b, strict=True)]
+
+
+def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float:
+    """Largest distance of the points ``pts`` to the nearest side of their bounding rectangle
+    along the unit direction ``u``."""
+    return max(min(d) for d in _side_distances(pts, u))
 
 
 def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
