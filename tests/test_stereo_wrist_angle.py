@@ -7,6 +7,8 @@ sensor's own tolerance."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from lpc_core.perception.laser import (
     _scattered_direction,
     reconstruct_laser,
 )
+from lpc_core.perception.reconstruction import Reconstruction
 from lpc_core.perception.scans import cut_scan_lines
 
 TOL, WIDE = LaserParams().edge_tolerance_m, LaserParams().scattered_edge_tolerance_m
@@ -60,25 +63,40 @@ def test_scattered_seeds_of_a_rectangle_give_its_direction() -> None:
     assert abs((error + 45.0) % 90.0 - 45.0) < 3.0
 
 
+def _with_and_without_the_rule(
+    suite: str, trials: int, frames: int, name: str, pick: Callable[[Any], bool]
+) -> tuple[Any, Reconstruction, Reconstruction]:
+    """The view of ``name`` that ``pick`` chooses under SGBM 7, and its reconstructions with
+    the scattered-seeds rule turned off and on (both must be cuboids)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from services.cli import _laser_views as lv
+
+    views = lv.views(suite, trials, frames, 0, names=[name], sensor=StereoSensor())
+    view = next(v for v in views if pick(v))
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    before = reconstruct_laser(lines, LaserParams(scattered_edge_tolerance_m=0), seed=view.seq)
+    after = reconstruct_laser(lines, LaserParams(), seed=view.seq)
+    assert before.shape == after.shape == "cuboid"
+    return view, before, after
+
+
+def _angle_off(result: Reconstruction, view: Any) -> float:
+    from services.cli.bench.accuracy import _angle_error
+
+    return abs(_angle_error(result.wrist_angle_rad, view.truth.wrist_angle_rad))
+
+
 def test_a_prism_under_semi_global_matching_gets_its_axis() -> None:
     """SGBM 7, the 40 mm prism of the rotation test rolled 90 degrees, first frame: the
     seeds of its long sides scatter by 1-8 px, and the count within 1.5 mm chose a direction
     3.9 degrees off the prism's axis; within the scatter it is 0.3 degrees off, and the width
     comes 1 mm nearer the truth."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from services.cli import _laser_views as lv
-    from services.cli.bench.accuracy import _angle_error
-
-    views = lv.views("rotation", 1, 1, 0, names=["prism_40"], sensor=StereoSensor())
-    view = next(v for v in views if v.detail.strip() == "roll  90 deg".strip())
-    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-    before = reconstruct_laser(lines, LaserParams(scattered_edge_tolerance_m=0), seed=view.seq)
-    after = reconstruct_laser(lines, LaserParams(), seed=view.seq)
-    assert before.shape == after.shape == "cuboid"
-    truth = view.truth.wrist_angle_rad
-    assert abs(_angle_error(before.wrist_angle_rad, truth)) > 3.0
-    assert abs(_angle_error(after.wrist_angle_rad, truth)) < 1.0
+    view, before, after = _with_and_without_the_rule(
+        "rotation", 1, 1, "prism_40", lambda v: v.detail.strip() == "roll  90 deg"
+    )
+    assert _angle_off(before, view) > 3.0
+    assert _angle_off(after, view) < 1.0
     width = view.truth.grasp_width_m
     assert abs(after.grasp_width_m - width) < abs(before.grasp_width_m - width)
 
@@ -106,17 +124,8 @@ def test_an_upright_box_under_semi_global_matching_gets_its_axis() -> None:
     (the background behind its top is far and dim), beyond any tolerance. Without the
     scattered rule the direction was 4.5 degrees off its axis (6.9 before the rounded-face
     rule, which fixed this trial's first frame on its own), with it 2.1."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from services.cli import _laser_views as lv
-    from services.cli.bench.accuracy import _angle_error
-
-    views = lv.views("functional", 2, 5, 0, names=["cuboid_upright"], sensor=StereoSensor())
-    view = next(v for v in views if (v.trial, v.frame) == (1, 4))
-    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-    before = reconstruct_laser(lines, LaserParams(scattered_edge_tolerance_m=0), seed=view.seq)
-    after = reconstruct_laser(lines, LaserParams(), seed=view.seq)
-    assert before.shape == after.shape == "cuboid"
-    truth = view.truth.wrist_angle_rad
-    assert abs(_angle_error(before.wrist_angle_rad, truth)) > 4.0
-    assert abs(_angle_error(after.wrist_angle_rad, truth)) < 2.5
+    view, before, after = _with_and_without_the_rule(
+        "functional", 2, 5, "cuboid_upright", lambda v: (v.trial, v.frame) == (1, 4)
+    )
+    assert _angle_off(before, view) > 4.0
+    assert _angle_off(after, view) < 2.5
