@@ -30,8 +30,9 @@ level 3.
 Most of what was left beside zstd was the kernel's: each chunk, its compressed copy and each
 frame's payload were new pages, faulted in and zeroed (71 page faults a frame, ``perf record``:
 ``exc_page_fault``, ``clear_page_erms``, ``__do_sys_brk``), because glibc handed the freed heap
-back after every chunk. ``services.heap.keep_freed_memory`` keeps it: the write loop went from
-0.89 to 0.54 ms of CPU a frame at level 1 (0.43 to 0.16 ms uncompressed), RSS unchanged.
+back after every chunk. ``services.heap.keep_freed_memory``, which every service's process and
+the container call at start, keeps it: the write loop went from 0.89 to 0.54 ms of CPU a frame
+at level 1 (0.43 to 0.16 ms uncompressed), RSS unchanged.
 """
 
 from __future__ import annotations
@@ -44,7 +45,6 @@ import time
 from pathlib import Path
 
 from lpc_core.gaps import GapState, gap_step
-from services.heap import keep_freed_memory
 from services.mcap_log import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -69,9 +69,6 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     # Never overwrite a recording: a recorder restarted after a crash (or a second session
     # with the same --out) writes beside the file its predecessor left, not over it.
     out = free_path(Path(args.out))
-    # Chunks, their compressed copies and the frames' payloads are allocated and freed at
-    # 90 Hz: without this, each costs its pages faulted in again (services/heap.py).
-    keep_freed_memory()
     writer = LogWriter(
         out, compression=args.compression, max_bytes=max_bytes, zstd_level=args.zstd_level
     )
