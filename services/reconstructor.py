@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import sys
 import time
 
@@ -40,7 +39,6 @@ from services.runtime import Bus, service_main, service_parser
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # workers import numpy after this
     inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
     state = PoolState(params=PoolParams(workers=args.workers, max_pending=args.max_pending))
     window = WindowState()
