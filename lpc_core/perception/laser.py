@@ -53,6 +53,7 @@ import numpy as np
 from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
+from lpc_core.perception.cloud import CloudParams, find_support_plane
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.solids import (
     CylinderSolid,
@@ -64,6 +65,7 @@ from lpc_core.perception.solids import (
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
+    resting_radius,
     squared_norms,
 )
 
@@ -168,6 +170,14 @@ class LaserParams:
     # fattening past the silhouette); that fit stands when narrower by more than
     # silhouette_tolerance_m (see _without_end_plateaus).
     end_plateaus: bool = True
+    # A round resting on the support (the table the scan lines cross beside it) is fitted
+    # again touching it: a sphere, or a cylinder lying along the plane (within
+    # rest_max_tilt_rad), whose fitted surface comes within rest_gap_ratio of its radius of the
+    # plane. On a short arc a free fit's radius trades against its centre's depth (a matcher's
+    # staircase: 40 mm cylinders fitted 27-54 mm); the contact pins it (see _resting_width).
+    # 0 turns it off.
+    rest_gap_ratio: float = 0.7
+    rest_max_tilt_rad: float = math.radians(10.0)
     # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
     # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
     # for a 7 x 7 window. Fixed, it cost lpc's own noise model, which does not fatten, cuboid
@@ -231,6 +241,8 @@ class LaserParams:
             "edge_fattening_px",
             "silhouette_tolerance_m",
             "scattered_edge_tolerance_m",
+            "rest_gap_ratio",
+            "rest_max_tilt_rad",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -353,6 +365,8 @@ class LineModels:
     fits: dict[str, Any] = field(default_factory=dict)
     model: str = "none"
     run: np.ndarray = field(default_factory=lambda: _EMPTY_RUN)
+    # The line's samples before and after its pierced segment (what the object stands on).
+    beyond: tuple[np.ndarray, ...] = ()
     # Median change of s/z between neighbouring samples of the run (``step``), computed when
     # first asked for: only a cuboid's seeds use it.
     _step: float | None = field(default=None, repr=False)
@@ -612,6 +626,7 @@ def _prepare_lines(
             line.reason = f"too few points on {line.label}: {b - a} < {need} on the object"
             continue
         line.points, line.sz = points[a:b], sz[a:b]
+        line.beyond = (points[bounds[0] : a], points[b : bounds[-1]])
     return lines
 
 
@@ -1707,10 +1722,11 @@ def _decide(
             solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
             if params.end_plateaus:
                 solid = _without_end_plateaus(lines, full, solid, params)
+    resting = _resting_width(lines, solid, params) if shape in ("sphere", "cylinder") else None
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
-            grasp_width_m=2 * solid.radius,
+            grasp_width_m=2 * solid.radius if resting is None else resting,
             center_m=_tuple3(solid.center),
             lines=summaries,
             confidence=confidence,
@@ -1721,7 +1737,7 @@ def _decide(
         axis = _canonical_axis(solid.axis)
         return Reconstruction(
             shape="cylinder",
-            grasp_width_m=_round_width(solid, full, clean, params),
+            grasp_width_m=_round_width(solid, full, clean, params, resting),
             wrist_angle_rad=_axis_angle(axis),
             center_m=_tuple3(_closest_to_optical_axis(solid.point, axis)),
             axis=_tuple3(axis),
@@ -1784,6 +1800,70 @@ def _decide(
         points=total,
         extra=extra,
     )
+
+
+# The table beside a round holds most of the samples its lines have off the object. Fewer
+# samples, or all on one line, were as often a cylinder's own flank below its runs, or a
+# plane through one line's trace, as the table.
+_SUPPORT = CloudParams(support_trials=64, support_min_points=30)
+_SUPPORT_MIN_LINE_POINTS = 10
+
+
+def _resting_width(
+    lines: list[LineModels], solid: SphereSolid | CylinderSolid, params: LaserParams
+) -> float | None:
+    """The width of a round that rests on the support: its fit again, touching the support
+    (``solids.resting_radius``); ``None`` when the lines show no support or the round does
+    not rest on it.
+
+    The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
+    almost no sample behind it) among the lines' samples off their pierced segments, on at
+    least two lines so that it is a plane and not one line's trace. A sphere rests on it when
+    its centre stands about a radius above it; a cylinder when its axis also runs along it.
+    A fit whose surface is already within ``solid_threshold_m`` of the support keeps its own.
+    """
+    if params.rest_gap_ratio == 0:
+        return None
+    pieces = [
+        (ln.index, p)
+        for ln in lines
+        for p in (*ln.beyond, ln.points[: ln.run[0]], ln.points[ln.run[-1] + 1 :])
+        if len(p)
+    ]
+    if not pieces:
+        return None
+    beside = np.concatenate([p for _, p in pieces])
+    if len(beside) < _SUPPORT.support_min_points:
+        return None
+    # A fixed seed: the same lines give the same support (decide has no frame seed).
+    mask = find_support_plane(beside, _SUPPORT, np.random.Generator(np.random.PCG64(0)))
+    if mask is None:
+        return None
+    owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
+    per_line = np.bincount(owner.compress(mask), minlength=len(lines))
+    if np.count_nonzero(per_line >= _SUPPORT_MIN_LINE_POINTS) < 2:
+        return None
+    support = PlaneSolid.estimate(beside.compress(mask, axis=0))
+    if not support:
+        return None
+    if isinstance(solid, CylinderSolid):
+        if abs(float(support.normal @ solid.axis)) > math.sin(params.rest_max_tilt_rad):
+            return None
+        centre = solid.point
+    else:
+        centre = solid.center
+    height = float((centre - support.point) @ support.normal)
+    gap = abs(height - solid.radius)
+    # Within the solids' threshold the fit already stands on the support: it keeps its own
+    # width (an arched banana's middle stands a millimetre above the table it touches).
+    if gap <= params.solid_threshold_m or gap > params.rest_gap_ratio * solid.radius:
+        return None
+    # Every sample of the runs: the contact holds the fit where a free one would follow a
+    # fattened tail, and a fit that was far off leaves few samples near it to choose.
+    clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
+    radius = resting_radius(clean, support, solid)
+    lo, hi = params.radius_limits_m
+    return 2 * radius if radius is not None and lo <= radius <= hi else None
 
 
 def _pixel_rad(lines: list[LineModels], params: LaserParams) -> float:
@@ -1856,10 +1936,16 @@ def _span_across(solid: CylinderSolid, points: np.ndarray) -> float:
 
 
 def _round_width(
-    solid: CylinderSolid, full: CylinderSolid, clean: np.ndarray, params: LaserParams
+    solid: CylinderSolid,
+    full: CylinderSolid,
+    clean: np.ndarray,
+    params: LaserParams,
+    resting: float | None = None,
 ) -> float:
-    """The diameter of ``solid``, or the spread of the lines' runs across its axis where that
-    is wider than any inlier of ``full`` (the fit on every inlier) could spread.
+    """The diameter of ``solid`` (or ``resting``, its width from the support, when given), or
+    the spread of the lines' runs across its axis where that is wider than any inlier of
+    ``full`` (the fit on every inlier) could spread: then the object is no round cylinder, and
+    how high it stands says nothing of how wide it is.
 
     No two points within ``solid_threshold_m`` of a cylinder lie farther apart across its axis
     than its diameter plus twice that. Runs that do are on an object only roughly a cylinder
@@ -1872,7 +1958,7 @@ def _round_width(
     span = _span_across(solid, clean)
     if span > 2 * (full.radius + params.solid_threshold_m):
         return span
-    return 2 * solid.radius
+    return 2 * solid.radius if resting is None else resting
 
 
 def _without_end_plateaus(

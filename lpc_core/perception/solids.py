@@ -531,6 +531,59 @@ def hemisphere_directions(count: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
+def resting_radius(
+    points: np.ndarray,
+    support: PlaneSolid,
+    solid: SphereSolid | CylinderSolid,
+    *,
+    iterations: int = 10,
+) -> float | None:
+    """The radius of ``solid`` refitted to ``points`` as a round that touches ``support``: a
+    sphere whose centre stands its radius above the plane, or a cylinder whose axis runs along
+    the plane (``solid``'s axis, laid into it) at its radius above it; ``None`` when the fit
+    fails.
+
+    Least squares of the orthogonal distances by Gauss-Newton over the centre's place on the
+    plane (2 for a sphere, 1 across a cylinder's axis) and the radius, from ``solid``. The
+    contact removes the freedom a short arc leaves a free fit: to trade its radius against its
+    centre's depth.
+    """
+    points = _as_points(points, 4)
+    n = support.normal
+    d = points - support.point
+    if isinstance(solid, CylinderSolid):
+        along = solid.axis - (solid.axis @ n) * n
+        length = math.sqrt(float(along @ along))
+        if length < 1e-9:
+            return None  # the axis stands on the plane: no cylinder lies on it
+        across = np.cross(n, along / length)
+        basis = np.array([across, n])
+        centre = solid.point - support.point
+    else:
+        e1, e2 = orthonormal_basis(n)
+        basis = np.array([e1, e2, n])
+        centre = solid.center - support.point
+    coords = d @ basis.T  # on the plane (1 or 2), then the height above it
+    x = centre @ basis.T
+    x[-1] = solid.radius
+    for _ in range(iterations):
+        offsets = coords - x  # the centre is x itself: its height is the radius
+        dist = np.sqrt(np.add.reduce(offsets * offsets, axis=1))
+        if not np.all(dist > 0):
+            return None
+        unit = offsets / dist[:, None]
+        jacobian = -unit
+        jacobian[:, -1] -= 1.0
+        step = np.linalg.lstsq(jacobian, x[-1] - dist, rcond=None)[0]
+        x = x + step
+        if not np.all(np.isfinite(x)):
+            return None
+        if float(np.abs(step).max()) < 1e-7:
+            break
+    radius = float(x[-1])
+    return radius if radius > 0 else None
+
+
 __all__ = [
     "CylinderSolid",
     "FailedSolid",
@@ -542,6 +595,7 @@ __all__ = [
     "fit_circle_2d",
     "hemisphere_directions",
     "orthonormal_basis",
+    "resting_radius",
     "silhouette_distance",
     "squared_norms",
 ]
