@@ -1,4 +1,4 @@
-"""A round that rests on the table is fitted again touching it (``solids.resting_radius``,
+"""A round that rests on the table is fitted again touching it (``solids.resting_width``,
 ``laser._resting_width``): on a short arc under a stereo matcher's staircase a free fit trades
 its radius against its centre's depth, and the contact with the support pins it."""
 
@@ -11,9 +11,15 @@ import pytest
 
 from lpc_core.perception.laser import LaserParams, LineModels, _resting_width, reconstruct_laser
 from lpc_core.perception.scans import cut_scan_lines
-from lpc_core.perception.solids import CylinderSolid, PlaneSolid, SphereSolid, resting_radius
+from lpc_core.perception.solids import PlaneSolid, SphereSolid, resting_width
 
 TABLE = PlaneSolid(point=np.array([0.0, 0.0, 0.22]), normal=np.array([0.0, 0.0, -1.0]))
+RULES = {
+    "gap_ratio": 0.7,
+    "max_tilt_rad": math.radians(10.0),
+    "tolerance_m": 0.0015,
+    "radius_limits_m": (0.005, 0.1),
+}
 
 
 def _cap(centre: np.ndarray, radius: float, count: int = 200, half_angle_deg: float = 60.0):
@@ -32,33 +38,29 @@ def test_a_ball_fitted_too_wide_is_refitted_touching_the_table() -> None:
     sits 6 mm too deep comes back to 40 mm within 0.1 mm."""
     centre = np.array([0.0, 0.0, 0.20])
     points = _cap(centre, 0.02)
-    wrong = SphereSolid(center=centre + np.array([0.0, 0.0, 0.006]), radius=0.026)
-    radius = resting_radius(points, TABLE, wrong)
-    assert radius is not None
-    assert abs(2 * radius - 0.040) < 1e-4
+    width = resting_width(points, TABLE, centre + np.array([0.0, 0.0, 0.006]), 0.026, **RULES)
+    assert width is not None
+    assert abs(width - 0.040) < 1e-4
 
 
 def test_a_lying_cylinder_fitted_too_narrow_is_refitted_touching_the_table() -> None:
     """A 40 mm cylinder lying along x on the table, seen over its top 120 degrees: a fit of
-    28 mm whose axis is 6 mm off across it comes back to 40 mm within 0.1 mm."""
+    30 mm whose axis is 6 mm off across it and 2 mm off its tilt comes back to 40 mm within
+    0.1 mm."""
     angle = np.radians(np.linspace(-60.0, 60.0, 40))
     along = np.linspace(-0.03, 0.03, 5)
     a, x = np.meshgrid(angle, along)
     points = np.column_stack([x.ravel(), 0.02 * np.sin(a.ravel()), 0.20 - 0.02 * np.cos(a.ravel())])
-    wrong = CylinderSolid(
-        point=np.array([0.0, 0.006, 0.196]), axis=np.array([1.0, 0.0, 0.0]), radius=0.014
-    )
-    radius = resting_radius(points, TABLE, wrong)
-    assert radius is not None
-    assert abs(2 * radius - 0.040) < 1e-4
+    axis = np.array([math.cos(0.035), 0.0, math.sin(0.035)])
+    width = resting_width(points, TABLE, np.array([0.0, 0.006, 0.196]), 0.015, axis, **RULES)
+    assert width is not None
+    assert abs(width - 0.040) < 1e-4
 
 
 def test_a_cylinder_standing_on_the_plane_does_not_lie_on_it() -> None:
     points = _cap(np.array([0.0, 0.0, 0.20]), 0.02)
-    upright = CylinderSolid(
-        point=np.array([0.0, 0.0, 0.2]), axis=np.array([0.0, 0.0, 1.0]), radius=0.02
-    )
-    assert resting_radius(points, TABLE, upright) is None
+    upright = np.array([0.0, 0.0, 1.0])
+    assert resting_width(points, TABLE, np.array([0.0, 0.0, 0.2]), 0.015, upright, **RULES) is None
 
 
 def _star(table_z: float, radius: float = 0.02) -> list[LineModels]:

@@ -65,7 +65,7 @@ from lpc_core.perception.solids import (
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
-    resting_radius,
+    resting_width,
     squared_norms,
 )
 
@@ -1812,15 +1812,13 @@ _SUPPORT_MIN_LINE_POINTS = 10
 def _resting_width(
     lines: list[LineModels], solid: SphereSolid | CylinderSolid, params: LaserParams
 ) -> float | None:
-    """The width of a round that rests on the support: its fit again, touching the support
-    (``solids.resting_radius``); ``None`` when the lines show no support or the round does
-    not rest on it.
+    """The width of a round that rests on the support, fitted again touching it
+    (``solids.resting_width``); ``None`` when the lines show no support or the round does not
+    rest on it.
 
     The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
-    almost no sample behind it) among the lines' samples off their pierced segments, on at
-    least two lines so that it is a plane and not one line's trace. A sphere rests on it when
-    its centre stands about a radius above it; a cylinder when its axis also runs along it.
-    A fit whose surface is already within ``solid_threshold_m`` of the support keeps its own.
+    almost no sample behind it) among the lines' samples off the round's runs, on at least two
+    lines so that it is a plane and not one line's trace.
     """
     if params.rest_gap_ratio == 0:
         return None
@@ -1846,24 +1844,21 @@ def _resting_width(
     support = PlaneSolid.estimate(beside.compress(mask, axis=0))
     if not support:
         return None
-    if isinstance(solid, CylinderSolid):
-        if abs(float(support.normal @ solid.axis)) > math.sin(params.rest_max_tilt_rad):
-            return None
-        centre = solid.point
-    else:
-        centre = solid.center
-    height = float((centre - support.point) @ support.normal)
-    gap = abs(height - solid.radius)
-    # Within the solids' threshold the fit already stands on the support: it keeps its own
-    # width (an arched banana's middle stands a millimetre above the table it touches).
-    if gap <= params.solid_threshold_m or gap > params.rest_gap_ratio * solid.radius:
-        return None
     # Every sample of the runs: the contact holds the fit where a free one would follow a
     # fattened tail, and a fit that was far off leaves few samples near it to choose.
     clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
-    radius = resting_radius(clean, support, solid)
-    lo, hi = params.radius_limits_m
-    return 2 * radius if radius is not None and lo <= radius <= hi else None
+    cylinder = isinstance(solid, CylinderSolid)
+    return resting_width(
+        clean,
+        support,
+        solid.point if cylinder else solid.center,
+        solid.radius,
+        solid.axis if cylinder else None,
+        gap_ratio=params.rest_gap_ratio,
+        max_tilt_rad=params.rest_max_tilt_rad,
+        tolerance_m=params.solid_threshold_m,
+        radius_limits_m=params.radius_limits_m,
+    )
 
 
 def _pixel_rad(lines: list[LineModels], params: LaserParams) -> float:

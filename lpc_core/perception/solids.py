@@ -531,48 +531,57 @@ def hemisphere_directions(count: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def resting_radius(
+def resting_width(
     points: np.ndarray,
     support: PlaneSolid,
-    solid: SphereSolid | CylinderSolid,
+    centre: np.ndarray,
+    radius: float,
+    axis: np.ndarray | None = None,
     *,
-    iterations: int = 10,
+    gap_ratio: float,
+    max_tilt_rad: float,
+    tolerance_m: float,
+    radius_limits_m: tuple[float, float],
 ) -> float | None:
-    """The radius of ``solid`` refitted to ``points`` as a round that touches ``support``: a
-    sphere whose centre stands its radius above the plane, or a cylinder whose axis runs along
-    the plane (``solid``'s axis, laid into it) at its radius above it; ``None`` when the fit
-    fails.
+    """The width of a round fitted again to ``points`` touching ``support``, when it rests on
+    it; ``None`` when it does not, or when the fit fails or leaves ``radius_limits_m``.
 
-    Least squares of the orthogonal distances by Gauss-Newton over the centre's place on the
-    plane (2 for a sphere, 1 across a cylinder's axis) and the radius, from ``solid``. The
-    contact removes the freedom a short arc leaves a free fit: to trade its radius against its
-    centre's depth.
+    The round is a sphere (``centre``, ``radius``), or a cylinder whose ``axis`` passes through
+    ``centre``. It rests on the support when its surface comes within ``gap_ratio`` of its
+    radius of the plane and, a cylinder, when its axis also runs along the plane within
+    ``max_tilt_rad``. A fit already within ``tolerance_m`` of the plane keeps its own width
+    (``None``): the contact would move it by less than the fit's own noise, and an arched
+    object (a banana) stands that much above the table it touches.
+
+    The refit is least squares of the orthogonal distances by Gauss-Newton over the centre's
+    place on the plane (2 for a sphere, 1 across a cylinder's axis) and the radius, the centre
+    standing the radius above the plane. On a short arc a free fit's radius trades against its
+    centre's depth; the contact removes that freedom.
     """
-    points = _as_points(points, 4)
     n = support.normal
-    d = points - support.point
-    if isinstance(solid, CylinderSolid):
-        along = solid.axis - (solid.axis @ n) * n
-        length = math.sqrt(float(along @ along))
-        if length < 1e-9:
-            return None  # the axis stands on the plane: no cylinder lies on it
-        across = np.cross(n, along / length)
+    if axis is not None and abs(float(n @ axis)) > math.sin(max_tilt_rad):
+        return None
+    height = float((centre - support.point) @ n)
+    gap = abs(height - radius)
+    if gap <= tolerance_m or gap > gap_ratio * radius:
+        return None
+    points = _as_points(points, 4)
+    if axis is not None:
+        along = axis - (axis @ n) * n
+        across = np.cross(n, along / math.sqrt(float(along @ along)))
         basis = np.array([across, n])
-        centre = solid.point - support.point
     else:
         e1, e2 = orthonormal_basis(n)
         basis = np.array([e1, e2, n])
-        centre = solid.center - support.point
-    coords = d @ basis.T  # on the plane (1 or 2), then the height above it
-    x = centre @ basis.T
-    x[-1] = solid.radius
-    for _ in range(iterations):
+    coords = (points - support.point) @ basis.T  # on the plane (1 or 2), then the height
+    x = (centre - support.point) @ basis.T
+    x[-1] = radius
+    for _ in range(10):
         offsets = coords - x  # the centre is x itself: its height is the radius
         dist = np.sqrt(np.add.reduce(offsets * offsets, axis=1))
         if not np.all(dist > 0):
             return None
-        unit = offsets / dist[:, None]
-        jacobian = -unit
+        jacobian = offsets / -dist[:, None]
         jacobian[:, -1] -= 1.0
         step = np.linalg.lstsq(jacobian, x[-1] - dist, rcond=None)[0]
         x = x + step
@@ -580,8 +589,8 @@ def resting_radius(
             return None
         if float(np.abs(step).max()) < 1e-7:
             break
-    radius = float(x[-1])
-    return radius if radius > 0 else None
+    lo, hi = radius_limits_m
+    return 2 * float(x[-1]) if lo <= x[-1] <= hi else None
 
 
 __all__ = [
@@ -595,7 +604,7 @@ __all__ = [
     "fit_circle_2d",
     "hemisphere_directions",
     "orthonormal_basis",
-    "resting_radius",
+    "resting_width",
     "silhouette_distance",
     "squared_norms",
 ]
