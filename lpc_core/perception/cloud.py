@@ -26,7 +26,13 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.reconstruction import Reconstruction, wrap_half_turn
-from lpc_core.perception.solids import CylinderSolid, SphereSolid, fattening_trim_m
+from lpc_core.perception.solids import (
+    CylinderSolid,
+    PlaneSolid,
+    SphereSolid,
+    fattening_trim_m,
+    resting_width,
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -74,6 +80,13 @@ class CloudParams:
     # in by ``edge_fattening_px``.
     silhouette_margin_px: float = 6.0
     edge_fattening_px: float = 0.0
+    # A round resting on the supporting plane is fitted again touching it, as the four-line
+    # method does (``LaserParams.rest_gap_ratio``, ``solids.resting_width``). 0 turns it off.
+    rest_gap_ratio: float = 0.7
+    rest_max_tilt_rad: float = float(np.radians(10.0))
+    # A table under the object holds thousands of points; a plane of a few hundred was as
+    # often a wall, or a box's face, as the table (SGBM 7, BM 5: balls 12-16 mm off on it).
+    rest_min_support_points: int = 500
     # With edge_fattening_px 0, measure it on each frame's scan lines (see
     # lpc_core.perception.laser.measured_fattening_px).
     measure_fattening: bool = True
@@ -95,6 +108,7 @@ class CloudParams:
         counts = (
             "support_trials", "min_segment_points", "sphere_trials", "cylinder_trials",
             "face_trials", "score_sample", "support_min_points", "fit_points",
+            "rest_min_support_points",
         )  # fmt: skip
         for name in counts:
             if getattr(self, name) < 1:
@@ -107,7 +121,12 @@ class CloudParams:
             raise ValueError("crop_z_max_m must be greater than crop_z_min_m")
         if self.radius_max_m <= self.radius_min_m:
             raise ValueError("radius_max_m must be greater than radius_min_m")
-        for name in ("silhouette_margin_px", "edge_fattening_px"):
+        for name in (
+            "silhouette_margin_px",
+            "edge_fattening_px",
+            "rest_gap_ratio",
+            "rest_max_tilt_rad",
+        ):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
@@ -1111,6 +1130,34 @@ def _none(reason: str, points: int, extra: dict[str, float]) -> Reconstruction:
     return Reconstruction(shape="none", method="cloud", reason=reason, points=points, extra=extra)
 
 
+def _resting_width(
+    segment: np.ndarray,
+    support: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+    axis: np.ndarray | None,
+    params: CloudParams,
+) -> float | None:
+    """The width of a round resting on the supporting plane (``support``, its points; none
+    when the frame had no such plane), fitted again touching it (``solids.resting_width``)."""
+    if params.rest_gap_ratio == 0 or len(support) < max(3, params.rest_min_support_points):
+        return None
+    plane = PlaneSolid.estimate(support)
+    if not plane:
+        return None
+    return resting_width(
+        segment,
+        plane,
+        centre,
+        radius,
+        axis,
+        gap_ratio=params.rest_gap_ratio,
+        max_tilt_rad=params.rest_max_tilt_rad,
+        tolerance_m=params.fit_threshold_m,
+        radius_limits_m=(params.radius_min_m, params.radius_max_m),
+    )
+
+
 def reconstruct_cloud(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -1184,20 +1231,29 @@ def reconstruct_cloud(
         return _none(f"best model ({shape}) explains {confidence:.0%} of the segment", used, extra)
     fit = fits[shape]
     pixel_rad = 1.0 / intrinsics.fx
+    support = cloud[~keep]
     if isinstance(fit, _Fit) and isinstance(fit.model, SphereModel):
         sphere = _camera_facing(segment, fit.model, params, pixel_rad)
+        resting = _resting_width(
+            segment[fit.inliers], support, sphere.center, sphere.radius, None, params
+        )
         return Reconstruction(
-            shape="sphere", method="cloud", grasp_width_m=2 * sphere.radius,
+            shape="sphere", method="cloud",
+            grasp_width_m=2 * sphere.radius if resting is None else resting,
             center_m=tuple(map(float, sphere.center)), confidence=confidence,
             points=used, extra=extra,
         )  # fmt: skip
     if isinstance(fit, _Fit) and isinstance(fit.model, CylinderModel):
         cylinder = _camera_facing(segment, fit.model, params, pixel_rad)
+        resting = _resting_width(
+            segment[fit.inliers], support, cylinder.center, cylinder.radius, cylinder.axis, params
+        )
         axis = _canonical_axis(cylinder.axis)
         on_axis = segment[fit.inliers] - cylinder.center
         middle = cylinder.center + float(np.median(on_axis @ axis)) * axis
         return Reconstruction(
-            shape="cylinder", method="cloud", grasp_width_m=2 * cylinder.radius,
+            shape="cylinder", method="cloud",
+            grasp_width_m=2 * cylinder.radius if resting is None else resting,
             wrist_angle_rad=_axis_angle(axis), center_m=tuple(map(float, middle)),
             axis=tuple(map(float, axis)), confidence=confidence, points=used, extra=extra,
         )  # fmt: skip
@@ -1208,7 +1264,7 @@ def reconstruct_cloud(
         extra["fattening_px"] = fattening
         params = replace(params, edge_fattening_px=fattening)
     width, axis, center = _cuboid_geometry(
-        segment, whole, fit, pierced, params, pixel_rad, support=cloud[~keep]
+        segment, whole, fit, pierced, params, pixel_rad, support=support
     )
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))
