@@ -407,26 +407,31 @@ def _runs(
     skip = (idx[1:] - idx[:-1] > 1).nonzero()[0]
     if not len(skip):
         return [idx]
-    a, b = idx[skip], idx[skip + 1]
-    d = points.take(b, axis=0) - points.take(a, axis=0)
-    dist2 = squared_norms(d)
-    split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
-    ends = split.nonzero()[0]
-    breaks = skip[ends].tolist()
-    if not breaks:
+    # The inliers either side of each gap, and their squared distance, in Python floats:
+    # a line has a few gaps, and numpy's calls on arrays that short cost more than the sums
+    # (the same sums as squared_norms, in the same order).
+    before, after = idx.take(skip), idx.take(skip + 1)
+    ends, starts = points.take(before, axis=0).tolist(), points.take(after, axis=0).tolist()
+    longest, gap2 = params.max_outlier_run + 1, params.segment_gap_m**2
+    split = []  # (position in idx, inlier before, inlier after, squared distance)
+    for at, i, j, p, q in zip(skip.tolist(), before.tolist(), after.tolist(), ends, starts,
+                              strict=True):  # fmt: skip
+        dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+        dist2 = dx * dx + dy * dy + dz * dz
+        if j - i > longest or dist2 > gap2:
+            split.append((at, i, j, dist2))
+    if not split:
         return [idx]
     if callable(front):
         front = front()
-    if front is not None:
+    if front is None:
+        breaks = [at for at, _, _, _ in split]
+    else:
         # behind[j]: points up to j that are not in front; none between two inliers is a bump.
         behind = np.cumsum(~front).tolist()
-        at = idx.tolist()
-        gaps = dist2[ends].tolist()
         limit = params.run_gap_m**2
         breaks = [
-            b
-            for b, g in zip(breaks, gaps, strict=True)
-            if not (behind[at[b + 1] - 1] == behind[at[b]] and g <= limit)
+            at for at, i, j, dist2 in split if not (behind[j - 1] == behind[i] and dist2 <= limit)
         ]
     bounds = [0, *(b + 1 for b in breaks), len(idx)]
     return [idx[a:b] for a, b in itertools.pairwise(bounds)]
