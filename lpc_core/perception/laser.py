@@ -1414,6 +1414,8 @@ class _Candidate:
     fraction: float = 0.0
     solid: Any = None
     reason: str = ""
+    # The solid's residuals on the lines' runs, for _camera_facing's first pass.
+    residuals: np.ndarray | None = None
 
     @property
     def score(self) -> float:
@@ -1427,7 +1429,8 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     first = PlaneSolid.estimate(clean)
     if not first:
         return _Candidate("cuboid", reason=first.reason)
-    fraction = _fraction(first.residuals(clean), thr)
+    residuals = first.residuals(clean)
+    fraction = _fraction(residuals, thr)
     if fraction >= 1.0 - params.cuboid_margin:
         return _Candidate("cuboid", fraction, first)
     # The planes through two runs' end points, in Python floats (six pairs of 3-vectors).
@@ -1448,7 +1451,8 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
-    inliers = clean.compress(solid.residuals(clean) <= thr, axis=0)
+        residuals = solid.residuals(clean)
+    inliers = clean.compress(residuals <= thr, axis=0)
     if len(inliers) >= 3:
         solid = PlaneSolid.estimate(inliers) or solid
     return _Candidate("cuboid", _fraction(solid.residuals(clean), thr), solid)
@@ -1481,7 +1485,7 @@ def _sphere_candidate(
     # The paper's rule: a sphere's centre lies beyond the surface seen (not a hollow).
     if solid.center[2] - float(clean[:, 2].min()) < params.sphere_depth_ratio * solid.radius:
         return _Candidate("sphere", solid=solid, reason="centre not beyond the surface")
-    return _Candidate("sphere", _fraction(residuals, thr), solid)
+    return _Candidate("sphere", _fraction(residuals, thr), solid, residuals=residuals)
 
 
 def _axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.ndarray]:
@@ -1575,7 +1579,7 @@ def _cylinder_candidate(
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
     if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
-    return _Candidate("cylinder", _fraction(residuals, thr), solid)
+    return _Candidate("cylinder", _fraction(residuals, thr), solid, residuals=residuals)
 
 
 _GRID_CACHE: dict[int, np.ndarray] = {}
@@ -1709,7 +1713,9 @@ def _decide(
             # plateaus, without _camera_facing's trim (see _fattened).
             solid = free
         else:
-            solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
+            solid = _camera_facing(
+                solid, clean, params, _pixel_rad(lines, params), candidates[shape].residuals
+            )
             if params.end_plateaus:
                 solid = _without_end_plateaus(lines, full, solid, params)
     if shape == "sphere":
@@ -1801,7 +1807,11 @@ def _pixel_rad(lines: list[LineModels], params: LaserParams) -> float:
 
 
 def _camera_facing(
-    solid: SphereSolid | CylinderSolid, clean: np.ndarray, params: LaserParams, pixel_rad: float
+    solid: SphereSolid | CylinderSolid,
+    clean: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
+    residuals: np.ndarray | None = None,
 ) -> SphereSolid | CylinderSolid:
     """The solid refitted on its inliers at least ``silhouette_margin_px`` inside its
     silhouette: the arc that faces the camera, which edge fattening and the steep rim do not
@@ -1809,7 +1819,7 @@ def _camera_facing(
     its silhouette too wide: a second pass trims against the refitted one. The solid as it
     was when too few points remain, the refit fails, its diameter is within
     ``silhouette_tolerance_m`` (or 4 sd) of the refit's, or it exceeds it by more than the
-    margin on both sides."""
+    margin on both sides. ``residuals``: the solid's on ``clean``, where the caller has them."""
     margin = params.silhouette_margin_px * pixel_rad
     if margin <= 0:
         return solid
@@ -1819,7 +1829,10 @@ def _camera_facing(
     need = max(params.min_points_per_line, len(clean) // 4)
     keep = np.zeros(len(clean), dtype=bool)
     for _ in range(3):
-        trusted = (solid.residuals(clean) <= thr) & (solid.silhouette_distance(clean) >= margin)
+        if residuals is None:
+            residuals = solid.residuals(clean)
+        trusted = (residuals <= thr) & (solid.silhouette_distance(clean) >= margin)
+        residuals = None  # those of the refit, next pass
         if np.count_nonzero(trusted) < need:
             break
         keep = trusted
