@@ -421,26 +421,31 @@ def _runs(
     skip = (idx[1:] - idx[:-1] > 1).nonzero()[0]
     if not len(skip):
         return [idx]
-    a, b = idx[skip], idx[skip + 1]
-    d = points.take(b, axis=0) - points.take(a, axis=0)
-    dist2 = squared_norms(d)
-    split = ((b - a) > params.max_outlier_run + 1) | (dist2 > params.segment_gap_m**2)
-    ends = split.nonzero()[0]
-    breaks = skip[ends].tolist()
-    if not breaks:
+    # The inliers either side of each gap, and their squared distance, in Python floats:
+    # a line has a few gaps, and numpy's calls on arrays that short cost more than the sums
+    # (the same sums as squared_norms, in the same order).
+    before, after = idx.take(skip), idx.take(skip + 1)
+    ends, starts = points.take(before, axis=0).tolist(), points.take(after, axis=0).tolist()
+    longest, gap2 = params.max_outlier_run + 1, params.segment_gap_m**2
+    split = []  # (position in idx, inlier before, inlier after, squared distance)
+    for at, i, j, p, q in zip(skip.tolist(), before.tolist(), after.tolist(), ends, starts,
+                              strict=True):  # fmt: skip
+        dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+        dist2 = dx * dx + dy * dy + dz * dz
+        if j - i > longest or dist2 > gap2:
+            split.append((at, i, j, dist2))
+    if not split:
         return [idx]
     if callable(front):
         front = front()
-    if front is not None:
+    if front is None:
+        breaks = [at for at, _, _, _ in split]
+    else:
         # behind[j]: points up to j that are not in front; none between two inliers is a bump.
         behind = np.cumsum(~front).tolist()
-        at = idx.tolist()
-        gaps = dist2[ends].tolist()
         limit = params.run_gap_m**2
         breaks = [
-            b
-            for b, g in zip(breaks, gaps, strict=True)
-            if not (behind[at[b + 1] - 1] == behind[at[b]] and g <= limit)
+            at for at, i, j, dist2 in split if not (behind[j - 1] == behind[i] and dist2 <= limit)
         ]
     bounds = [0, *(b + 1 for b in breaks), len(idx)]
     return [idx[a:b] for a, b in itertools.pairwise(bounds)]
@@ -1424,6 +1429,8 @@ class _Candidate:
     fraction: float = 0.0
     solid: Any = None
     reason: str = ""
+    # The solid's residuals on the lines' runs, for _camera_facing's first pass.
+    residuals: np.ndarray | None = None
 
     @property
     def score(self) -> float:
@@ -1437,7 +1444,8 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     first = PlaneSolid.estimate(clean)
     if not first:
         return _Candidate("cuboid", reason=first.reason)
-    fraction = _fraction(first.residuals(clean), thr)
+    residuals = first.residuals(clean)
+    fraction = _fraction(residuals, thr)
     if fraction >= 1.0 - params.cuboid_margin:
         return _Candidate("cuboid", fraction, first)
     # The planes through two runs' end points, in Python floats (six pairs of 3-vectors).
@@ -1458,7 +1466,8 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
-    inliers = clean.compress(solid.residuals(clean) <= thr, axis=0)
+        residuals = solid.residuals(clean)
+    inliers = clean.compress(residuals <= thr, axis=0)
     if len(inliers) >= 3:
         solid = PlaneSolid.estimate(inliers) or solid
     return _Candidate("cuboid", _fraction(solid.residuals(clean), thr), solid)
@@ -1491,7 +1500,7 @@ def _sphere_candidate(
     # The paper's rule: a sphere's centre lies beyond the surface seen (not a hollow).
     if solid.center[2] - float(clean[:, 2].min()) < params.sphere_depth_ratio * solid.radius:
         return _Candidate("sphere", solid=solid, reason="centre not beyond the surface")
-    return _Candidate("sphere", _fraction(residuals, thr), solid)
+    return _Candidate("sphere", _fraction(residuals, thr), solid, residuals=residuals)
 
 
 def _axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.ndarray]:
@@ -1585,7 +1594,7 @@ def _cylinder_candidate(
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
     if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
-    return _Candidate("cylinder", _fraction(residuals, thr), solid)
+    return _Candidate("cylinder", _fraction(residuals, thr), solid, residuals=residuals)
 
 
 _GRID_CACHE: dict[int, np.ndarray] = {}
@@ -1719,7 +1728,9 @@ def _decide(
             # plateaus, without _camera_facing's trim (see _fattened).
             solid = free
         else:
-            solid = _camera_facing(solid, clean, params, _pixel_rad(lines, params))
+            solid = _camera_facing(
+                solid, clean, params, _pixel_rad(lines, params), candidates[shape].residuals
+            )
             if params.end_plateaus:
                 solid = _without_end_plateaus(lines, full, solid, params)
     resting = _resting_width(lines, solid, params) if shape in ("sphere", "cylinder") else None
@@ -1871,7 +1882,11 @@ def _pixel_rad(lines: list[LineModels], params: LaserParams) -> float:
 
 
 def _camera_facing(
-    solid: SphereSolid | CylinderSolid, clean: np.ndarray, params: LaserParams, pixel_rad: float
+    solid: SphereSolid | CylinderSolid,
+    clean: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
+    residuals: np.ndarray | None = None,
 ) -> SphereSolid | CylinderSolid:
     """The solid refitted on its inliers at least ``silhouette_margin_px`` inside its
     silhouette: the arc that faces the camera, which edge fattening and the steep rim do not
@@ -1879,7 +1894,7 @@ def _camera_facing(
     its silhouette too wide: a second pass trims against the refitted one. The solid as it
     was when too few points remain, the refit fails, its diameter is within
     ``silhouette_tolerance_m`` (or 4 sd) of the refit's, or it exceeds it by more than the
-    margin on both sides."""
+    margin on both sides. ``residuals``: the solid's on ``clean``, where the caller has them."""
     margin = params.silhouette_margin_px * pixel_rad
     if margin <= 0:
         return solid
@@ -1889,7 +1904,10 @@ def _camera_facing(
     need = max(params.min_points_per_line, len(clean) // 4)
     keep = np.zeros(len(clean), dtype=bool)
     for _ in range(3):
-        trusted = (solid.residuals(clean) <= thr) & (solid.silhouette_distance(clean) >= margin)
+        if residuals is None:
+            residuals = solid.residuals(clean)
+        trusted = (residuals <= thr) & (solid.silhouette_distance(clean) >= margin)
+        residuals = None  # those of the refit, next pass
         if np.count_nonzero(trusted) < need:
             break
         keep = trusted

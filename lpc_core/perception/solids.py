@@ -259,26 +259,33 @@ class SphereSolid:
         rows = np.ascontiguousarray(points.T)
         aug = np.empty((5, len(points)))
         aug[3] = -1.0
+        w, squares, jacobian, residual = np.empty(rows.shape), np.empty(rows.shape), aug[:3], aug[4]
+        c = center.tolist()
         for _ in range(iterations):
-            w = rows - center[:, None]
-            rho = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+            # The centre as a (3, 1) column from Python floats, and the squares summed down
+            # the rows by one reduction (it adds x^2 + y^2, then z^2, as three row sums did):
+            # a frame fits up to ten spheres of two to four passes, and each numpy call here
+            # costs more than its arithmetic.
+            np.subtract(rows, np.array([[c[0]], [c[1]], [c[2]]]), out=w)
+            rho = np.sqrt(np.add.reduce(np.multiply(w, w, out=squares), axis=0))
             if not rho.min() > 0:
                 return FailedSolid("a point sits on the centre")
-            np.divide(w, -rho, out=aug[:3])
-            np.subtract(radius, rho, out=aug[4])
+            np.divide(w, -rho, out=jacobian)
+            np.subtract(radius, rho, out=residual)
             normal = aug @ aug.T
             try:
                 step = _solve(normal[:4, :4], normal[:4, 4])
             except np.linalg.LinAlgError:
                 return FailedSolid("points do not fix a sphere")
-            center = center + step[:3]
+            c = [c[0] + step[0], c[1] + step[1], c[2] + step[2]]
             radius += step[3]
             # As numpy's max would, a NaN step does not stop the iteration.
-            if all(abs(v) < 1e-7 for v in step):
+            s0, s1, s2, s3 = step
+            if abs(s0) < 1e-7 and abs(s1) < 1e-7 and abs(s2) < 1e-7 and abs(s3) < 1e-7:
                 break
-        if not np.isfinite(radius) or radius <= 0:
+        if not math.isfinite(radius) or radius <= 0:
             return FailedSolid("radius did not converge")
-        return cls(center=center, radius=radius)
+        return cls(center=np.array(c), radius=radius)
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         w = np.asarray(points, dtype=np.float64) - self.center
