@@ -56,7 +56,6 @@ from services.mcap_log import (
     LogWriter,
     check_zstd_level,
     free_path,
-    read_header,
 )
 from services.runtime import Bus, run_service, service_parser
 
@@ -107,12 +106,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 def _record(
     bus: Bus, writer: LogWriter, gaps: GapState, key: str, payload: bytes, received_ns: int
 ) -> GapState:
-    if not writer.write_received(key, payload, received_ns):
+    header = writer.write_received(key, payload, received_ns)
+    if header is None:
         bus.health.received[key].rejected += 1
         bus.reject(key, "no readable seq/t_ns header; kept raw on lpc/_rejected/" + key)
     bus.health.counters["written"] += 1
     bus.health.counters["files"] = len(writer.paths)
-    header = read_header(payload)
     if header is not None and not key.startswith("lpc/log/recorder"):
         gaps, found = gap_step(gaps, key, header[0], received_ns)
         for gap in found:
