@@ -283,8 +283,9 @@ class Subscription:
     ``prompt=False`` (a subscriber that records rather than reacts): in a process with a
     ``Router``, a sample that arrives on another thread (Zenoh's, or the container's control
     loop) and that no prompt subscription of this loop wants does not wake the loop; it is
-    handed over at the loop's next wake-up, within ``UNPROMPTED_PERIOD_S``. Its receive time is
-    still taken when it arrives.
+    handed over at the loop's next wake-up, within ``UNPROMPTED_PERIOD_S``. Nor does a sample
+    wake the subscriber's task: that takes what is queued every ``UNPROMPTED_PERIOD_S``, in one
+    go. A sample's receive time is still taken when it arrives.
     """
 
     def __init__(
@@ -326,7 +327,8 @@ class Subscription:
         if len(self._queue) == self._queue.maxlen:
             self._bus.health.received[item[0]].dropped += 1
         self._queue.append(item)
-        self._ready.set()
+        if self.prompt or self._router is None:
+            self._ready.set()
 
     async def receive(self) -> tuple[str, Any, int]:
         """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
@@ -514,8 +516,12 @@ class Router:
             return subs, self._prompt[key]
 
     def _hand_over(self) -> None:
-        # On the loop: what waited for a wake-up is handed over now, at the latest.
+        # On the loop: what waited for a wake-up is handed over now, at the latest, and the
+        # subscribers that are not prompt are woken for all they have queued since the last time.
         self._drain()
+        for sub in self._subs:
+            if not sub.prompt and sub._queue:
+                sub._ready.set()
         if any(not s.prompt for s in self._subs):
             self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
         else:

@@ -208,6 +208,9 @@ def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: 
         bus = Bus(session, "recorder", loop=loop, router=router, quiet=True)
         lazy = bus.subscribe("lpc/emg", latest=False, prompt=False)
         stamps: list[tuple[int, int]] = []
+        router.deliver("lpc/emg", encode(EmgSample(seq=1000, t_ns=1, channels=[0.0])))
+        assert lazy._queue and not lazy._ready.is_set(), "its task is not woken per sample"
+        assert (await lazy.receive())[1].seq == 1000, "but within the hand-over period"
 
         def publish(first: int) -> None:  # another thread: the control loop's, say
             for seq in range(first, first + 50):
