@@ -86,7 +86,7 @@ def gap_step(state: GapState, key: str, seq: int, received_ns: int) -> tuple[Gap
     track = state.tracks.get(key)
     gaps: list[Gap] = []
     if track is None:
-        new = _Track(seq=seq, last_ns=received_ns)
+        new = _track(seq, received_ns, None, 1)
     else:
         dt = received_ns - track.last_ns
         missing = seq - track.seq - 1 if seq > track.seq and key not in SOURCE_SEQ_KEYS else 0
@@ -103,9 +103,14 @@ def gap_step(state: GapState, key: str, seq: int, received_ns: int) -> tuple[Gap
         period = track.period_ns
         if not silent:
             period = float(dt) if period is None else 0.9 * period + 0.1 * dt
-        new = _Track(seq=seq, last_ns=received_ns, period_ns=period, count=track.count + 1)
-    tracks = dict(state.tracks)
+        new = _track(seq, received_ns, period, track.count + 1)
+    # The proxy's copy() is its dict's: dict(proxy) would go key by key through the proxy.
+    tracks = (
+        state.tracks.copy() if isinstance(state.tracks, MappingProxyType) else dict(state.tracks)
+    )
     tracks[key] = new
+    if not gaps:
+        return evolve(state, tracks=MappingProxyType(tracks)), gaps
     state = evolve(
         state,
         tracks=MappingProxyType(tracks),
@@ -113,3 +118,11 @@ def gap_step(state: GapState, key: str, seq: int, received_ns: int) -> tuple[Gap
         missing=state.missing + sum(g.missing for g in gaps),
     )
     return state, gaps
+
+
+def _track(seq: int, last_ns: int, period_ns: float | None, count: int) -> _Track:
+    """``_Track(...)`` without the frozen dataclass's ``__init__``, whose ``object.__setattr__``
+    per field made it most of a step: the recorder takes one step per message it writes."""
+    track = object.__new__(_Track)
+    track.__dict__.update(seq=seq, last_ns=last_ns, period_ns=period_ns, count=count)
+    return track

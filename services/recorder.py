@@ -1,9 +1,12 @@
 """Recorder service: every ``lpc/**`` message to MCAP, in the order it arrived.
 
-One subscriber on ``lpc/**`` keeps arrival order across topics. ``log_time`` is the receive
-time, ``publish_time`` the message's ``t_ns``. A payload without a readable header is counted as
-rejected and kept raw on ``lpc/_rejected/<key>``. Files rotate past ``--max-mb``; the file is
-finished on SIGINT/SIGTERM, after the messages already received are written.
+One subscriber on ``lpc/**`` keeps arrival order across topics, but for the samples of other
+threads in the container, which it takes at its loop's next wake-up (``prompt=False``) and so
+may write after a later one of its own loop. ``log_time`` is the receive time (for those too,
+when they arrived), ``publish_time`` the message's ``t_ns``. A payload without a readable
+header is counted as rejected and kept raw on ``lpc/_rejected/<key>``. Files rotate past
+``--max-mb``; the file is finished on SIGINT/SIGTERM, after the messages already received are
+written.
 
 Gaps (``lpc_core.gaps``: a steady topic silent for 10 of its periods and 0.5 s, or a ``seq``
 that jumped) are counted in the health counters (``gaps``, ``missing``) and each is logged on
@@ -53,7 +56,6 @@ from services.mcap_log import (
     LogWriter,
     check_zstd_level,
     free_path,
-    read_header,
 )
 from services.runtime import Bus, run_service, service_parser
 
@@ -72,7 +74,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     writer = LogWriter(
         out, compression=args.compression, max_bytes=max_bytes, zstd_level=args.zstd_level
     )
-    sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY, decode=False)
+    # Not prompt: what other threads publish is written when the loop wakes anyway (a depth
+    # frame, at 90 Hz), not at a wake-up of its own (see ``Subscription``).
+    sub = bus.subscribe("lpc/**", latest=False, capacity=QUEUE_CAPACITY, decode=False, prompt=False)
     level = f" level {args.zstd_level}" if args.compression == "zstd" else ""
     bus.log("info", f"recording lpc/** to {out} ({args.compression}{level})")
     gaps = GapState()
@@ -102,12 +106,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 def _record(
     bus: Bus, writer: LogWriter, gaps: GapState, key: str, payload: bytes, received_ns: int
 ) -> GapState:
-    if not writer.write_received(key, payload, received_ns):
+    header = writer.write_received(key, payload, received_ns)
+    if header is None:
         bus.health.received[key].rejected += 1
         bus.reject(key, "no readable seq/t_ns header; kept raw on lpc/_rejected/" + key)
     bus.health.counters["written"] += 1
     bus.health.counters["files"] = len(writer.paths)
-    header = read_header(payload)
     if header is not None and not key.startswith("lpc/log/recorder"):
         gaps, found = gap_step(gaps, key, header[0], received_ns)
         for gap in found:

@@ -34,6 +34,9 @@ from services.heap import keep_freed_memory
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 HEALTH_PERIOD_S = 1.0
 YIELD_AFTER_NS = 2_000_000  # a backlogged subscription yields the loop after this long
+# A subscription that is not ``prompt`` (the recorder's) gets the samples of other threads when
+# its loop wakes for something else, or at the latest after this long.
+UNPROMPTED_PERIOD_S = 0.05
 
 
 # --------------------------------------------------------------------------- clock
@@ -276,13 +279,30 @@ class Subscription:
     ``latest=True`` keeps only the newest undelivered sample (sensor topics: a slow consumer
     always gets the freshest frame; the ones it skipped are counted as dropped). Otherwise the
     queue is FIFO, bounded by ``capacity``; an overflow is counted, never silent.
+
+    ``prompt=False`` (a subscriber that records rather than reacts): in a process with a
+    ``Router``, a sample that arrives on another thread (Zenoh's, or the container's control
+    loop) and that no prompt subscription of this loop wants does not wake the loop; it is
+    handed over at the loop's next wake-up, within ``UNPROMPTED_PERIOD_S``. Nor does a sample
+    wake the subscriber's task: that takes what is queued every ``UNPROMPTED_PERIOD_S``, in one
+    go. A sample's receive time is still taken when it arrives.
     """
 
-    def __init__(self, bus: Bus, key: str, *, latest: bool, capacity: int, decode: bool) -> None:
+    def __init__(
+        self,
+        bus: Bus,
+        key: str,
+        *,
+        latest: bool,
+        capacity: int,
+        decode: bool,
+        prompt: bool = True,
+    ) -> None:
         self._bus = bus
         self.key = key
         self._latest = latest
         self._decode = decode
+        self.prompt = prompt
         self._queue: collections.deque[tuple[str, bytes, int]] = collections.deque(
             maxlen=1 if latest else capacity
         )
@@ -307,7 +327,8 @@ class Subscription:
         if len(self._queue) == self._queue.maxlen:
             self._bus.health.received[item[0]].dropped += 1
         self._queue.append(item)
-        self._ready.set()
+        if self.prompt or self._router is None:
+            self._ready.set()
 
     async def receive(self) -> tuple[str, Any, int]:
         """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
@@ -389,6 +410,8 @@ class Router:
         self._loop = loop
         self._subs: list[Subscription] = []
         self._routes: dict[str, list[Subscription]] = {}  # concrete key -> its subscriptions
+        self._prompt: dict[str, bool] = {}  # concrete key -> whether a sample wakes the loop
+        self._unprompted: asyncio.TimerHandle | None = None
         self._by_key: dict[str, tuple[zenoh.Subscriber, list[Subscription]]] = {}
         self._inbox: collections.deque[tuple[str | None, tuple[str, bytes, int]]] = (
             collections.deque()
@@ -421,6 +444,10 @@ class Router:
         with self._lock:
             self._subs.append(sub)
             self._routes.clear()
+            self._prompt.clear()
+        if not sub.prompt and self._unprompted is None:
+            # Called on this router's loop (a service's task subscribes): the timer is its own.
+            self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
         if self._wildcard is None and self._host is None:
             if sub.key not in self._by_key:
                 zsub = self._session.declare_subscriber(
@@ -434,6 +461,7 @@ class Router:
             with contextlib.suppress(ValueError):
                 self._subs.remove(sub)
             self._routes.clear()
+            self._prompt.clear()
         entry = self._by_key.get(sub.key)
         if entry is not None:
             with contextlib.suppress(ValueError):
@@ -445,10 +473,10 @@ class Router:
     def _on_sample(self, route: str | None, sample: zenoh.Sample) -> None:
         # Zenoh's thread: copy the payload out and queue it; wake the loop only if it sleeps.
         item = (str(sample.key_expr), sample.payload.to_bytes(), self._clock.now_ns())
-        self._enqueue(route, item)
+        self._enqueue(route, item, route is not None or self._wakes(item[0]))
         for rider in self._riders:
             if rider._subs_for(item[0]):
-                rider._enqueue(None, item)
+                rider._enqueue(None, item, rider._wakes(item[0]))
 
     def deliver(self, key: str, payload: bytes) -> None:
         """A sample published in this process, for the subscriptions of this router that want
@@ -462,12 +490,20 @@ class Router:
         if not subs:
             return  # a loop woken for nothing costs more than the check
         if not here:
-            self._enqueue(None, item)
+            self._enqueue(None, item, self._wakes(key))
             return
         for sub in subs:
             sub._push(item)
 
     def _subs_for(self, key: str) -> list[Subscription]:
+        return self._route(key)[0]
+
+    def _wakes(self, key: str) -> bool:
+        """Whether a sample on ``key`` from another thread is to wake this loop: a prompt
+        subscription wants it (or none does: the drain then finds nothing to do)."""
+        return self._route(key)[1]
+
+    def _route(self, key: str) -> tuple[list[Subscription], bool]:
         # Under the lock: a publisher on another loop's thread reads the routes while this
         # loop adds a subscription, and a route cached from before the add would miss it.
         with self._lock:
@@ -476,11 +512,27 @@ class Router:
                 concrete = zenoh.KeyExpr(key)
                 subs = [s for s in self._subs if zenoh.KeyExpr(s.key).intersects(concrete)]
                 self._routes[key] = subs
-            return subs
+                self._prompt[key] = not subs or any(s.prompt for s in subs)
+            return subs, self._prompt[key]
 
-    def _enqueue(self, route: str | None, item: tuple[str, bytes, int]) -> None:
+    def _hand_over(self) -> None:
+        # On the loop: what waited for a wake-up is handed over now, at the latest, and the
+        # subscribers that are not prompt are woken for all they have queued since the last time.
+        self._drain()
+        for sub in self._subs:
+            if not sub.prompt and sub._queue:
+                sub._ready.set()
+        if any(not s.prompt for s in self._subs):
+            self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
+        else:
+            self._unprompted = None
+
+    def _enqueue(self, route: str | None, item: tuple[str, bytes, int], wake: bool) -> None:
+        # A sample that wakes no one waits in the inbox for the next drain: the loop's next
+        # wake-up for any other reason, or the hand-over timer. One loop wake-up costs more
+        # than handing a sample over (the recorder alone took ~300 of them a second).
         self._inbox.append((route, item))
-        if not self._scheduled:
+        if wake and not self._scheduled:
             self._scheduled = True
             with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
                 self._loop.call_soon_threadsafe(self._drain)
@@ -500,6 +552,9 @@ class Router:
                 sub._push(item)
 
     def close(self) -> None:
+        if self._unprompted is not None:
+            self._unprompted.cancel()
+            self._unprompted = None
         with contextlib.suppress(ValueError):
             Router.on_session(self._session).remove(self)
         if self._host is not None:
@@ -552,10 +607,13 @@ class Bus:
         latest: bool | None = None,
         capacity: int = 4096,
         decode: bool = True,
+        prompt: bool = True,
     ) -> Subscription:
         if latest is None:
             latest = topic_for_key(key).kind == "sensor" if "*" not in key else False
-        sub = Subscription(self, key, latest=latest, capacity=capacity, decode=decode)
+        sub = Subscription(
+            self, key, latest=latest, capacity=capacity, decode=decode, prompt=prompt
+        )
         self._subs.append(sub)
         return sub
 

@@ -12,6 +12,7 @@ import zstandard
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+import services.mcap_log
 from schemas import CameraIntrinsics, DepthFrame, EmgSample, Health, decode, encode, to_wire
 from services.mcap_log import (
     REJECTED_PREFIX,
@@ -254,3 +255,19 @@ def test_writer_rejects_bad_parameters(tmp_path: Path) -> None:
     writer.finish()  # twice is fine
     with pytest.raises(ValueError, match="after finish"):
         writer.write("lpc/emg", EmgSample(seq=1, t_ns=T0, channels=[0.0, 0.0]), T0)
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_writer_fast_message_path_writes_what_mcaps_add_message_writes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compression: str
+) -> None:
+    """LogWriter appends messages without mcap's ``Writer.add_message`` when it can: the files,
+    rotated ones and a rejected payload included, are byte for byte the ones it writes."""
+    items = session(30)
+    items.insert(7, ("lpc/emg", b"\xc1 not msgpack", items[6][2]))
+    fast = write_session(tmp_path / "fast.mcap", items, compression=compression, max_bytes=2**21)
+    monkeypatch.setattr(services.mcap_log._FastMessages, "of", classmethod(lambda cls, w: None))
+    plain = write_session(tmp_path / "plain.mcap", items, compression=compression, max_bytes=2**21)
+    assert len(fast.paths) == len(plain.paths) > 1, "rotated"
+    for a, b in zip(fast.paths, plain.paths, strict=True):
+        assert a.read_bytes() == b.read_bytes()

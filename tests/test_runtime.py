@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import signal
 import subprocess
 import sys
@@ -15,7 +16,7 @@ import pytest
 import zenoh
 
 from schemas import EmgSample, Health, decode, encode
-from services.runtime import zenoh_config
+from services.runtime import Bus, Router, zenoh_config
 from tests.conftest import spawn_service, wait_for
 
 PUBLISHER = textwrap.dedent(
@@ -185,3 +186,56 @@ def test_health_latency_percentiles_are_numpys_linear_ones() -> None:
         expected = np.percentile(ordered, [50, 99])
         got = [_quantile(ordered, 0.50), _quantile(ordered, 0.99)]
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+
+
+def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: str) -> None:
+    """Samples from another thread that only a ``prompt=False`` subscription wants (the
+    recorder's) wait for the loop's next wake-up instead of waking it, and still arrive all,
+    in order, stamped when they were published; a prompt subscription on the key wakes it."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        wakes: list[object] = []
+        call_soon_threadsafe = loop.call_soon_threadsafe
+
+        def counted(callback, *args, **kwargs):  # type: ignore[no-untyped-def]
+            wakes.append(callback)
+            return call_soon_threadsafe(callback, *args, **kwargs)
+
+        loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        bus = Bus(session, "recorder", loop=loop, router=router, quiet=True)
+        lazy = bus.subscribe("lpc/emg", latest=False, prompt=False)
+        stamps: list[tuple[int, int]] = []
+        router.deliver("lpc/emg", encode(EmgSample(seq=1000, t_ns=1, channels=[0.0])))
+        assert lazy._queue and not lazy._ready.is_set(), "its task is not woken per sample"
+        assert (await lazy.receive())[1].seq == 1000, "but within the hand-over period"
+
+        def publish(first: int) -> None:  # another thread: the control loop's, say
+            for seq in range(first, first + 50):
+                before = time.time_ns()
+                router.deliver("lpc/emg", encode(EmgSample(seq=seq, t_ns=before, channels=[0.0])))
+                stamps.append((before, time.time_ns()))
+
+        thread = threading.Thread(target=publish, args=(0,))
+        thread.start()
+        thread.join()
+        assert wakes == [], "no wake-up for the unprompted subscription"
+        got = [await lazy.receive() for _ in range(50)]
+        assert [message.seq for _, message, _ in got] == list(range(50))
+        for (_, _, received_ns), (before, after) in zip(got, stamps, strict=True):
+            assert before <= received_ns <= after, "stamped when published, not handed over"
+
+        prompt = bus.subscribe("lpc/emg", latest=False)
+        thread = threading.Thread(target=publish, args=(50,))
+        thread.start()
+        thread.join()
+        assert wakes, "a prompt subscription wakes the loop"
+        assert [(await prompt.receive())[1].seq for _ in range(50)] == list(range(50, 100))
+        assert [(await lazy.receive())[1].seq for _ in range(50)] == list(range(50, 100))
+        bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())

@@ -479,6 +479,8 @@ class SimDeviceSource:
         self._parser = LinkParser()
         self._ready: collections.deque = collections.deque()
         self._closed = False
+        self._failure = ""  # why the socket failed, when it did (read_async)
+        self._reader: _DeviceReader | None = None
         self.unsupported: list[str] = []
         try:
             self._sock.connect(self._path)
@@ -523,6 +525,8 @@ class SimDeviceSource:
         return self._ready.popleft()
 
     def _check_open(self) -> None:
+        if self._failure:
+            raise OperationError(f"reading the simulated camera failed: {self._failure}")
         if self._closed:
             raise OperationError(f"the simulated camera at {self._path} went away")
 
@@ -542,20 +546,25 @@ class SimDeviceSource:
 
     async def read_async(self, timeout: float) -> DepthReading | None:
         """``read`` on the running event loop: woken by the socket, with no thread between
-        (measured: 0.47 ms of CPU a frame against 1.4 ms through ``asyncio.to_thread``)."""
-        loop = asyncio.get_running_loop()
-        self._sock.setblocking(False)
-        try:
-            async with asyncio.timeout(timeout):
-                while not self._ready:
-                    self._check_open()
-                    try:
-                        data = await loop.sock_recv(self._sock, self._RECV_BYTES)
-                    except OSError as exc:
-                        raise OperationError(f"reading the simulated camera failed: {exc}") from exc
-                    self._feed(data)
-        except TimeoutError:
-            return None
+        (measured: 0.47 ms of CPU a frame against 1.4 ms through ``asyncio.to_thread``).
+
+        The first call hands the socket to the loop for good (``_DeviceReader``; ``read`` is
+        not to be called after it): the socket stays registered and is read into one reused
+        buffer, instead of a new 200 KB bytes, a ``recv`` that found nothing yet and a reader
+        added and removed for every frame (``loop.sock_recv``: 0.52-0.55 ms of CPU a frame,
+        against 0.42-0.49 ms, three runs each, alternating, at 90 Hz)."""
+        if self._reader is None:
+            self._check_open()
+            self._reader = _DeviceReader(self)
+            await self._reader.connect(self._sock)
+        if not self._ready:
+            try:
+                async with asyncio.timeout(timeout):
+                    while not self._ready:
+                        self._check_open()
+                        await self._reader.wait()
+            except TimeoutError:
+                return None
         return self._reading(self._ready.popleft())
 
     def _reading(self, item: DeviceHello | DeviceFrame | Rejected) -> DepthReading:
@@ -576,7 +585,76 @@ class SimDeviceSource:
         return DepthReading(depth=depth, truth=item.truth, t_ns=item.t_ns, wire=item.depth)
 
     def shutdown(self) -> None:
+        if self._reader is not None:
+            self._reader.close()
         # shutdown() before close(): it wakes a read blocked in another thread.
         with contextlib.suppress(OSError):
             self._sock.shutdown(socket.SHUT_RDWR)
         self._sock.close()
+
+
+class _DeviceReader(asyncio.BufferedProtocol):
+    """The simulated device's socket on the event loop: each piece that arrives is received
+    into one reused buffer and fed to the source's parser, whose frames ``read_async`` takes.
+
+    A frame is received while the camera waits for it; when none waits (the camera is busy
+    with the last one), reading pauses at the first finished frame, so the device sees the
+    socket full and drops its next slot as it did before: the camera always gets a fresh
+    frame, never a queue of old ones.
+    """
+
+    def __init__(self, source: SimDeviceSource) -> None:
+        self._source = source
+        self._buffer = memoryview(bytearray(source._RECV_BYTES))
+        self._transport: asyncio.Transport | None = None
+        self._waiter: asyncio.Future[None] | None = None
+        self._paused = False
+
+    async def connect(self, sock: socket.socket) -> None:
+        await asyncio.get_running_loop().create_unix_connection(lambda: self, sock=sock)
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self._transport = transport
+
+    async def wait(self) -> None:
+        """Until a message is parsed or the socket ends or fails."""
+        if self._paused and self._transport is not None:
+            self._paused = False
+            self._transport.resume_reading()
+        self._waiter = asyncio.get_running_loop().create_future()
+        try:
+            await self._waiter
+        finally:
+            self._waiter = None
+
+    def _wake(self) -> None:
+        if self._waiter is not None and not self._waiter.done():
+            self._waiter.set_result(None)
+
+    def get_buffer(self, sizehint: int) -> memoryview:
+        return self._buffer
+
+    def buffer_updated(self, nbytes: int) -> None:
+        self._source._feed(self._buffer[:nbytes])
+        if self._source._ready:
+            waiting = self._waiter is not None and not self._waiter.done()
+            if not waiting and self._transport is not None and not self._paused:
+                self._paused = True
+                self._transport.pause_reading()
+            self._wake()
+
+    def eof_received(self) -> bool:
+        self._source._feed(b"")
+        self._wake()
+        return False  # the transport closes itself
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if exc is not None and not self._source._closed:
+            self._source._failure = str(exc) or type(exc).__name__
+        self._source._closed = True
+        self._wake()
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.abort()
