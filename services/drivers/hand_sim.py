@@ -26,6 +26,7 @@ from services.drivers.errors import DeviceUnavailable
 from services.drivers.hand import DEFAULT_CHANNEL
 
 PERIOD_S = 0.01
+_STOP = HandCommand()
 
 
 class SimulatedHand:
@@ -191,15 +192,18 @@ class SimulatedHand:
         now = time.monotonic()
         with self._lock:
             stale = now - self._last_command > self.hand_watchdog_s
-            command = HandCommand() if stale else self._command
-            state = dataclasses.replace(self._state, object_mm=self.object_mm)
+            command = _STOP if stale else self._command
+            state = self._state
+            if state.object_mm != self.object_mm:  # a copy a tick costs more than the compare
+                state = dataclasses.replace(state, object_mm=self.object_mm)
             state, status = hand_step(state, command, time.monotonic_ns())
             self._state = state
         if self.silenced:
             return
         if self.emg is not None:
             status = dataclasses.replace(status, emg=tuple(self.emg()))
-        status = dataclasses.replace(status, watchdog=stale)
+        if stale:
+            status = dataclasses.replace(status, watchdog=True)
         for frame in self._frames(status, command):
             with contextlib.suppress(can.CanError, OSError):
                 self._bus.send(
