@@ -107,9 +107,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             handle(received_ns, message)
 
     async def ticks() -> None:
-        t_ns = bus.clock.now_ns()
+        # On the clock's 10 ms grid, as the EMG service's samples are: the control loop's two
+        # 100 Hz timers then fire in one pass of it, one wake-up where there were two.
+        t_ns = bus.clock.now_ns() // TICK_NS * TICK_NS
         while True:
-            t_ns = max(t_ns + TICK_NS, bus.clock.now_ns() - TICK_NS)
+            t_ns = max(t_ns + TICK_NS, (bus.clock.now_ns() // TICK_NS - 1) * TICK_NS)
             await bus.clock.sleep_until(t_ns)
             # Its lateness is the camera's cue to shed frames (lpc_core.perception.shedding).
             bus.health.counters["ticks"] += 1

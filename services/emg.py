@@ -55,7 +55,9 @@ async def _simulated_user(bus: Bus, args: argparse.Namespace) -> None:
         for k in ("lpc/controller/state", "lpc/prosthesis/state", "lpc/aim/cue")
     ]
     try:
-        t_ns = bus.clock.now_ns()
+        # On the clock's 10 ms grid, as the controller's ticks are: one wake-up of the control
+        # loop for both.
+        t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
         while True:
             t_ns += PERIOD_NS
             await bus.clock.sleep_until(t_ns)
@@ -65,7 +67,7 @@ async def _simulated_user(bus: Bus, args: argparse.Namespace) -> None:
             behind = bus.clock.now_ns() - t_ns
             if behind > 20 * PERIOD_NS:  # stalled for 200 ms: skip ahead, do not burst
                 bus.health.counters["skipped_samples"] += behind // PERIOD_NS
-                t_ns = bus.clock.now_ns()
+                t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
     finally:
         for task in watchers:
             task.cancel()

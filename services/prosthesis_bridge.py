@@ -53,10 +53,16 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         for key, count in link.counters.items():  # totals: assign, do not add
             bus.health.counters[key] = count
 
+    # A hand on CAN whose status this loop can wait for (socketcan's file, or the simulated
+    # hand on this loop, which says when it has sent) runs on the loop: no thread wakes every
+    # cycle for the link, its watchdog or the simulated hand. Other buses keep the link's thread.
+    on_loop = getattr(args, "hand", "can") == "can" and (
+        args.sim_hand or args.interface == "socketcan"
+    )
     sim = fingers = None
     if args.sim_hand:
         sim = SimulatedHand(args.profile, args.interface, args.channel, object_mm=args.object_mm)
-        sim.start()
+        sim.start(loop if on_loop else None)
     hand_port = getattr(args, "hand_port", None)  # callers that build the args may omit both
     if getattr(args, "hand", "can") == "ability":
         # Imported only for this hand: its protocol needs numpy, which a bridge for a hand on
@@ -81,10 +87,13 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
     link = HandLink(
         opener,  # type: ignore[arg-type]
-        on_status=lambda status: loop.call_soon_threadsafe(publish, status),
+        on_status=publish if on_loop else lambda status: loop.call_soon_threadsafe(publish, status),
+        # Also from the worker thread that opens the hand.
         on_event=lambda level, text: loop.call_soon_threadsafe(bus.log, level, text),
         watchdog_s=args.watchdog_ms / 1000.0,
-    ).start()
+    ).start(loop if on_loop else None)
+    if sim is not None and on_loop:
+        sim.on_sent = link.poll
     # Simulation only: the object between the fingers is the one pre-shaped for.
     held = fingers if fingers is not None else sim
     follow = asyncio.create_task(follow_grasps(bus, held, args.object_mm)) if held else None

@@ -37,14 +37,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     serial_thread = ThreadPoolExecutor(1, thread_name_prefix="tactor-serial")
     loop = asyncio.get_running_loop()
     inbox: collections.deque[TactorCommand | PortOpened] = collections.deque()
-    arrived = asyncio.Event()
-
-    async def pump() -> None:
-        async for command in bus.subscribe("lpc/tactors/command"):
-            inbox.append(command)
-            arrived.set()
-
-    pumping = asyncio.create_task(pump())
+    # Awaited by the bridge's own loop below, not by a task that hands each cue over: one
+    # task wake-up a cue instead of two.
+    commands = bus.subscribe("lpc/tactors/command")
     state = BridgeState(params=params)
     was_up = False
     try:
@@ -66,20 +61,23 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     # by the driver's write timeout, saving a thread hand-off per frame.
                     if link.write(output) == "reset":  # refused: all off sent, write again
                         inbox.appendleft(PORT_OPENED)
-                        arrived.set()
             if was_up and not link.up:
                 bus.log("warning", f"tactor port lost, retrying: {link.last_error}")
             was_up = link.up
             for name, value in link.counters.items():
                 bus.health.counters[f"tactor_{name}"] = value
+            if inbox:  # a refused write: another pass at once
+                continue
             wake = [t for t in (state.wake_ns, None if link.up else link.retry_at_ns) if t]
             timeout = (min(wake) - bus.clock.now_ns()) / 1e9 if wake else 1.0
+            # A timeout that cancels the wait loses nothing: a cue leaves the subscription's
+            # queue only when it is returned.
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(max(timeout, 0.0)):
-                    await arrived.wait()
-            arrived.clear()
+                    _, command, _ = await commands.receive()
+                    inbox.append(command)
     finally:
-        pumping.cancel()
+        commands.close()
         serial_thread.shutdown(wait=True)
         link.close()  # all off, then close
 

@@ -3,6 +3,7 @@ and the bridge service over the real Zenoh bus."""
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import threading
 import time
@@ -208,6 +209,52 @@ def test_link_fresh_commands_hold_off_the_watchdog(channel: str) -> None:
                 assert t - before[-1] >= 0.05 - 0.002
     finally:
         link.stop()
+        recorder.close()
+
+
+def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> None:
+    """The bridge's way: link and simulated hand as callbacks on one asyncio loop, no thread of
+    their own. Status comes in through ``poll`` after each tick; the watchdog, a timer on the
+    loop, sends zero velocity no sooner than ``watchdog_s`` after the last command, and again
+    every period while no command comes."""
+    recorder = Recorder(channel)
+    statuses: list[HandStatus] = []
+
+    async def run() -> tuple[float, int]:
+        loop = asyncio.get_running_loop()
+        sim = SimulatedHand("lpc", channel=channel, aperture_mm=80.0).start(loop)
+        link = HandLink(
+            lambda: LpcHand(channel=channel), on_status=statuses.append, watchdog_s=0.05
+        ).start(loop)
+        sim.on_sent = link.poll
+        try:
+            while not link.connected:
+                await asyncio.sleep(0.005)
+            last = 0.0
+            for _ in range(20):  # 200 ms of closing at 100 Hz
+                last = time.time()  # python-can stamps the frame with time.time() too
+                assert link.command(HandCommand(grasp=0.5))
+                await asyncio.sleep(0.01)
+            stops = link.counters["watchdog_stops"]
+            while link.counters["watchdog_stops"] < stops + 3:
+                await asyncio.sleep(0.01)
+            return last, int(sim.state.aperture_mm)
+        finally:
+            link.stop()
+            sim.stop()
+
+    try:
+        last, aperture = asyncio.run(run())
+        assert len(statuses) >= 10 and statuses[-1].aperture_mm < 80.0
+        assert aperture < 80
+        # The watchdog's three stops; stop() adds a last zero of its own after them.
+        zeros = [t for t, c in recorder.commands() if c.grasp == 0.0 and t > last - 0.002][:3]
+        assert len(zeros) == 3
+        assert zeros[0] - last >= 0.05 - 0.002  # never early
+        # Repeated every period while silent: a stop frame lost on the bus is sent again.
+        assert all(b - a >= 0.05 - 0.002 for a, b in itertools.pairwise(zeros))
+        print(f"on a loop: zero velocity {1000 * (zeros[0] - last):.1f} ms after the last command")
+    finally:
         recorder.close()
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, TypeVar
 
 T = TypeVar("T")
+_set_attribute = object.__setattr__
 
 
 def evolve(record: T, **changes: Any) -> T:
@@ -16,10 +17,12 @@ def evolve(record: T, **changes: Any) -> T:
     replay). Parameters still change through ``dataclasses.replace``, which checks them.
     """
     fields = record.__dict__
-    unknown = changes.keys() - fields.keys()
-    if unknown:
+    values = fields.copy()
+    values.update(changes)
+    # An unknown name adds a key: the length tells, without a set difference on every copy.
+    if len(values) != len(fields):
+        unknown = changes.keys() - fields.keys()
         raise TypeError(f"{type(record).__name__} has no field(s) {sorted(unknown)}")
     copy = object.__new__(type(record))
-    copy.__dict__.update(fields)
-    copy.__dict__.update(changes)
+    _set_attribute(copy, "__dict__", values)  # a frozen dataclass refuses plain assignment
     return copy

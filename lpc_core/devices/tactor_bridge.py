@@ -172,9 +172,11 @@ def bridge_step(
     last = state.written_ns
     tokens = _tokens(state, now_ns)
     wanted = last is None or desired != state.written or now_ns - last >= p.refresh_ns
+    # One copy for the bucket and what was written (dataclasses.replace re-runs __init__).
     if wanted and (tokens >= 1.0 - 1e-9 or last is None):
         outputs.append(desired)
         tokens = max(0.0, tokens - 1.0)
-        state = replace(state, written=desired, written_ns=now_ns)
-    state = replace(state, tokens=tokens, tokens_ns=now_ns)
+        state = replace(state, written=desired, written_ns=now_ns, tokens=tokens, tokens_ns=now_ns)
+    else:
+        state = replace(state, tokens=tokens, tokens_ns=now_ns)
     return replace(state, wake_ns=_next_wake(state, desired, now_ns)), outputs

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -99,8 +100,10 @@ def _noise_block(seed: int, block: int) -> np.ndarray:
 
 def _noise(seed: int, seq: int, n: int) -> np.ndarray:
     first, last = seq // NOISE_BLOCK, (seq + n - 1) // NOISE_BLOCK
-    blocks = [_noise_block(seed, b) for b in range(first, last + 1)]
     start = seq - first * NOISE_BLOCK
+    if first == last:  # the live user's one sample a tick: no concatenation
+        return _noise_block(seed, first)[start : start + n]
+    blocks = [_noise_block(seed, b) for b in range(first, last + 1)]
     return np.concatenate(blocks)[start : start + n]
 
 
@@ -118,9 +121,16 @@ def simulate_emg(
     drive = np.clip(np.asarray(drive, dtype=float), 0.0, 1.0)
     if drive.ndim != 2 or drive.shape[1] != 2:
         raise ValueError(f"drive must have shape (N, 2), got {drive.shape}")
-    n = len(drive)
-    if n == 0:
+    if len(drive) == 0:
         return state, np.empty((0, 2))
+    return _simulate_rows(state, drive.tolist(), params, seed, seq)
+
+
+def _simulate_rows(
+    state: MuscleState, drive: list[list[float]], params: MuscleParams, seed: int, seq: int
+) -> tuple[MuscleState, np.ndarray]:
+    """``simulate_emg`` of a drive already in [0, 1], as rows of floats."""
+    n = len(drive)
     noise = _noise(seed, seq, n)
     dt = 1.0 / RATE_HZ
     k_rise = 1.0 - math.exp(-dt * 1e3 / params.rise_ms)
@@ -137,7 +147,7 @@ def simulate_emg(
     z, art = list(state.fluctuation), list(state.artifact)
     out = np.empty((n, 2))
     rows = noise.tolist()
-    for i, u in enumerate(drive.tolist()):
+    for i, u in enumerate(drive):
         row = rows[i]
         for c in range(2):
             a[c] += (u[c] - a[c]) * (k_rise if u[c] > a[c] else k_fall)
@@ -201,6 +211,24 @@ def co_contraction(start_s: float, level: float = 0.8) -> Segment:
 def slow_hold(start_s: float, hold_s: float, flexor: float = 0.0, extensor: float = 0.0) -> Segment:
     """A proportional command: a slow rise (well beyond the quick window) and a long hold."""
     return Segment(start_s, hold_s=hold_s, flexor=flexor, extensor=extensor, ramp_s=0.4)
+
+
+def _drive_at(segments: Sequence[Segment], t_s: float, floor: tuple[float, float]) -> list[float]:
+    """``np.maximum(script_drive(segments, 1, t_s), [floor])`` clipped to [0, 1], in plain
+    floats (the same arithmetic, so the same values): the live user's one sample a tick, where
+    numpy's per-call overhead was most of the EMG service's step."""
+    flexor, extensor = 0.0, 0.0
+    for segment in segments:
+        rel = t_s - segment.start_s
+        up = min(max(rel / segment.ramp_s, 0.0), 1.0)
+        down = min(max((segment.end_s - segment.start_s - rel) / segment.ramp_s, 0.0), 1.0)
+        shape = min(up, down)
+        flexor = max(flexor, shape * segment.flexor)
+        extensor = max(extensor, shape * segment.extensor)
+    return [
+        min(max(flexor, floor[0], 0.0), 1.0),
+        min(max(extensor, floor[1], 0.0), 1.0),
+    ]
 
 
 def script_drive(segments: list[Segment], n: int, t0_s: float = 0.0) -> np.ndarray:
@@ -281,8 +309,8 @@ def user_step(
                 for cur, goal in zip(state.sustained, state.sustain, strict=True)
             )
             state = evolve(state, sustained=sustained)  # type: ignore[arg-type]
-            drive = np.maximum(script_drive(list(state.plan), 1, t_s), np.array([sustained]))
-            muscle, raw = simulate_emg(state.muscle, drive, state.params, state.seed, state.seq)
+            drive = _drive_at(state.plan, t_s, sustained)  # type: ignore[arg-type]
+            muscle, raw = _simulate_rows(state.muscle, [drive], state.params, state.seed, state.seq)
             plan = tuple(s for s in state.plan if s.end_s > t_s)
             sample = EmgSample(
                 seq=state.seq, t_ns=message.t_ns, channels=[float(raw[0, 0]), float(raw[0, 1])]

@@ -10,13 +10,14 @@ receives status. Profiles (``BACKENDS``):
   each digit's status and current, so the driver estimates the aperture from the commanded
   velocities and the stall reports, and the grip force from the finger currents.
 
-``HandLink`` is the one place where timing lives: a thread that receives status, sends zero
-velocity when no fresh command has arrived for ``watchdog_s`` (50 ms), reports bus errors and
-reopens the driver after a failure, with backoff.
+``HandLink`` is the one place where timing lives: it receives status, sends zero velocity when
+no fresh command has arrived for ``watchdog_s`` (50 ms), reports bus errors and reopens the
+driver after a failure, with backoff; in a thread of its own, or as callbacks on an asyncio loop.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import dataclasses
 import threading
@@ -132,6 +133,14 @@ class HandDriver:
                 return status
             if deadline is not None and time.monotonic() >= deadline:
                 return None
+
+    def fileno(self) -> int | None:
+        """The bus's file descriptor to wait on (socketcan), or ``None`` (the virtual bus)."""
+        try:
+            fd = self._bus.fileno()
+        except (NotImplementedError, AttributeError, OSError):
+            return None
+        return fd if fd >= 0 else None
 
     @property
     def state(self) -> str:
@@ -268,13 +277,18 @@ def open_hand(profile: str = "lpc", **kwargs: Any) -> HandDriver:
 
 
 class HandLink:
-    """A driver kept alive in one thread: status in, commands out, watchdog, reconnection.
+    """A driver kept alive: status in, commands out, watchdog, reconnection.
 
-    ``command()`` may be called from any thread (the asyncio loop); it sends at once. The
-    thread receives status (``on_status``), and when the newest command is older than
-    ``watchdog_s`` it sends zero velocity, again every ``watchdog_s`` while no fresh command
-    comes. A driver error is reported (``on_event(level, text)``), the driver is shut down and
-    reopened after a backoff that doubles up to ``max_backoff_s``.
+    ``start()`` runs it in a thread of its own; ``start(loop)`` runs it as callbacks on an
+    asyncio loop that already wakes for the commands, with no thread: the watchdog is a timer
+    on that loop, status is read when the bus's file is readable (socketcan) or when
+    ``poll()`` is called (the virtual bus: by the simulated hand on the same loop, after it
+    sends), and only opening the driver goes to a worker thread. In a thread, ``command()`` may
+    be called from any thread; on a loop, only from the loop's. It sends at once. When the
+    newest command is older than ``watchdog_s`` the link sends zero velocity, again every
+    ``watchdog_s`` while no fresh command comes. A driver error is reported
+    (``on_event(level, text)``), the driver is shut down and reopened after a backoff that
+    doubles up to ``max_backoff_s``.
     """
 
     def __init__(
@@ -301,6 +315,11 @@ class HandLink:
         self._last_zero = -float("inf")
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hand-link", daemon=True)
+        # On a loop: the task that (re)connects, the watchdog's timer, the file read from.
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._connecting: asyncio.Task[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._reader: int | None = None
         self.counters: dict[str, int] = {
             "commands": 0,
             "watchdog_stops": 0,
@@ -309,8 +328,12 @@ class HandLink:
             "reconnects": 0,
         }
 
-    def start(self) -> HandLink:
-        self._thread.start()
+    def start(self, loop: asyncio.AbstractEventLoop | None = None) -> HandLink:
+        if loop is None:
+            self._thread.start()
+        else:
+            self._loop = loop
+            self._connecting = loop.create_task(self._reconnect(first=True))
         return self
 
     def command(self, command: HandCommand) -> bool:
@@ -329,18 +352,26 @@ class HandLink:
                 self._fail(exc)
                 return False
             self.counters["commands"] += 1
-            return True
+        if self._loop is not None:
+            self._arm()
+        return True
 
     @property
     def connected(self) -> bool:
         return self._driver is not None
 
     def stop(self) -> None:
-        """Send a last zero command, stop the thread, shut the driver down. Safe twice."""
+        """Send a last zero command, stop the thread (or the loop's callbacks), shut the driver
+        down. Safe twice."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
+        if self._connecting is not None:
+            self._connecting.cancel()
+        if self._timer is not None:
+            self._timer.cancel()
         with self._lock:
+            self._unwatch()
             if self._driver is not None:
                 with contextlib.suppress(DriverError):
                     self._driver.send(HandCommand(), timeout=0.01)
@@ -351,9 +382,12 @@ class HandLink:
         # Called with the lock held.
         self.counters["errors"] += 1
         self._on_event("error", f"hand bus error: {type(exc).__name__}: {exc}; reconnecting")
+        self._unwatch()
         if self._driver is not None:
             self._driver.shutdown()
         self._driver = None
+        if self._loop is not None and not self._stop.is_set():
+            self._connecting = self._loop.create_task(self._reconnect(first=False))
 
     def _connect(self) -> bool:
         try:
@@ -363,8 +397,79 @@ class HandLink:
             self._on_event("warning", f"cannot open the hand: {exc}")
             return False
         with self._lock:
+            if self._stop.is_set():  # stopped while opening: nobody would shut it down
+                driver.shutdown()
+                return False
             self._driver = driver
         return True
+
+    # ------------------------------------------------------------------ on a loop
+
+    async def _reconnect(self, first: bool) -> None:
+        backoff = 0.05
+        while True:
+            if not first:
+                self.counters["reconnects"] += 1
+            # Opening may wait on the device (a serial hand's answer): not on the loop.
+            if await asyncio.to_thread(self._connect):
+                break
+            await asyncio.sleep(backoff)
+            backoff = min(backoff * 2, self.max_backoff_s)
+        self._on_event("info", "hand connected" + ("" if first else " again"))
+        driver = self._driver
+        fd = driver.fileno() if driver is not None and hasattr(driver, "fileno") else None
+        if fd is not None:
+            self._reader = fd
+            self._loop.add_reader(fd, self.poll)  # type: ignore[union-attr]
+        self._on_watchdog()  # a fresh connection starts from a stopped hand
+
+    def poll(self) -> None:
+        """On a loop: take every status the bus holds now, without waiting."""
+        driver = self._driver
+        if driver is None:
+            return
+        while True:
+            try:
+                status = driver.recv(timeout=0.0)
+            except DriverError as exc:
+                with self._lock:
+                    if self._driver is driver:
+                        self._fail(exc)
+                return
+            if status is None:
+                return
+            self._received(driver, status)
+
+    def _arm(self) -> None:
+        # One timer, moved to the new deadline by each command: a stream of fresh commands
+        # never wakes the loop for the watchdog.
+        if self._timer is not None:
+            self._timer.cancel()
+        due = max(self._last_command, self._last_zero) + self.watchdog_s
+        self._timer = self._loop.call_later(  # type: ignore[union-attr]
+            max(due - self._clock(), 0.0), self._on_watchdog
+        )
+
+    def _on_watchdog(self) -> None:
+        self._timer = None
+        self._watchdog()
+        if self._driver is not None:
+            self._arm()
+
+    def _unwatch(self) -> None:
+        if self._reader is not None and self._loop is not None:
+            with contextlib.suppress(RuntimeError, ValueError):  # the loop may be closed
+                self._loop.remove_reader(self._reader)
+        self._reader = None
+
+    # ------------------------------------------------------------------ in a thread
+
+    def _received(self, driver: HandDriver, status: HandStatus) -> None:
+        self.counters["status"] += 1
+        health = getattr(driver, "health", None)
+        if health is not None:  # a driver that counts bad frames of its own
+            self.counters.update(health())
+        self._on_status(status)
 
     def _run(self) -> None:
         backoff = 0.05
@@ -393,11 +498,7 @@ class HandLink:
                         self._fail(exc)
                 continue
             if status is not None:
-                self.counters["status"] += 1
-                health = getattr(driver, "health", None)
-                if health is not None:  # a driver that counts bad frames of its own
-                    self.counters.update(health())
-                self._on_status(status)
+                self._received(driver, status)
             self._watchdog()
 
     def _watchdog(self) -> None:

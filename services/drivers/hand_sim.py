@@ -9,6 +9,7 @@ sends status at 100 Hz. Like real hands it has its own fail-safe: with no comman
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import dataclasses
 import threading
@@ -25,10 +26,16 @@ from services.drivers.errors import DeviceUnavailable
 from services.drivers.hand import DEFAULT_CHANNEL
 
 PERIOD_S = 0.01
+_STOP = HandCommand()
 
 
 class SimulatedHand:
     """A hand model behind a CAN bus, in a thread. ``start()``/``stop()``; ``stop`` is safe twice.
+
+    ``start(loop)`` runs it as a 100 Hz timer on an asyncio loop instead, with no thread: each
+    tick takes the commands that came since the last one, as a hand's firmware takes them in its
+    control cycle, then sends status and calls ``on_sent`` (a driver on the same virtual bus,
+    which has no file to wait on, reads it then: ``HandLink.poll``).
 
     ``object_mm`` sets the width of an object between the fingers (``None``: nothing to grip);
     ``emg`` optionally supplies the socket electrodes' raw values for each status.
@@ -71,6 +78,8 @@ class SimulatedHand:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sim-hand", daemon=True)
+        self._timer: asyncio.TimerHandle | None = None
+        self.on_sent: Callable[[], None] | None = None
         self.commands_received = 0
         self.frames_rejected = 0
         self.status_sent = 0
@@ -78,12 +87,17 @@ class SimulatedHand:
 
     # ------------------------------------------------------------------ control
 
-    def start(self) -> SimulatedHand:
-        self._thread.start()
+    def start(self, loop: asyncio.AbstractEventLoop | None = None) -> SimulatedHand:
+        if loop is None:
+            self._thread.start()
+        else:
+            self._timer = loop.call_soon(self._on_timer, loop, loop.time())
         return self
 
     def stop(self) -> None:
         self._stop.set()
+        if self._timer is not None:
+            self._timer.cancel()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
         with contextlib.suppress(can.CanError, OSError):
@@ -125,6 +139,22 @@ class SimulatedHand:
                 next_tick = time.monotonic()  # fell far behind (a stalled machine): resync
             self._tick()
 
+    def _on_timer(self, loop: asyncio.AbstractEventLoop, next_tick: float) -> None:
+        if self._stop.is_set():
+            return
+        try:
+            while (message := self._bus.recv(timeout=0.0)) is not None:
+                self._receive(message)
+        except (can.CanError, OSError):
+            pass  # the bus is gone; status cannot go out either: keep ticking, as the thread
+        self._tick()
+        if self.on_sent is not None:
+            self.on_sent()
+        next_tick += PERIOD_S
+        if loop.time() - next_tick > 0.1:
+            next_tick = loop.time()  # fell far behind (a stalled machine): resync
+        self._timer = loop.call_at(next_tick, self._on_timer, loop, next_tick)
+
     def _receive(self, message: can.Message) -> None:
         if message.is_error_frame or message.is_extended_id:
             return
@@ -162,15 +192,18 @@ class SimulatedHand:
         now = time.monotonic()
         with self._lock:
             stale = now - self._last_command > self.hand_watchdog_s
-            command = HandCommand() if stale else self._command
-            state = dataclasses.replace(self._state, object_mm=self.object_mm)
+            command = _STOP if stale else self._command
+            state = self._state
+            if state.object_mm != self.object_mm:  # a copy a tick costs more than the compare
+                state = dataclasses.replace(state, object_mm=self.object_mm)
             state, status = hand_step(state, command, time.monotonic_ns())
             self._state = state
         if self.silenced:
             return
         if self.emg is not None:
             status = dataclasses.replace(status, emg=tuple(self.emg()))
-        status = dataclasses.replace(status, watchdog=stale)
+        if stale:
+            status = dataclasses.replace(status, watchdog=True)
         for frame in self._frames(status, command):
             with contextlib.suppress(can.CanError, OSError):
                 self._bus.send(
