@@ -16,6 +16,7 @@ from lpc_core.perception.solids import PlaneSolid, SphereSolid, resting_width
 TABLE = PlaneSolid(point=np.array([0.0, 0.0, 0.22]), normal=np.array([0.0, 0.0, -1.0]))
 RULES = {
     "gap_ratio": 0.7,
+    "float_ratio": 0.25,
     "max_tilt_rad": math.radians(10.0),
     "tolerance_m": 0.0015,
     "radius_limits_m": (0.005, 0.1),
@@ -43,18 +44,26 @@ def test_a_ball_fitted_too_wide_is_refitted_touching_the_table() -> None:
     assert abs(width - 0.040) < 1e-4
 
 
-def test_a_lying_cylinder_fitted_too_narrow_is_refitted_touching_the_table() -> None:
+def test_a_lying_cylinder_fitted_too_wide_is_refitted_touching_the_table() -> None:
     """A 40 mm cylinder lying along x on the table, seen over its top 120 degrees: a fit of
-    30 mm whose axis is 6 mm off across it and 2 mm off its tilt comes back to 40 mm within
-    0.1 mm."""
+    52 mm sunk 10 mm into the table, its axis 6 mm off across it and 2 degrees off its tilt,
+    comes back to 40 mm within 0.1 mm."""
     angle = np.radians(np.linspace(-60.0, 60.0, 40))
     along = np.linspace(-0.03, 0.03, 5)
     a, x = np.meshgrid(angle, along)
     points = np.column_stack([x.ravel(), 0.02 * np.sin(a.ravel()), 0.20 - 0.02 * np.cos(a.ravel())])
     axis = np.array([math.cos(0.035), 0.0, math.sin(0.035)])
-    width = resting_width(points, TABLE, np.array([0.0, 0.006, 0.196]), 0.015, axis, **RULES)
+    width = resting_width(points, TABLE, np.array([0.0, 0.006, 0.204]), 0.026, axis, **RULES)
     assert width is not None
     assert abs(width - 0.040) < 1e-4
+
+
+def test_a_ball_before_a_wall_keeps_its_own_fit() -> None:
+    """The warm-up frame's 50 mm ball 15 mm before a wall (0.6 of its radius): no solid sinks
+    into a plane, but one may stand before it."""
+    points = _cap(np.array([0.0, 0.0, 0.20]), 0.025)
+    wall = PlaneSolid(point=np.array([0.0, 0.0, 0.24]), normal=np.array([0.0, 0.0, -1.0]))
+    assert resting_width(points, wall, np.array([0.0, 0.0, 0.20]), 0.025, **RULES) is None
 
 
 def test_a_cylinder_standing_on_the_plane_does_not_lie_on_it() -> None:

@@ -83,6 +83,7 @@ class CloudParams:
     # A round resting on the supporting plane is fitted again touching it, as the four-line
     # method does (``LaserParams.rest_gap_ratio``, ``solids.resting_width``). 0 turns it off.
     rest_gap_ratio: float = 0.7
+    rest_float_ratio: float = 0.25
     rest_max_tilt_rad: float = float(np.radians(10.0))
     # A table under the object holds thousands of points; a plane of a few hundred was as
     # often a wall, or a box's face, as the table (SGBM 7, BM 5: balls 12-16 mm off on it).
@@ -1152,6 +1153,7 @@ def _resting_width(
         radius,
         axis,
         gap_ratio=params.rest_gap_ratio,
+        float_ratio=params.rest_float_ratio,
         max_tilt_rad=params.rest_max_tilt_rad,
         tolerance_m=params.fit_threshold_m,
         radius_limits_m=(params.radius_min_m, params.radius_max_m),

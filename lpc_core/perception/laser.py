@@ -172,11 +172,13 @@ class LaserParams:
     end_plateaus: bool = True
     # A round resting on the support (the table the scan lines cross beside it) is fitted
     # again touching it: a sphere, or a cylinder lying along the plane (within
-    # rest_max_tilt_rad), whose fitted surface comes within rest_gap_ratio of its radius of the
-    # plane. On a short arc a free fit's radius trades against its centre's depth (a matcher's
+    # rest_max_tilt_rad), whose fitted surface sinks into the plane by at most rest_gap_ratio
+    # of its radius or stands off it by at most rest_float_ratio (a ball may stand before a
+    # wall). On a short arc a free fit's radius trades against its centre's depth (a matcher's
     # staircase: 40 mm cylinders fitted 27-54 mm); the contact pins it (see _resting_width).
-    # 0 turns it off.
+    # rest_gap_ratio 0 turns it off.
     rest_gap_ratio: float = 0.7
+    rest_float_ratio: float = 0.25
     rest_max_tilt_rad: float = math.radians(10.0)
     # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
     # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
@@ -242,6 +244,7 @@ class LaserParams:
             "silhouette_tolerance_m",
             "scattered_edge_tolerance_m",
             "rest_gap_ratio",
+            "rest_float_ratio",
             "rest_max_tilt_rad",
         ):
             if getattr(self, name) < 0:
@@ -1866,6 +1869,7 @@ def _resting_width(
         solid.radius,
         solid.axis if cylinder else None,
         gap_ratio=params.rest_gap_ratio,
+        float_ratio=params.rest_float_ratio,
         max_tilt_rad=params.rest_max_tilt_rad,
         tolerance_m=params.solid_threshold_m,
         radius_limits_m=params.radius_limits_m,

@@ -546,6 +546,7 @@ def resting_width(
     axis: np.ndarray | None = None,
     *,
     gap_ratio: float,
+    float_ratio: float,
     max_tilt_rad: float,
     tolerance_m: float,
     radius_limits_m: tuple[float, float],
@@ -554,11 +555,14 @@ def resting_width(
     it; ``None`` when it does not, or when the fit fails or leaves ``radius_limits_m``.
 
     The round is a sphere (``centre``, ``radius``), or a cylinder whose ``axis`` passes through
-    ``centre``. It rests on the support when its surface comes within ``gap_ratio`` of its
-    radius of the plane and, a cylinder, when its axis also runs along the plane within
-    ``max_tilt_rad``. A fit already within ``tolerance_m`` of the plane keeps its own width
-    (``None``): the contact would move it by less than the fit's own noise, and an arched
-    object (a banana) stands that much above the table it touches.
+    ``centre``. It rests on the support when its surface sinks into the plane by at most
+    ``gap_ratio`` of its radius (no solid does: the fit is wrong), or stands off it by at most
+    ``float_ratio`` of it, or by up to ``gap_ratio`` while ``points`` spread across the plane
+    wider than its diameter (too narrow a fit; a ball held 15 mm before a wall, fitted right,
+    keeps its own fit), and, a cylinder, when its axis also runs along the plane within
+    ``max_tilt_rad``. A fit already within ``tolerance_m`` of the
+    plane keeps its own width (``None``): the contact would move it by less than the fit's own
+    noise, and an arched object (a banana) stands that much above the table it touches.
 
     The refit is least squares of the orthogonal distances by Gauss-Newton over the centre's
     place on the plane (2 for a sphere, 1 across a cylinder's axis) and the radius, the centre
@@ -569,8 +573,8 @@ def resting_width(
     if axis is not None and abs(float(n @ axis)) > math.sin(max_tilt_rad):
         return None
     height = float((centre - support.point) @ n)
-    gap = abs(height - radius)
-    if gap <= tolerance_m or gap > gap_ratio * radius:
+    gap = height - radius
+    if abs(gap) <= tolerance_m or not -gap_ratio * radius <= gap <= gap_ratio * radius:
         return None
     points = _as_points(points, 4)
     if axis is not None:
@@ -581,6 +585,12 @@ def resting_width(
         e1, e2 = orthonormal_basis(n)
         basis = np.array([e1, e2, n])
     coords = (points - support.point) @ basis.T  # on the plane (1 or 2), then the height
+    if gap > float_ratio * radius:
+        # Standing well off the plane: only a fit narrower than its own points spread across
+        # the plane is wrong enough to be moved onto it.
+        spread = float(np.ptp(coords[:, :-1], axis=0).max())
+        if spread <= 2 * (radius + tolerance_m):
+            return None
     x = (centre - support.point) @ basis.T
     x[-1] = radius
     for _ in range(10):
