@@ -26,7 +26,6 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.reconstruction import Reconstruction, wrap_half_turn
-from lpc_core.perception.scans import MATCHED_CORRELATION, cut_scan_lines, residual_correlation
 from lpc_core.perception.solids import CylinderSolid, SphereSolid, fattening_trim_m
 
 
@@ -78,12 +77,6 @@ class CloudParams:
     # With edge_fattening_px 0, measure it on each frame's scan lines (see
     # lpc_core.perception.laser.measured_fattening_px).
     measure_fattening: bool = True
-    # Where the scan lines show none, a frame whose scan lines' residuals are correlated
-    # like a matcher's takes this (see LaserParams.window_fattening_px). 2, not the four-line
-    # method's 3: at 3 the full cloud's soap bar and banana, already 14-16 mm too narrow on
-    # SGBM, left the irregular objects' ±20 mm. 0 turns it off.
-    window_fattening_px: float = 2.0
-    window_correlation_gate: float = MATCHED_CORRELATION
     # An occluding side of a cuboid face with a stretch (a strip two voxels wide) further out
     # than this past its median stretch was fattened there, and the median stretch bounds it
     # (see _strip_sides). Half a voxel: a clean edge's strips agree closer than that.
@@ -114,7 +107,7 @@ class CloudParams:
             raise ValueError("crop_z_max_m must be greater than crop_z_min_m")
         if self.radius_max_m <= self.radius_min_m:
             raise ValueError("radius_max_m must be greater than radius_min_m")
-        for name in ("silhouette_margin_px", "edge_fattening_px", "window_fattening_px"):
+        for name in ("silhouette_margin_px", "edge_fattening_px"):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
@@ -1088,26 +1081,17 @@ def _strip_sides(
     )
 
 
-def _measured_fattening(
-    depth: np.ndarray, intrinsics: Intrinsics, face: PlaneModel, params: CloudParams
-) -> tuple[float, float | None]:
+def _measured_fattening(depth: np.ndarray, intrinsics: Intrinsics, face: PlaneModel) -> float:
     """The edge fattening (pixels) the frame shows at the pierced ``face``'s edges, measured on
     the four scan lines as the four-line method measures it
-    (``lpc_core.perception.laser.measured_fattening_px``); where they show none, and their
-    residuals are correlated like a matcher's, ``params.window_fattening_px``. With it, the
-    residuals' correlation when it was taken."""
+    (``lpc_core.perception.laser.measured_fattening_px``)."""
     from lpc_core.perception.laser import measured_fattening_px
+    from lpc_core.perception.scans import cut_scan_lines
     from lpc_core.perception.solids import PlaneSolid
 
     # PlaneModel's normal points away from the camera, PlaneSolid's toward it.
     plane = PlaneSolid(point=-face.offset * face.normal, normal=-face.normal)
-    lines = cut_scan_lines(depth, intrinsics)
-    measured = measured_fattening_px(lines, plane)
-    if measured == 0 and params.window_fattening_px > 0:
-        correlation = residual_correlation(lines.angles_rad, lines.points)
-        if correlation >= params.window_correlation_gate:
-            return params.window_fattening_px, correlation
-    return measured, None
+    return measured_fattening_px(cut_scan_lines(depth, intrinsics), plane)
 
 
 def _canonical_axis(axis: np.ndarray) -> np.ndarray:
@@ -1220,9 +1204,7 @@ def reconstruct_cloud(
     assert isinstance(fit, _CuboidFit)
     pierced = _pierced_face(segment, fit, params)
     if params.edge_fattening_px == 0 and params.measure_fattening:
-        fattening, correlation = _measured_fattening(depth, intrinsics, pierced[0], params)
-        if correlation is not None:
-            extra["residual_correlation"] = correlation
+        fattening = _measured_fattening(depth, intrinsics, pierced[0])
         extra["fattening_px"] = fattening
         params = replace(params, edge_fattening_px=fattening)
     width, axis, center = _cuboid_geometry(

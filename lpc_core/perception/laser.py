@@ -54,7 +54,7 @@ from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
-from lpc_core.perception.scans import MATCHED_CORRELATION, residual_correlation
+from lpc_core.perception.scans import residual_correlation
 from lpc_core.perception.solids import (
     CylinderSolid,
     PlaneSolid,
@@ -187,7 +187,7 @@ class LaserParams:
     # fattening (the same at SGBM blocks 5, 7 and 9): it only tells that there is one.
     # 0 turns it off.
     window_fattening_px: float = 3.0
-    window_correlation_gate: float = MATCHED_CORRELATION
+    window_correlation_gate: float = 0.25
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25

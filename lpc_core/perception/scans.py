@@ -284,11 +284,6 @@ def capture_points(
     return np.column_stack([z * win.slope_x[0, cols], z * win.slope_y[rows, 0], z])
 
 
-MATCHED_CORRELATION = 0.25
-"""``residual_correlation`` at or above which a frame's errors are taken for a matcher's
-(lpc's noise model reads at most 0.22, SGBM 0.36-0.38 on average)."""
-
-
 def residual_correlation(
     angles_rad: object,
     points: tuple[np.ndarray, ...] | list[np.ndarray],
