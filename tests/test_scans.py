@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
-from lpc_core.perception.scans import ScanLines, ScanParams, capture_points, cut_scan_lines
+from lpc_core.perception.scans import (
+    ScanLines,
+    ScanParams,
+    capture_points,
+    cut_scan_lines,
+    residual_correlation,
+)
 from lpc_core.sim.scene import NoiseModel, Plane, Scene, render_depth, sphere_object
 
 INTR = D435_424X240
@@ -173,3 +179,30 @@ def test_scan_params_validation() -> None:
         ScanParams(z_limits_m=(0.25, 0.15))
     with pytest.raises(ValueError, match="min_points"):
         ScanParams(min_points=-1)
+
+
+def _slanted_line(error: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One horizontal scan line, a pixel apart at 200 mm, over a face whose depth rises
+    0.3 mm a sample, with ``error`` added and the 1 mm quantum applied."""
+    x = (np.arange(len(error)) - len(error) / 2) * 0.2 / 380.0
+    z = np.round((0.2 + 0.3e-3 * np.arange(len(error)) + error) * 1000) / 1000
+    return (np.column_stack([x, np.zeros_like(x), z]),)
+
+
+def test_residual_correlation_tells_errors_shared_by_neighbours_from_per_pixel_noise() -> None:
+    rng = np.random.default_rng(3)
+    per_pixel = rng.normal(0.0, 0.7e-3, 400)
+    # Each error shared by three neighbouring samples (an average over them), same RMS.
+    shared = np.convolve(rng.normal(0.0, 0.7e-3 * math.sqrt(3), 402), np.ones(3) / 3, "valid")
+    white = residual_correlation(np.zeros(1), _slanted_line(per_pixel))
+    correlated = residual_correlation(np.zeros(1), _slanted_line(shared))
+    assert white < 0.1, white  # the fit over 20 samples leaves it a little negative
+    assert correlated > 0.2, correlated
+    assert correlated > white + 0.3
+
+
+def test_residual_correlation_skips_steps_and_short_lines() -> None:
+    step = np.where(np.arange(400) % 20 < 10, 0.0, 0.004)  # a 4 mm jump inside every piece
+    assert residual_correlation(np.zeros(1), _slanted_line(step)) == 0.0
+    assert residual_correlation(np.zeros(1), _slanted_line(np.zeros(19))) == 0.0
+    assert residual_correlation(np.zeros(1), (np.empty((0, 3)),)) == 0.0

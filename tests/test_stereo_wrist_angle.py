@@ -67,7 +67,8 @@ def _with_and_without_the_rule(
     suite: str, trials: int, frames: int, name: str, pick: Callable[[Any], bool]
 ) -> tuple[Any, Reconstruction, Reconstruction]:
     """The view of ``name`` that ``pick`` chooses under SGBM 7, and its reconstructions with
-    the scattered-seeds rule turned off and on (both must be cuboids)."""
+    the scattered-seeds rule turned off and on (both must be cuboids), without the trim of a
+    fattening no face run shows (``window_fattening_px``), which moves both widths alike."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
     from services.cli import _laser_views as lv
@@ -75,8 +76,9 @@ def _with_and_without_the_rule(
     views = lv.views(suite, trials, frames, 0, names=[name], sensor=StereoSensor())
     view = next(v for v in views if pick(v))
     lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-    before = reconstruct_laser(lines, LaserParams(scattered_edge_tolerance_m=0), seed=view.seq)
-    after = reconstruct_laser(lines, LaserParams(), seed=view.seq)
+    rule_off = LaserParams(scattered_edge_tolerance_m=0, window_fattening_px=0)
+    before = reconstruct_laser(lines, rule_off, seed=view.seq)
+    after = reconstruct_laser(lines, LaserParams(window_fattening_px=0), seed=view.seq)
     assert before.shape == after.shape == "cuboid"
     return view, before, after
 

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             t1 = clock()
             models = analyse_lines(lines, params, seq)
             t2 = clock()
-            decide(models, params)
+            decide(models, params, lines)
             t3 = clock()
             reconstruct_laser(lines, params, seed=seq)
             t4 = clock()
