@@ -72,9 +72,9 @@ def test_a_cylinder_standing_on_the_plane_does_not_lie_on_it() -> None:
     assert resting_width(points, TABLE, np.array([0.0, 0.0, 0.2]), 0.015, upright, **RULES) is None
 
 
-def _star(table_z: float, radius: float = 0.02) -> list[LineModels]:
+def _star(table_z: float, radius: float = 0.02) -> tuple[list[LineModels], np.ndarray]:
     """The four scan lines across a ball at 200 mm depth and a table at ``table_z``: each
-    line's run on the ball's cap, the table before and after it."""
+    line's run on the ball's cap, the table before and after it; and the runs' samples."""
     lines = []
     s = np.linspace(-0.05, 0.05, 101)
     for index, angle in enumerate(np.radians([0.0, 45.0, 90.0, 135.0])):
@@ -87,12 +87,12 @@ def _star(table_z: float, radius: float = 0.02) -> list[LineModels]:
         line.run = np.arange(last + 1 - first)
         line.beyond = (points[:first], points[last + 1 :])
         lines.append(line)
-    return lines
+    return lines, np.concatenate([ln.points[ln.run] for ln in lines])
 
 
 def test_a_ball_on_the_table_takes_its_width_from_the_contact() -> None:
     wide = SphereSolid(center=np.array([0.0, 0.0, 0.206]), radius=0.026)
-    width = _resting_width(_star(table_z=0.22), wide, LaserParams())
+    width = _resting_width(*_star(table_z=0.22), wide, LaserParams())
     assert width is not None
     assert abs(width - 0.040) < 2e-4
 
@@ -100,9 +100,9 @@ def test_a_ball_on_the_table_takes_its_width_from_the_contact() -> None:
 def test_a_ball_held_above_the_table_keeps_its_own_fit() -> None:
     """The table 40 mm below the ball's bottom: the ball does not rest on it."""
     fit = SphereSolid(center=np.array([0.0, 0.0, 0.2]), radius=0.021)
-    assert _resting_width(_star(table_z=0.26), fit, LaserParams()) is None
+    assert _resting_width(*_star(table_z=0.26), fit, LaserParams()) is None
     # A fit already on the support (within the solids' threshold) keeps its own width too.
-    assert _resting_width(_star(table_z=0.22), fit, LaserParams()) is None
+    assert _resting_width(*_star(table_z=0.22), fit, LaserParams()) is None
 
 
 def test_a_small_ball_under_semi_global_matching_rests_on_the_table() -> None:

@@ -1755,7 +1755,9 @@ def _decide(
             )
             if params.end_plateaus:
                 solid = _without_end_plateaus(lines, full, solid, params)
-    resting = _resting_width(lines, solid, params) if shape in ("sphere", "cylinder") else None
+    resting = (
+        _resting_width(lines, clean, solid, params) if shape in ("sphere", "cylinder") else None
+    )
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
@@ -1848,11 +1850,14 @@ _SUPPORT_MIN_LINE_POINTS = 10
 
 
 def _resting_width(
-    lines: list[LineModels], solid: SphereSolid | CylinderSolid, params: LaserParams
+    lines: list[LineModels],
+    clean: np.ndarray,
+    solid: SphereSolid | CylinderSolid,
+    params: LaserParams,
 ) -> float | None:
     """The width of a round that rests on the support, fitted again touching it
-    (``solids.resting_width``); ``None`` when the lines show no support or the round does not
-    rest on it.
+    (``solids.resting_width``) to ``clean``, every sample of the lines' runs; ``None`` when
+    the lines show no support or the round does not rest on it.
 
     The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
     almost no sample behind it) among the lines' samples off the round's runs, on at least two
@@ -1884,7 +1889,6 @@ def _resting_width(
         return None
     # Every sample of the runs: the contact holds the fit where a free one would follow a
     # fattened tail, and a fit that was far off leaves few samples near it to choose.
-    clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
     cylinder = isinstance(solid, CylinderSolid)
     return resting_width(
         clean,
