@@ -560,9 +560,9 @@ def resting_width(
     ``float_ratio`` of it, or by up to ``gap_ratio`` while ``points`` spread across the plane
     wider than its diameter (too narrow a fit; a ball held 15 mm before a wall, fitted right,
     keeps its own fit), and, a cylinder, when its axis also runs along the plane within
-    ``max_tilt_rad``. A fit already within ``tolerance_m`` of the
-    plane keeps its own width (``None``): the contact would move it by less than the fit's own
-    noise, and an arched object (a banana) stands that much above the table it touches.
+    ``max_tilt_rad``. A fit already within ``tolerance_m`` of the plane keeps its own width
+    (``None``): the contact would move it by less than the fit's own noise, and an arched
+    object (a banana) stands that much above the table it touches.
 
     The refit is least squares of the orthogonal distances by Gauss-Newton over the centre's
     place on the plane (2 for a sphere, 1 across a cylinder's axis) and the radius, the centre
@@ -574,7 +574,7 @@ def resting_width(
         return None
     height = float((centre - support.point) @ n)
     gap = height - radius
-    if abs(gap) <= tolerance_m or not -gap_ratio * radius <= gap <= gap_ratio * radius:
+    if not tolerance_m < abs(gap) <= gap_ratio * radius:
         return None
     points = _as_points(points, 4)
     if axis is not None:
