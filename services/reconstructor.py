@@ -105,7 +105,7 @@ def parser() -> argparse.ArgumentParser:
     parser = service_parser("reconstructor", __doc__ or "")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument(
-        "--max-pending", type=int, default=1, help="frames that may wait for a worker (default 1)"
+        "--max-pending", type=int, default=2, help="frames that may wait for a worker (default 2)"
     )
     parser.add_argument(
         "--method",

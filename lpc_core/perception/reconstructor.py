@@ -240,7 +240,7 @@ class PoolParams:
     """``workers`` frames run at once; ``max_pending`` more may wait for a worker."""
 
     workers: int = 1
-    max_pending: int = 1
+    max_pending: int = 2
 
     def __post_init__(self) -> None:
         if self.workers < 1:
