@@ -50,7 +50,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lpc_core.control.state import evolve
-from lpc_core.perception.cloud import CloudParams, find_support_plane
+from lpc_core.perception.cloud import SCAN_LINE_SUPPORT, find_support_plane
 from schemas import (
     AimCue,
     ControllerState,
@@ -219,16 +219,12 @@ _OCTANTS = np.array(
 _FLAT_M = 1e-9  # a hull thinner than this is a segment
 
 
-# The table under an object holds a third or more of the scan points: 64 triples find it.
-_SUPPORT = CloudParams(support_trials=64, support_min_points=30)
-
-
 def without_support(points: np.ndarray, params: AimParams, seed: int = 0) -> np.ndarray:
     """``points`` without the supporting plane's, when the plane spans half the capture width
     or more and an object (``min_cluster_points``) stands in front of it; else ``points`` as
     they are. The plane is the cloud method's
     (``cloud.find_support_plane``): the largest with (almost) no point behind it."""
-    support = find_support_plane(points, _SUPPORT, np.random.default_rng(seed))
+    support = find_support_plane(points, SCAN_LINE_SUPPORT, np.random.default_rng(seed))
     # A table spans the capture volume; a small flat object behind another does not.
     if support is None or np.ptp(points[support, :2], axis=0).max() < params.width_m / 2:
         return points

@@ -445,6 +445,12 @@ def _plane_hypotheses(
     return normals, offsets, valid
 
 
+# The support among a frame's scan-line samples (the aim step's, and a resting round's in the
+# four-line method): the table under an object holds a third or more of them, and 64 triples
+# find it; 30 samples at least, so that a few stray ones are no plane.
+SCAN_LINE_SUPPORT = CloudParams(support_trials=64, support_min_points=30)
+
+
 def find_support_plane(
     points: np.ndarray, params: CloudParams, rng: np.random.Generator
 ) -> np.ndarray | None:
@@ -1278,6 +1284,7 @@ def reconstruct_cloud(
 
 
 __all__ = [
+    "SCAN_LINE_SUPPORT",
     "CloudParams",
     "CylinderModel",
     "FailedFit",

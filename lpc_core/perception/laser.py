@@ -53,7 +53,7 @@ import numpy as np
 from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
-from lpc_core.perception.cloud import CloudParams, find_support_plane
+from lpc_core.perception.cloud import SCAN_LINE_SUPPORT, find_support_plane
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.scans import residual_correlation
 from lpc_core.perception.solids import (
@@ -1843,9 +1843,8 @@ def _decide(
 
 
 # The table beside a round holds most of the samples its lines have off the object. Fewer
-# samples, or all on one line, were as often a cylinder's own flank below its runs, or a
-# plane through one line's trace, as the table.
-_SUPPORT = CloudParams(support_trials=64, support_min_points=30)
+# than SCAN_LINE_SUPPORT's 30, or all on one line, were as often a cylinder's own flank below
+# its runs, or a plane through one line's trace, as the table.
 _SUPPORT_MIN_LINE_POINTS = 10
 
 
@@ -1874,10 +1873,10 @@ def _resting_width(
     if not pieces:
         return None
     beside = np.concatenate([p for _, p in pieces])
-    if len(beside) < _SUPPORT.support_min_points:
+    if len(beside) < SCAN_LINE_SUPPORT.support_min_points:
         return None
     # A fixed seed: the same lines give the same support (decide has no frame seed).
-    mask = find_support_plane(beside, _SUPPORT, np.random.Generator(np.random.PCG64(0)))
+    mask = find_support_plane(beside, SCAN_LINE_SUPPORT, np.random.Generator(np.random.PCG64(0)))
     if mask is None:
         return None
     owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
