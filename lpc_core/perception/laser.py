@@ -1252,7 +1252,14 @@ def _face_geometry(
     alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
     if not paper and trim_px > 0 and pixel_rad > 0 and seeds.occluding is not None:
         alo, ahi, blo, bhi = _trimmed_sides(
-            plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order], (alo, ahi, blo, bhi),
+            plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order],
+            _consistent_sides(
+                pts, cropped.tolist(), (ux, uy), a, b,
+                # Points beyond the edges: bevels or further faces there, no occluding edge
+                # (a hexagonal prism lost 3-5 mm at SGBM 7 dots 0.04 and BM 5 without this).
+                _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2])
+                if len(pts_all) == len(pts) else math.inf,
+            ),
             trim_px * pixel_rad, params,
         )  # fmt: skip
     if paper:
@@ -1274,6 +1281,52 @@ def _face_geometry(
     centre = origin + (a_mid * ux - b_mid * uy) * e1 + (a_mid * uy + b_mid * ux) * e2
     axis = principal[0] * e1 + principal[1] * e2
     return _Face(width, axis / math.sqrt(axis @ axis), centre, residual, disc)
+
+
+def _consistent_sides(
+    seeds: list[list[float]],
+    cropped: list[bool],
+    u: tuple[float, float],
+    a: list[float],
+    b: list[float],
+    apart_m: float,
+) -> tuple[float, float, float, float]:
+    """The rectangle's sides ``(alo, ahi, blo, bhi)`` along the unit direction ``u`` where a
+    matcher fattened the edges: each side through the farthest uncut seed nearest it once the
+    seeds lying more than ``apart_m`` beyond every other seed of that side are dropped, one
+    at a time (two seeds or more; a side keeps one). Points beyond the face's edges (``a`` and
+    ``b`` hold the seeds' coordinates, then those points') still extend it; seeds cut by the
+    capture volume bound only the sides with fewer than two uncut seeds (a fattened run may
+    reach the capture volume past the edge: the tilted box at SGBM 9 was 21 mm wide so).
+
+    A window matcher fattens an occluding edge by an amount that varies along it: at SGBM 7
+    the cuboids' seeds lay 0.95 mm past the true side on the nearest, 3.1 on the median and
+    5.4 on the farthest seed of a side (mean over cuboid_upright and cuboid_tilt_left), up to
+    15 mm, and the trim of a 7 x 7 window's fattening (2.5-3 mm a side) left the widths 5.7
+    mm too wide. A seed that lies so far beyond the others carries more fattening than any
+    window explains. The median of each side would have gone further (cuboid widths 4.0 ->
+    3.4 mm over the eight matcher settings, against 3.6 here), but where the fattening is
+    smaller than the trim, as on the 40 mm bar lying on the table (its background is near),
+    every side moved in cost width: the bar lost 1.6 mm (36.9 -> 35.3 at SGBM 7)."""
+    n = len(seeds)
+    out = [min(a), max(a), min(b), max(b)]
+    # Coordinates across each side, positive outward: sides 0 and 2 face the negative way.
+    groups: list[list[float]] = [[], [], [], []]
+    for k, (d, cut) in enumerate(zip(_side_distances(seeds, u), cropped, strict=True)):
+        if not cut:
+            side = d.index(min(d))
+            sign = -1.0 if side % 2 == 0 else 1.0
+            groups[side].append(sign * (a[k] if side < 2 else b[k]))
+    for side, outward in enumerate(groups):
+        if len(outward) < 2:
+            continue
+        outward.sort(reverse=True)
+        while len(outward) > 1 and outward[0] - outward[1] > apart_m:
+            outward.pop(0)
+        sign = -1.0 if side % 2 == 0 else 1.0
+        beyond = [sign * c for c in (a[n:] if side < 2 else b[n:])]
+        out[side] = sign * max([outward[0], *beyond])
+    return out[0], out[1], out[2], out[3]
 
 
 def _trimmed_sides(
@@ -2233,6 +2286,9 @@ _QUANTUM_M = 0.001
 # A face whose best rectangle leaves a seed this far inside its sides (a fraction of its
 # smaller extent) is taken as rounded: see _unless_rounded.
 _INSIDE_SIDES = 0.25
+# A side's seed lying this many fattening trims beyond every other seed of the side is taken
+# as an outlier of the matcher's fattening, not as the side: see _consistent_sides.
+_OUTLYING_TRIMS = 2.0
 _CROSSING_SAMPLES = 1.5
 _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
