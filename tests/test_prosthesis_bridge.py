@@ -17,7 +17,7 @@ from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisCommand, decode, encode
 from services.drivers.errors import DeviceUnavailable, DriverError, OperationError
 from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand
-from services.drivers.hand_sim import SimulatedHand
+from services.drivers.hand_sim import PERIOD_S, SimulatedHand, _next_tick
 from tests.conftest import spawn_service, wait_for
 
 _channels = itertools.count()
@@ -153,6 +153,14 @@ def test_simulated_hand_stops_on_its_own_watchdog(channel: str) -> None:
             if status is not None and status.watchdog and not status.moving:
                 break
         assert status is not None and status.watchdog and not status.moving
+
+
+def test_simulated_hand_skips_the_ticks_a_stall_missed() -> None:
+    # On time or a little late: the 10 ms grid holds.
+    assert _next_tick(1.0, 1.0) == pytest.approx(1.0 + PERIOD_S)
+    assert _next_tick(1.0, 1.008) == pytest.approx(1.0 + PERIOD_S)
+    # Run 55 ms late (a stall): the next tick is a period after now, not the five missed ones.
+    assert _next_tick(1.0, 1.055) == pytest.approx(1.055 + PERIOD_S)
 
 
 # --------------------------------------------------------------------------- the link's watchdog
