@@ -220,13 +220,16 @@ def test_link_fresh_commands_hold_off_the_watchdog(channel: str) -> None:
         recorder.close()
 
 
-def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> None:
+@pytest.mark.parametrize("sender", ["loop", "thread"])
+def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str, sender: str) -> None:
     """The bridge's way: link and simulated hand as callbacks on one asyncio loop, no thread of
     their own. Status comes in through ``poll`` after each tick; the watchdog, a timer on the
     loop, sends zero velocity no sooner than ``watchdog_s`` after the last command, and again
-    every period while no command comes."""
+    every period while no command comes. The commands come from the loop, or from another
+    thread (the bridge's: Zenoh's, which receives them) without moving the loop's timer."""
     recorder = Recorder(channel)
     statuses: list[HandStatus] = []
+    sent: list[float] = []
 
     async def run() -> tuple[float, int]:
         loop = asyncio.get_running_loop()
@@ -238,11 +241,21 @@ def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> N
         try:
             while not link.connected:
                 await asyncio.sleep(0.005)
-            last = 0.0
-            for _ in range(20):  # 200 ms of closing at 100 Hz
-                last = time.time()  # python-can stamps the frame with time.time() too
-                assert link.command(HandCommand(grasp=0.5))
-                await asyncio.sleep(0.01)
+            if sender == "loop":
+                for _ in range(20):  # 200 ms of closing at 100 Hz
+                    sent.append(time.time())  # python-can stamps the frame with time.time() too
+                    assert link.command(HandCommand(grasp=0.5))
+                    await asyncio.sleep(0.01)
+            else:
+
+                def stream() -> None:
+                    for _ in range(20):
+                        sent.append(time.time())
+                        assert link.command(HandCommand(grasp=0.5))
+                        time.sleep(0.01)
+
+                await asyncio.to_thread(stream)
+            last = sent[-1]
             stops = link.counters["watchdog_stops"]
             while link.counters["watchdog_stops"] < stops + 3:
                 await asyncio.sleep(0.01)
@@ -256,8 +269,13 @@ def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> N
         assert len(statuses) >= 10 and statuses[-1].aperture_mm < 80.0
         assert aperture < 80
         # The watchdog's three stops; stop() adds a last zero of its own after them.
-        zeros = [t for t, c in recorder.commands() if c.grasp == 0.0 and t > last - 0.002][:3]
+        commands = recorder.commands()
+        zeros = [t for t, c in commands if c.grasp == 0.0 and t > last - 0.002][:3]
         assert len(zeros) == 3
+        # While the stream flowed, a zero only ever followed a 50 ms gap in it.
+        for t, c in commands:
+            if c.grasp == 0.0 and sent[0] < t < last:
+                assert t - max(s for s in sent if s < t) >= 0.05 - 0.002
         assert zeros[0] - last >= 0.05 - 0.002  # never early
         # Repeated every period while silent: a stop frame lost on the bus is sent again.
         assert all(b - a >= 0.05 - 0.002 for a, b in itertools.pairwise(zeros))

@@ -283,8 +283,11 @@ class HandLink:
     asyncio loop that already wakes for the commands, with no thread: the watchdog is a timer
     on that loop, status is read when the bus's file is readable (socketcan) or when
     ``poll()`` is called (the virtual bus: by the simulated hand on the same loop, after it
-    sends), and only opening the driver goes to a worker thread. In a thread, ``command()`` may
-    be called from any thread; on a loop, only from the loop's. It sends at once. When the
+    sends), and only opening the driver goes to a worker thread. ``command()`` may be called
+    from any thread, and sends at once. On a loop, a command from the loop's thread moves the
+    watchdog's timer to its new deadline; one from another thread (Zenoh's, which receives it)
+    leaves the timer be, and the timer, when it fires, finds the fresh command and moves itself:
+    one wake-up of the loop per ``watchdog_s`` while commands flow, none per command. When the
     newest command is older than ``watchdog_s`` the link sends zero velocity, again every
     ``watchdog_s`` while no fresh command comes. A driver error is reported
     (``on_event(level, text)``), the driver is shut down and reopened after a backoff that
@@ -317,6 +320,7 @@ class HandLink:
         self._thread = threading.Thread(target=self._run, name="hand-link", daemon=True)
         # On a loop: the task that (re)connects, the watchdog's timer, the file read from.
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread: int | None = None
         self._connecting: asyncio.Task[None] | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._reader: int | None = None
@@ -333,6 +337,7 @@ class HandLink:
             self._thread.start()
         else:
             self._loop = loop
+            self._loop_thread = threading.get_ident()  # start(loop) is called on the loop
             self._connecting = loop.create_task(self._reconnect(first=True))
         return self
 
@@ -352,7 +357,7 @@ class HandLink:
                 self._fail(exc)
                 return False
             self.counters["commands"] += 1
-        if self._loop is not None:
+        if self._loop is not None and threading.get_ident() == self._loop_thread:
             self._arm()
         return True
 
@@ -382,12 +387,28 @@ class HandLink:
         # Called with the lock held.
         self.counters["errors"] += 1
         self._on_event("error", f"hand bus error: {type(exc).__name__}: {exc}; reconnecting")
-        self._unwatch()
+        off_loop = self._loop is not None and threading.get_ident() != self._loop_thread
+        if not off_loop:
+            self._unwatch()
         if self._driver is not None:
             self._driver.shutdown()
         self._driver = None
-        if self._loop is not None and not self._stop.is_set():
+        if off_loop:  # a command sent from another thread failed: the loop's part on the loop
+            with contextlib.suppress(RuntimeError):  # the loop may be closed
+                self._loop.call_soon_threadsafe(self._restart)  # type: ignore[union-attr]
+        elif self._loop is not None and not self._stop.is_set():
             self._connecting = self._loop.create_task(self._reconnect(first=False))
+
+    def _restart(self) -> None:
+        # On the loop, after a failure on another thread: stop reading the old driver's file
+        # (unless a new one is read already), reconnect.
+        with self._lock:
+            if self._driver is not None or self._stop.is_set():
+                return
+            self._unwatch()
+        self._connecting = self._loop.create_task(  # type: ignore[union-attr]
+            self._reconnect(first=False)
+        )
 
     def _connect(self) -> bool:
         try:
