@@ -23,7 +23,7 @@ from lpc_core.devices import can_protocol as cp
 from lpc_core.devices.hand import HandCommand, HandStatus
 from lpc_core.sim.hand import HandParams, HandState, hand_step
 from services.drivers.errors import DeviceUnavailable
-from services.drivers.hand import DEFAULT_CHANNEL
+from services.drivers.hand import DEFAULT_CHANNEL, open_can_bus
 
 PERIOD_S = 0.01
 _STOP = HandCommand()
@@ -70,9 +70,7 @@ class SimulatedHand:
         if profile not in ("lpc", "robolimb"):
             raise ValueError(f"profile must be 'lpc' or 'robolimb', got {profile!r}")
         try:
-            self._bus = can.Bus(
-                interface=interface, channel=channel, receive_own_messages=False, **kwargs
-            )
+            self._bus = open_can_bus(interface, channel, receive_own_messages=False, **kwargs)
         except (can.CanError, ImportError, OSError, ValueError) as exc:
             raise DeviceUnavailable(
                 f"simulated hand cannot open {interface}:{channel}: {exc}"
