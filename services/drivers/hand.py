@@ -329,8 +329,8 @@ class HandLink:
     sends), and only opening the driver goes to a worker thread. ``command()`` may be called
     from any thread, and sends at once. On a loop, a command from the loop's thread moves the
     watchdog's timer to its new deadline; one from another thread (Zenoh's, which receives it)
-    leaves the timer be, and the timer, when it fires, finds the fresh command and moves itself:
-    one wake-up of the loop per ``watchdog_s`` while commands flow, none per command. When the
+    leaves the timer be: the next status read (``poll``) moves it, or the timer, when it fires,
+    finds the fresh command and moves itself; no wake-up of the loop per command. When the
     newest command is older than ``watchdog_s`` the link sends zero velocity, again every
     ``watchdog_s`` while no fresh command comes. A driver error is reported
     (``on_event(level, text)``), the driver is shut down and reopened after a backoff that
@@ -366,6 +366,7 @@ class HandLink:
         self._loop_thread: int | None = None
         self._connecting: asyncio.Task[None] | None = None
         self._timer: asyncio.TimerHandle | None = None
+        self._armed_after = -float("inf")  # the newest command when the timer was set
         self._reader: int | None = None
         self.counters: dict[str, int] = {
             "commands": 0,
@@ -501,14 +502,20 @@ class HandLink:
                         self._fail(exc)
                 return
             if status is None:
-                return
+                break
             self._received(driver, status)
+        if self._timer is not None and self._last_command > self._armed_after:
+            # Commands came from another thread since the timer was set: move it now, while
+            # the loop is awake for the status, rather than wake it when the old deadline
+            # passes (25 times a second at 100 Hz of commands and a 40 ms watchdog).
+            self._arm()
 
     def _arm(self) -> None:
         # One timer, moved to the new deadline by each command: a stream of fresh commands
         # never wakes the loop for the watchdog.
         if self._timer is not None:
             self._timer.cancel()
+        self._armed_after = self._last_command
         due = max(self._last_command, self._last_zero) + self.watchdog_s
         self._timer = self._loop.call_later(  # type: ignore[union-attr]
             max(due - self._clock(), 0.0), self._on_watchdog
