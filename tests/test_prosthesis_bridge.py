@@ -17,7 +17,7 @@ from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisCommand, decode, encode
 from services.drivers.errors import DeviceUnavailable, DriverError, OperationError
 from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand
-from services.drivers.hand_sim import SimulatedHand
+from services.drivers.hand_sim import PERIOD_S, SimulatedHand, _next_tick
 from tests.conftest import spawn_service, wait_for
 
 _channels = itertools.count()
@@ -155,6 +155,14 @@ def test_simulated_hand_stops_on_its_own_watchdog(channel: str) -> None:
         assert status is not None and status.watchdog and not status.moving
 
 
+def test_simulated_hand_skips_the_ticks_a_stall_missed() -> None:
+    # On time or a little late: the 10 ms grid holds.
+    assert _next_tick(1.0, 1.0) == pytest.approx(1.0 + PERIOD_S)
+    assert _next_tick(1.0, 1.008) == pytest.approx(1.0 + PERIOD_S)
+    # Run 55 ms late (a stall): the next tick is a period after now, not the five missed ones.
+    assert _next_tick(1.0, 1.055) == pytest.approx(1.055 + PERIOD_S)
+
+
 # --------------------------------------------------------------------------- the link's watchdog
 
 
@@ -212,13 +220,16 @@ def test_link_fresh_commands_hold_off_the_watchdog(channel: str) -> None:
         recorder.close()
 
 
-def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> None:
+@pytest.mark.parametrize("sender", ["loop", "thread"])
+def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str, sender: str) -> None:
     """The bridge's way: link and simulated hand as callbacks on one asyncio loop, no thread of
     their own. Status comes in through ``poll`` after each tick; the watchdog, a timer on the
     loop, sends zero velocity no sooner than ``watchdog_s`` after the last command, and again
-    every period while no command comes."""
+    every period while no command comes. The commands come from the loop, or from another
+    thread (the bridge's: Zenoh's, which receives them) without moving the loop's timer."""
     recorder = Recorder(channel)
     statuses: list[HandStatus] = []
+    sent: list[float] = []
 
     async def run() -> tuple[float, int]:
         loop = asyncio.get_running_loop()
@@ -230,11 +241,21 @@ def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> N
         try:
             while not link.connected:
                 await asyncio.sleep(0.005)
-            last = 0.0
-            for _ in range(20):  # 200 ms of closing at 100 Hz
-                last = time.time()  # python-can stamps the frame with time.time() too
-                assert link.command(HandCommand(grasp=0.5))
-                await asyncio.sleep(0.01)
+            if sender == "loop":
+                for _ in range(20):  # 200 ms of closing at 100 Hz
+                    sent.append(time.time())  # python-can stamps the frame with time.time() too
+                    assert link.command(HandCommand(grasp=0.5))
+                    await asyncio.sleep(0.01)
+            else:
+
+                def stream() -> None:
+                    for _ in range(20):
+                        sent.append(time.time())
+                        assert link.command(HandCommand(grasp=0.5))
+                        time.sleep(0.01)
+
+                await asyncio.to_thread(stream)
+            last = sent[-1]
             stops = link.counters["watchdog_stops"]
             while link.counters["watchdog_stops"] < stops + 3:
                 await asyncio.sleep(0.01)
@@ -248,8 +269,13 @@ def test_link_on_a_loop_reads_the_simulated_hand_and_stops_it(channel: str) -> N
         assert len(statuses) >= 10 and statuses[-1].aperture_mm < 80.0
         assert aperture < 80
         # The watchdog's three stops; stop() adds a last zero of its own after them.
-        zeros = [t for t, c in recorder.commands() if c.grasp == 0.0 and t > last - 0.002][:3]
+        commands = recorder.commands()
+        zeros = [t for t, c in commands if c.grasp == 0.0 and t > last - 0.002][:3]
         assert len(zeros) == 3
+        # While the stream flowed, a zero only ever followed a 50 ms gap in it.
+        for t, c in commands:
+            if c.grasp == 0.0 and sent[0] < t < last:
+                assert t - max(s for s in sent if s < t) >= 0.05 - 0.002
         assert zeros[0] - last >= 0.05 - 0.002  # never early
         # Repeated every period while silent: a stop frame lost on the bus is sent again.
         assert all(b - a >= 0.05 - 0.002 for a, b in itertools.pairwise(zeros))
