@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import collections
 import signal
 import subprocess
 import sys
@@ -239,3 +240,21 @@ def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: 
         session.close()
 
     asyncio.run(main())
+
+
+def test_health_latency_quantiles_by_partition_equal_the_sorted_ones() -> None:
+    """With numpy loaded the health's p50/p99 come from a partition, not a sort: the same
+    Python floats as ``_quantile`` on the sorted samples, ties and short streams included."""
+    from services.runtime import _latency_quantiles, _quantile
+
+    rng = np.random.default_rng(5)
+    for sizes in ((1,), (2,), (0, 3), (7, 100), (2048, 2048), (2048, 5, 0)):
+        streams = [
+            collections.deque(np.round(rng.exponential(2.0, n), 1).tolist(), maxlen=2048)
+            for n in sizes
+        ]
+        ordered = sorted(x for s in streams for x in s)
+        got = _latency_quantiles(streams)
+        assert got == (_quantile(ordered, 0.50), _quantile(ordered, 0.99))
+        assert all(type(q) is float for q in got)
+    assert _latency_quantiles([collections.deque(), collections.deque()]) is None

@@ -184,7 +184,10 @@ def cluster_points(points: np.ndarray, gap_m: float) -> np.ndarray:
     first = order[starts]
     cube = np.empty(n, dtype=np.intp)
     cube[order] = np.cumsum(starts) - 1
-    pairs = cKDTree(points[first]).query_pairs(gap_m, output_type="ndarray")
+    # Midpoint splits (balanced_tree=False) instead of medians: a tree of a hundred-odd cube
+    # points builds and searches in fewer instructions. The search is exact either way, so the
+    # pairs, and the components, are the same.
+    pairs = cKDTree(points[first], balanced_tree=False).query_pairs(gap_m, output_type="ndarray")
     return _components(len(first), pairs)[cube]
 
 
