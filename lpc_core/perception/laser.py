@@ -187,9 +187,12 @@ class LaserParams:
     # shows none. A fit on the whole arc comes out too flat, 5-8 mm too wide. Where the
     # samples within 4 px of the silhouette they show bow out of that fit by rim_bow_m
     # (median), a cylinder is refitted on those at least rim_bias_px inside it (see
-    # _rim_free). rim_bias_px 0 turns it off.
+    # _rim_free). The inner arc is noisier: where the whole arc's fit holds (the rotation
+    # suite's 75 mm cylinder, rims bowing 0.4-1.0 mm), a lower gate cost more than it gave
+    # (0.4 mm: SGBM 7 functional cylinders 3.75 -> 2.87 mm, but the 75 mm one 2.70 -> 3.47;
+    # 1.2 mm: 3.38 and 2.77, the 40 mm one 2.07 -> 2.03). rim_bias_px 0 turns it off.
     rim_bias_px: float = 9.0
-    rim_bow_m: float = 0.0004
+    rim_bow_m: float = 0.0012
     # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
     # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
     # for a 7 x 7 window. Fixed, it cost lpc's own noise model, which does not fatten, cuboid
@@ -1783,7 +1786,7 @@ def _decide(
         if resting is None:
             # The support pins a resting round's radius already (and _resting_width starts
             # from the solid as fitted).
-            inner = _rim_free(lines, full, params, _pixel_rad(lines, params))
+            inner = _rim_free(lines, full, clean, params, _pixel_rad(lines, params))
             if inner is not None and inner.radius < solid.radius:
                 # The pull toward the camera only widens a fit: one narrower already (the
                 # camera-facing or plateau-free fit) stands. As in _camera_facing, the rims
@@ -2048,7 +2051,11 @@ def _across_view(solid: CylinderSolid, points: np.ndarray) -> np.ndarray | None:
 
 
 def _rim_free(
-    lines: list[LineModels], full: CylinderSolid, params: LaserParams, pixel_rad: float
+    lines: list[LineModels],
+    full: CylinderSolid,
+    clean: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
 ) -> CylinderSolid | None:
     """The cylinder refitted on its lines' samples at least ``rim_bias_px`` inside both the
     silhouette the samples show (the extremes of their view angles across the axis: every
@@ -2061,10 +2068,10 @@ def _rim_free(
     ``LaserParams.rim_bias_px``), so a fit on the whole arc comes out too flat and too wide,
     and its silhouette lies too far out to trim against as ``_camera_facing`` does: the
     samples' own extent does not depend on the fit. The rim then bows out of the whole arc's
-    fit (median 0.7-2.0 mm on SGBM 5-9 and BM 9 cylinders, p10 0.2-0.5 mm); under lpc's noise
-    model it lies on it (p90 0.18 mm), and the whole arc pins the radius far better than the
-    inner part alone (an upright can seen from 45 degrees above: 2-4 mm narrower on inner
-    samples within 0.6 mm of the truth).
+    fit (median 0.7-2.0 mm on the functional cylinders under SGBM 5-9 and BM 9, p10 0.2-0.5
+    mm); under lpc's noise model it lies on it (p90 0.18 mm), and the whole arc pins the
+    radius far better than the inner part alone (an upright can seen from 45 degrees above:
+    2-4 mm narrower on inner samples within 0.6 mm of the truth).
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
@@ -2115,6 +2122,13 @@ def _rim_free(
             break
         solid, kept = refit, samples.compress(keep, axis=0)
     if kept is None:
+        return None
+    # Nor can it be narrower than the runs span across the axis, less the rims a matcher may
+    # fatten past the silhouette (_RIM_PX on each side): an object only roughly a cylinder
+    # (the 62 mm sweet potato, whose ends curve more tightly, 42 -> 31 mm on BM 9) keeps the
+    # fit on its whole arc (and _round_width its span).
+    allowance = 2 * _RIM_PX * pixel_rad * float(np.median(clean[:, 2]))
+    if 2 * solid.radius < _span_across(solid, clean) - allowance:
         return None
     return solid
 
