@@ -188,11 +188,13 @@ class LaserParams:
     # samples within 4 px of the silhouette they show bow out of that fit by rim_bow_m
     # (median), a cylinder is refitted on those at least rim_bias_px inside it (see
     # _rim_free). The inner arc is noisier: where the whole arc's fit holds (the rotation
-    # suite's 75 mm cylinder, rims bowing 0.4-1.0 mm), a lower gate cost more than it gave
-    # (0.4 mm: SGBM 7 functional cylinders 3.75 -> 2.87 mm, but the 75 mm one 2.70 -> 3.47;
-    # 1.2 mm: 3.38 and 2.77, the 40 mm one 2.07 -> 2.03). rim_bias_px 0 turns it off.
+    # suite's 75 mm cylinder, rims bowing 0.4-1.0 mm) a lower gate costs, a higher one gives
+    # up the upright can. Cylinder width MAE, SGBM 7 (SGBM 9), mm: functional upright 4.8
+    # (8.5) before, 3.3 (5.0) at 0.4 mm, 3.4 (7.9) at 0.8, 5.0 (8.5) at 1.2; rotation 75 mm
+    # 2.70 (3.28), 3.47 (3.89), 2.98 (3.72), 2.77 (3.49); 40 mm 2.07 (2.10), 2.30 (2.35),
+    # 2.04 (2.15), 2.03 (2.07). rim_bias_px 0 turns it off.
     rim_bias_px: float = 9.0
-    rim_bow_m: float = 0.0012
+    rim_bow_m: float = 0.0008
     # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
     # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
     # for a 7 x 7 window. Fixed, it cost lpc's own noise model, which does not fatten, cuboid
