@@ -120,8 +120,11 @@ def test_a_round_is_refitted_without_the_plateaus_ending_its_lines() -> None:
     for view in lv.views("functional", 1, 3, 0, names=cans, sensor=StereoSensor()):
         truth = view.truth.grasp_width_m
         lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-        kept = reconstruct_laser(lines, LaserParams(end_plateaus=False), seed=view.seq)
-        trimmed = reconstruct_laser(lines, LaserParams(), seed=view.seq)
+        # The plateaus alone: the refit inside the rims (rim_bias_px) narrows both.
+        kept = reconstruct_laser(
+            lines, LaserParams(end_plateaus=False, rim_bias_px=0.0), seed=view.seq
+        )
+        trimmed = reconstruct_laser(lines, LaserParams(rim_bias_px=0.0), seed=view.seq)
         assert kept.shape == trimmed.shape == "cylinder"
         assert abs(trimmed.grasp_width_m - truth) <= abs(kept.grasp_width_m - truth)
         assert trimmed.wrist_angle_rad == kept.wrist_angle_rad

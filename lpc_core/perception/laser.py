@@ -181,6 +181,20 @@ class LaserParams:
     rest_gap_ratio: float = 0.7
     rest_float_ratio: float = 0.25
     rest_max_tilt_rad: float = math.radians(10.0)
+    # A matcher pulls a curved surface toward the camera well inside its silhouette, not only
+    # at the rim: on SGBM 7-9 and BM 9 cylinders the samples lie 1.0-1.5 mm outside the true
+    # surface 3-4 px inside it, 0.3-0.4 mm at 8-11 px, none past 11 px; lpc's noise model
+    # shows none. A fit on the whole arc comes out too flat, 5-8 mm too wide. Where the
+    # samples within 4 px of the silhouette they show bow out of that fit by rim_bow_m
+    # (median), a cylinder is refitted on those at least rim_bias_px inside it (see
+    # _rim_free). The inner arc is noisier: where the whole arc's fit holds (the rotation
+    # suite's 75 mm cylinder, rims bowing 0.4-1.0 mm) a lower gate costs, a higher one gives
+    # up the upright can. Cylinder width MAE, SGBM 7 (SGBM 9), mm: functional upright 4.8
+    # (8.5) before, 3.3 (5.0) at 0.4 mm, 3.4 (7.9) at 0.8, 5.0 (8.5) at 1.2; rotation 75 mm
+    # 2.70 (3.28), 3.47 (3.89), 2.98 (3.72), 2.77 (3.49); 40 mm 2.07 (2.10), 2.30 (2.35),
+    # 2.04 (2.15), 2.03 (2.07). rim_bias_px 0 turns it off.
+    rim_bias_px: float = 9.0
+    rim_bow_m: float = 0.0008
     # A cuboid face's seed at an occluding edge moves in by this many pixels (samples along
     # its line): the fattening of a matching window of 2 x edge_fattening_px + 1 pixels, 3
     # for a 7 x 7 window. Fixed, it cost lpc's own noise model, which does not fatten, cuboid
@@ -257,6 +271,8 @@ class LaserParams:
             "rest_gap_ratio",
             "rest_float_ratio",
             "rest_max_tilt_rad",
+            "rim_bias_px",
+            "rim_bow_m",
             "window_fattening_px",
         ):
             if getattr(self, name) < 0:
@@ -1822,6 +1838,15 @@ def _decide(
             extra=extra,
         )
     if shape == "cylinder":
+        if resting is None:
+            # The support pins a resting round's radius already (and _resting_width starts
+            # from the solid as fitted).
+            inner = _rim_free(lines, full, clean, params, _pixel_rad(lines, params))
+            if inner is not None and inner.radius < solid.radius:
+                # The pull toward the camera only widens a fit: one narrower already (the
+                # camera-facing or plateau-free fit) stands. As in _camera_facing, the rims
+                # shift the radius, hardly the axis.
+                solid = replace(solid, radius=inner.radius)
         axis = _canonical_axis(solid.axis)
         return Reconstruction(
             shape="cylinder",
@@ -2056,6 +2081,111 @@ def _round_width(
     if span > 2 * (full.radius + params.solid_threshold_m):
         return span
     return 2 * solid.radius if resting is None else resting
+
+
+# Samples past a round's outermost one across its axis that say its segment goes on there.
+_ROUND_GOES_ON = 3
+
+# Samples within this many pixels of the silhouette they show: the rim a matcher bows out.
+_RIM_PX = 4.0
+# The least fraction of a round's seen span across its axis that its inner samples must span.
+_ROUND_INNER_SPAN = 0.5
+
+
+def _across_view(solid: CylinderSolid, points: np.ndarray) -> np.ndarray | None:
+    """Each point's view angle across the cylinder's axis: its direction from the camera in
+    the cross-section (the plane across the axis), from the foot of the axis's perpendicular
+    through the camera; ``None`` when the axis passes through the camera."""
+    foot = solid.point - (solid.point @ solid.axis) * solid.axis
+    norm = float(np.linalg.norm(foot))
+    if norm < 1e-9:
+        return None
+    towards = foot / norm
+    side = np.cross(solid.axis, towards)
+    return np.arctan2(points @ side, points @ towards)
+
+
+def _rim_free(
+    lines: list[LineModels],
+    full: CylinderSolid,
+    clean: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
+) -> CylinderSolid | None:
+    """The cylinder refitted on its lines' samples at least ``rim_bias_px`` inside both the
+    silhouette the samples show (the extremes of their view angles across the axis: every
+    segment ends at the rim or before it) and ``full``'s; ``None`` when the samples at that
+    silhouette do not bow out of ``full`` by ``rim_bow_m`` (the median of those within
+    ``_RIM_PX``), too few samples or too short an arc remain, or the refit fails or leaves
+    the radius limits.
+
+    A stereo matcher's window pulls a steep surface toward the camera (see
+    ``LaserParams.rim_bias_px``), so a fit on the whole arc comes out too flat and too wide,
+    and its silhouette lies too far out to trim against as ``_camera_facing`` does: the
+    samples' own extent does not depend on the fit. The rim then bows out of the whole arc's
+    fit (median 0.7-2.0 mm on the functional cylinders under SGBM 5-9 and BM 9, p10 0.2-0.5
+    mm); under lpc's noise model it lies on it (p90 0.18 mm), and the whole arc pins the
+    radius far better than the inner part alone (an upright can seen from 45 degrees above:
+    2-4 mm narrower on inner samples within 0.6 mm of the truth).
+    """
+    margin = params.rim_bias_px * pixel_rad
+    if margin <= 0:
+        return None
+    samples = np.concatenate([ln.points for ln in lines])
+    thr = params.solid_threshold_m
+    lo, hi = params.radius_limits_m
+    solid = full
+    kept = None
+    for attempt in range(3):
+        angle = _across_view(solid, samples)
+        if angle is None:
+            return None
+        residuals = solid.residuals(samples)
+        on_round = angle.compress(residuals <= 4 * thr)
+        if len(on_round) == 0:
+            return None
+        first, last = float(on_round.min()), float(on_round.max())
+        # A side past which the segments go on (onto the support a lying round touches)
+        # shows no silhouette: only the fit's counts there.
+        if np.count_nonzero(angle < first) >= _ROUND_GOES_ON:
+            first = -math.inf
+        if np.count_nonzero(angle > last) >= _ROUND_GOES_ON:
+            last = math.inf
+        inset = np.minimum(angle - first, last - angle)
+        if attempt == 0:
+            rim = (inset < _RIM_PX * pixel_rad) & (residuals <= 4 * thr)
+            if np.count_nonzero(rim) < _ROUND_GOES_ON:
+                return None
+            w = samples.compress(rim, axis=0) - full.point
+            across = w - (w @ full.axis)[:, None] * full.axis
+            bow = np.sqrt(np.einsum("ij,ij->i", across, across)) - full.radius
+            if float(np.median(bow)) < params.rim_bow_m:
+                return None
+        # Twice the inlier band: the whole arc's fit, too flat, may miss the inner arc by more.
+        near = residuals <= 2 * thr
+        keep = near & (np.minimum(inset, solid.silhouette_distance(samples)) >= margin)
+        if np.count_nonzero(keep) < max(params.min_points_per_line, np.count_nonzero(near) // 4):
+            break
+        # Too short an arc trades its radius against its centre's depth: a round that spans
+        # few more pixels than twice the margin (the 40 mm cylinder lying 230 mm away, 40 px)
+        # keeps its fit.
+        inner = angle.compress(keep)
+        if inner.max() - inner.min() < _ROUND_INNER_SPAN * (on_round.max() - on_round.min()):
+            break
+        refit = CylinderSolid.estimate(samples.compress(keep, axis=0), solid.axis, iterations=2)
+        if not refit or not lo <= refit.radius <= hi:
+            break
+        solid, kept = refit, samples.compress(keep, axis=0)
+    if kept is None:
+        return None
+    # Nor can it be narrower than the runs span across the axis, less the rims a matcher may
+    # fatten past the silhouette (_RIM_PX on each side): an object only roughly a cylinder
+    # (the 62 mm sweet potato, whose ends curve more tightly, 42 -> 31 mm on BM 9) keeps the
+    # fit on its whole arc (and _round_width its span).
+    allowance = 2 * _RIM_PX * pixel_rad * float(np.median(clean[:, 2]))
+    if 2 * solid.radius < _span_across(solid, clean) - allowance:
+        return None
+    return solid
 
 
 def _without_end_plateaus(
