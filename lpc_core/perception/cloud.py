@@ -1168,11 +1168,14 @@ def _far_behind(
     z = float(middle[2])
     if z <= 0:
         return False
-    u0 = intrinsics.ppx + intrinsics.fx * middle[0] / z
-    v0 = intrinsics.ppy + intrinsics.fy * middle[1] / z
-    ahead = middle + 0.005 * outward
-    du = intrinsics.ppx + intrinsics.fx * ahead[0] / ahead[2] - u0
-    dv = intrinsics.ppy + intrinsics.fy * ahead[1] / ahead[2] - v0
+
+    def pixel(p: np.ndarray) -> tuple[float, float]:
+        u = intrinsics.ppx + intrinsics.fx * p[0] / p[2]
+        return u, intrinsics.ppy + intrinsics.fy * p[1] / p[2]
+
+    u0, v0 = pixel(middle)
+    u1, v1 = pixel(middle + 0.005 * outward)
+    du, dv = u1 - u0, v1 - v0
     norm = math.hypot(du, dv)
     if norm == 0:
         return False
