@@ -241,3 +241,44 @@ def test_a_cylinder_whose_rims_a_matcher_pulls_forward_is_fitted_inside_them() -
         assert full is not None
         rim_free = _rim_free(lines, full, clean, params, _pixel_rad(lines, params))
         assert rim_free is None, (view.subject, view.trial, view.frame)
+
+
+def test_a_lying_cylinder_is_no_narrower_than_its_runs_span() -> None:
+    """SGBM (block 7), the 40 mm cylinder lying, trial 0 frames 2 and 4: its runs span it to
+    within 2 mm, and the fit on the whole arc is within 2 mm, but the fit on the arc facing
+    the camera (laser._camera_facing) traded its radius against its centre's depth under the
+    matcher's correlated errors and came out 10-12 mm narrow. It can be no narrower than its
+    runs span less the rims a matcher fattens (laser._narrower_than_runs)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception.laser import (
+        LaserParams,
+        _camera_facing,
+        _cylinder_candidate,
+        _fattened,
+        _pixel_rad,
+        analyse_lines,
+        decide,
+    )
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    params = LaserParams()
+    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7))
+    checked = 0
+    for view in lv.views("functional", 2, 5, 0, names=["cylinder_lying"], sensor=sensor):
+        if (view.trial, view.frame) not in ((0, 2), (0, 4)):
+            continue
+        lines = analyse_lines(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+        assert _fattened(lines)
+        clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
+        full = _cylinder_candidate(lines, clean, params).solid
+        facing = _camera_facing(full, clean, params, _pixel_rad(lines, params))
+        truth = view.truth.grasp_width_m
+        assert truth - 2 * facing.radius > 0.009, (view.frame, 2 * facing.radius)
+        result = decide(lines)
+        assert result.shape == "cylinder", (view.frame, result.shape, result.reason)
+        error = result.grasp_width_m - truth
+        assert abs(error) < 0.003, (view.frame, error)
+        checked += 1
+    assert checked == 2
