@@ -15,6 +15,8 @@ from lpc_core.perception.cloud import (
     CylinderModel,
     PlaneModel,
     SphereModel,
+    _plane_hypotheses,
+    _support_hypotheses,
     crop_points,
     estimate_normals,
     find_support_plane,
@@ -190,6 +192,26 @@ def test_find_support_plane_none_for_a_lone_ball():
     depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.03))
     cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
     assert find_support_plane(cloud, PARAMS, np.random.default_rng(0)) is None
+
+
+def test_support_hypotheses_are_the_plane_hypotheses_to_the_bit() -> None:
+    # The support search's row layout must give the planes the (T, 3) layout gave, bit for
+    # bit, and the same scores, degenerate triples (a repeated point, three collinear) too.
+    rng = np.random.default_rng(5)
+    table = np.column_stack([rng.uniform(-0.05, 0.05, (300, 2)), rng.normal(0.25, 0.002, 300)])
+    table[7] = table[3]
+    table[11] = 0.5 * (table[3] + table[9])
+    picks = rng.integers(0, len(table), size=(64, 3))
+    picks[0] = (3, 7, 9)
+    picks[1] = (3, 9, 11)
+    normals, offsets, valid = _support_hypotheses(table, picks)
+    triples = table[picks]
+    expected = _plane_hypotheses(triples[:, 0], triples[:, 1], triples[:, 2])
+    assert not valid[0] and not valid[1] and valid[2:].all()
+    np.testing.assert_array_equal(normals.T, expected[0])
+    np.testing.assert_array_equal(offsets, expected[1])
+    np.testing.assert_array_equal(valid, expected[2])
+    np.testing.assert_array_equal(table @ normals + offsets, table @ expected[0].T + expected[1])
 
 
 def test_grid_clusters_separates_objects_30mm_apart():

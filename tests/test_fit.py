@@ -36,6 +36,7 @@ from lpc_core.perception.fit import (
     fit_line,
     fit_lines,
 )
+from lpc_core.perception.ransac import draw_batch
 
 FX = 213.0
 THRESHOLD = 0.001
@@ -485,6 +486,23 @@ def test_draw_samples_distinct_and_uniform():
         sigma = math.sqrt(k / 12 * (1 - k / 12) / 20_000)
         assert np.abs(freq - k / 12).max() < 5 * sigma
     assert (_draw_samples(rng, 3, 50, 3).sum(axis=1) == 3).all()  # n == k: all of them
+
+
+def test_draw_batch_is_floyds_draw_of_its_uniforms_sample_by_sample():
+    # The batched columns must draw what Floyd's algorithm draws one sample at a time from the
+    # same uniforms (in (L, size, k) order): the frame's seed then fixes every fit's samples.
+    for k, n in ((2, [9, 40]), (3, [3, 12, 7]), (5, [5, 6, 30, 120])):
+        sizes = np.array(n)
+        idx = draw_batch(np.random.default_rng(k), sizes, 64, k)
+        u = np.random.default_rng(k).random((len(n), 64, k))
+        for line, count in enumerate(n):
+            for s in range(64):
+                sample: list[int] = []
+                for j in range(k):
+                    top = count - k + j
+                    v = int(u[line, s, j] * float(top + 1))
+                    sample.append(top if v in sample else v)
+                assert idx[line, s].tolist() == sample
 
 
 # --------------------------------------------------------------------------- several lines at once

@@ -227,7 +227,9 @@ def without_support(points: np.ndarray, params: AimParams, seed: int = 0) -> np.
     or more and an object (``min_cluster_points``) stands in front of it; else ``points`` as
     they are. The plane is the cloud method's
     (``cloud.find_support_plane``): the largest with (almost) no point behind it."""
-    support = find_support_plane(points, SCAN_LINE_SUPPORT, np.random.default_rng(seed))
+    # default_rng's own generator, PCG64 of the seed, built without its argument checks.
+    rng = np.random.Generator(np.random.PCG64(seed))
+    support = find_support_plane(points, SCAN_LINE_SUPPORT, rng)
     # A table spans the capture volume; a small flat object behind another does not.
     if support is None or np.ptp(points[support, :2], axis=0).max() < params.width_m / 2:
         return points

@@ -88,22 +88,27 @@ def draw_batch(rng: np.random.Generator, n: np.ndarray, size: int, k: int) -> np
     cost a third more) and returned as a view in ``(L, size, k)`` order. With one row it
     draws exactly what ``draw_samples`` draws.
     """
-    # The uniforms are drawn in (L, size, k) order, as ever, and scaled into column blocks.
+    # The uniforms are drawn in (L, size, k) order, as ever, and scaled into column blocks,
+    # truncated to indices on their way out of the product (astype's cast, without the float
+    # block in between).
     u = rng.random((n.shape[0], size, k)).transpose(2, 0, 1)
-    v = np.multiply(u, n[:, None] + _FLOYD_OFFSETS[k], out=np.empty(u.shape)).astype(np.intp)
-    top = n[:, None] - k
+    v = np.empty(u.shape, dtype=np.intp)
+    np.multiply(u, n[:, None] + _FLOYD_OFFSETS[k], out=v, casting="unsafe")
+    fill = n[:, None] + _FLOYD_TOPS[k]  # (k, L, 1): column j takes n - k + j when v is taken
     for col in range(1, k):
         current = v[col]
         # Compare with each earlier column: cheaper than an any() reduction at this size.
         taken = current == v[0]
         for c in range(1, col):
             taken |= current == v[c]
-        np.copyto(current, top + col, where=taken)
+        np.copyto(current, fill[col], where=taken)
     return v.transpose(1, 2, 0)
 
 
-# Column j of a sample of k draws from [0, n - k + j]: n + (1 - k + j) values.
+# Column j of a sample of k draws from [0, n - k + j]: n + (1 - k + j) values, the top one
+# n - k + j.
 _FLOYD_OFFSETS = {k: np.arange(1.0 - k, 1.0)[:, None, None] for k in range(1, 8)}
+_FLOYD_TOPS = {k: np.arange(-k, 0)[:, None, None] for k in range(1, 8)}
 
 
 def draw_samples(rng: np.random.Generator, n: int, size: int, k: int) -> np.ndarray:
