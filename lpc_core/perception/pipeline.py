@@ -81,7 +81,7 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
             ScanLine(
                 angle_deg=float(np.degrees(angle)),
                 points=to_wire(points.astype(np.float32)),
-                past_ends_m=None if past is None else (past[0], past[1]),
+                past_ends_m=past,
             )
             for angle, points, past in zip(
                 lines.angles_rad, lines.points, _past_ends(lines), strict=True

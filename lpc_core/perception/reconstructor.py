@@ -61,6 +61,8 @@ def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
     angles = np.radians([line.angle_deg for line in message.lines])
     no_pixels = np.empty(0, dtype=np.int64)
     past = [line.past_ends_m for line in message.lines]
+    if any(p is not None and len(p) != 2 for p in past):
+        raise ValueError("a scan line's past_ends_m must hold two depths, one per end")
     return CoreScanLines(
         angles_rad=angles,
         points=tuple(points),
