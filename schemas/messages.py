@@ -75,10 +75,16 @@ class DepthFrame(Message, frozen=True, kw_only=True, tag="depth"):
 
 
 class ScanLine(Struct, frozen=True, kw_only=True):
-    """The points of one scan line, (N, 3) float32 metres in the camera frame, sorted along it."""
+    """The points of one scan line, (N, 3) float32 metres in the camera frame, sorted along it.
+
+    ``past_ends_m``: the median depth (metres) of the image 8-30 px past the line's first and
+    last point along it (two floats), 0 where no pixel there has depth; None where not
+    measured (scans recorded before it was).
+    """
 
     angle_deg: float
     points: NDArray
+    past_ends_m: list[float] | None = None
 
 
 class ScanLines(Message, frozen=True, kw_only=True, tag="scans"):

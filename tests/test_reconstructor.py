@@ -166,6 +166,47 @@ def test_scan_lines_from_message_round_trip() -> None:
         assert np.allclose(got, want, atol=1e-6)
 
 
+def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_it() -> None:
+    """The scans step sends each line's depth past its ends (the 40 mm ball before the wall
+    at 0.26 m: the wall past every end); scans recorded before the field existed decode with
+    none, and their scan lines carry none."""
+    frame = _depth_frame(3, "ball")
+    scans = scans_step(ScansState(), frame, 0)[1]
+    decoded = decode("lpc/scans", encode(scans))
+    assert decoded == scans
+    past = scan_lines_from_message(decoded).past_ends_m
+    assert past is not None and past.shape == (4, 2)
+    assert np.allclose(past, 0.26, atol=0.003), past
+
+    class OldScanLine(msgspec.Struct, frozen=True, kw_only=True):
+        angle_deg: float
+        points: object
+
+    class OldScanLines(msgspec.Struct, frozen=True, kw_only=True, tag="scans"):
+        seq: int
+        t_ns: int
+        version: int
+        frame_seq: int
+        lines: list[OldScanLine]
+        capture_points: int = 0
+
+    old = OldScanLines(
+        seq=scans.seq,
+        t_ns=scans.t_ns,
+        version=scans.version,
+        frame_seq=scans.frame_seq,
+        lines=[OldScanLine(angle_deg=ln.angle_deg, points=ln.points) for ln in scans.lines],
+        capture_points=scans.capture_points,
+    )
+    from_old = decode("lpc/scans", msgspec.msgpack.encode(old))
+    assert all(ln.past_ends_m is None for ln in from_old.lines)
+    lines = scan_lines_from_message(from_old)
+    assert lines.past_ends_m is None
+    assert [p.tolist() for p in lines.points] == [
+        p.tolist() for p in scan_lines_from_message(decoded).points
+    ]
+
+
 def test_reconstruct_step_publishes_reconstruction_then_window() -> None:
     state = ReconstructState()
     outputs = []

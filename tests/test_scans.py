@@ -14,6 +14,7 @@ from lpc_core.perception.scans import (
     ScanParams,
     capture_points,
     cut_scan_lines,
+    past_line_ends,
     residual_correlation,
 )
 from lpc_core.sim.scene import NoiseModel, Plane, Scene, render_depth, sphere_object
@@ -137,6 +138,39 @@ def test_cut_other_params_follow_geometry() -> None:
     lines = cut_scan_lines(_render(_wall(0.2)), INTR, params)
     assert list(lines.counts) == [3 * 107, 3 * 107]
     assert np.allclose(np.degrees(lines.angles_rad), [0.0, 90.0])
+
+
+def test_cut_reads_the_depth_past_each_line_end() -> None:
+    # A 30 mm ball at 200 mm: every line ends on the ball's silhouette, and 8-30 px past it
+    # the image holds the wall behind (out of the capture volume), or nothing without one.
+    for wall, expected in ((0.40, 0.40), (0.23, 0.23), (None, 0.0)):
+        scene = _ball(0.03)
+        if wall is not None:
+            scene = Scene(scene.objects, _wall(wall).support)
+        lines = cut_scan_lines(_render(scene), INTR)
+        assert lines.past_ends_m is not None and lines.past_ends_m.shape == (4, 2)
+        assert np.allclose(lines.past_ends_m, expected, atol=0.0011), (wall, lines.past_ends_m)
+    # A line without points reads nothing past its ends; one that the wall ends (at the
+    # capture volume's side) reads the wall past them.
+    empty = cut_scan_lines(np.zeros((240, 424), np.uint16), INTR)
+    assert np.array_equal(empty.past_ends_m, np.zeros((4, 2)))
+    wall = cut_scan_lines(_render(_wall(0.2)), INTR)
+    assert np.allclose(wall.past_ends_m, 0.2)
+
+
+def test_past_line_ends_is_the_median_of_the_pixels_past_the_end_and_skips_no_depth() -> None:
+    # One line along the row through the principal point, its points at columns 100-199: the
+    # pixels 8, 10, ..., 30 columns before column 100 and after column 199 are read.
+    depth = np.zeros((240, 424), np.uint16)
+    row = round(INTR.ppy)
+    depth[row, 100 - 30 : 100 - 7 : 2] = np.arange(300, 312)  # median 305.5 mm
+    depth[row, 199 + 8 : 199 + 31 : 2] = [0] * 11 + [700]  # one pixel with depth
+    pixels = row * 424 + np.arange(100, 200)
+    past = past_line_ends(depth, INTR, np.array([0.0]), pixels, [0, 100])
+    assert past == pytest.approx(np.array([[0.3055, 0.7]]))
+    # Near the image's border the pixels outside it count as no depth.
+    edge = row * 424 + np.arange(3, 20)
+    assert past_line_ends(depth, INTR, np.array([0.0]), edge, [0, 17])[0, 0] == 0.0
 
 
 def test_capture_points_inside_volume() -> None:

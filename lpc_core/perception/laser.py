@@ -215,6 +215,18 @@ class LaserParams:
     # 0 turns it off.
     window_fattening_px: float = 3.0
     window_correlation_gate: float = 0.25
+    # Where the scans carry the depth past the lines' ends, an occluding edge's side takes
+    # that window's fattening in proportion to the depth jump behind the edge, the whole
+    # window at ``far_background_ratio`` of the edge's depth, up to ``far_window_shares``
+    # windows (and those where no depth lies behind it within ``background_reach_px``; see
+    # _window_shares): a matcher fattens an edge by more the further its background lies.
+    # The 40 mm bar lying on the table (the table 0.15-0.26 of its depth behind) came out
+    # 37.0 mm at SGBM 7 with the whole window on every side, 39.2 so; the four boxes of the
+    # functional suite, their far sides under-trimmed, 3.1 -> 2.8 mm (SGBM 7), 4.5 -> 4.3
+    # (SGBM 9). 0.35 is the full cloud's far_background_ratio (CloudParams).
+    far_background_ratio: float = 0.35
+    far_window_shares: float = 1.5
+    background_reach_px: float = 30.0
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
@@ -241,6 +253,8 @@ class LaserParams:
             "disc_min_seeds",
             "disc_max_rms_m",
             "axis_along_view",
+            "far_background_ratio",
+            "background_reach_px",
         )
         for name in positive:
             value = getattr(self, name)
@@ -275,6 +289,7 @@ class LaserParams:
             "rim_bias_px",
             "rim_bow_m",
             "window_fattening_px",
+            "far_window_shares",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -1472,16 +1487,57 @@ def _trimmed_sides(
         normal = normal2[0] * e1 + normal2[1] * e2
         trim = fattening_trim_m(plane.normal[2], normal, z, trim_rad, params.solid_threshold_m)
         lo, hi = out[2 * k], out[2 * k + 1]
-        on_lo = (coords - lo <= tol) & occluding & ~cropped
-        on_hi = (hi - coords <= tol) & occluding & ~cropped
+        on_lo = (coords - lo <= tol) & ~cropped
+        on_hi = (hi - coords <= tol) & ~cropped
         if on_lo.any():
-            lo += trim
+            lo += trim * float(occluding[on_lo].max())
         if on_hi.any():
-            hi -= trim
+            hi -= trim * float(occluding[on_hi].max())
         if hi < lo:
             lo = hi = (lo + hi) / 2
         out[2 * k], out[2 * k + 1] = lo, hi
     return out[0], out[1], out[2], out[3]
+
+
+def _window_shares(
+    lines: list[LineModels], past_ends_m: Any, pixel_rad: float, params: LaserParams
+) -> list[float]:
+    """Per face run end (two a line, as ``_collect_seeds`` orders the seeds): the share of
+    the window's fattening (``window_fattening_px``) its side takes, from the depth jump
+    behind its edge: ``jump / (far_background_ratio z)``, at most ``far_window_shares``.
+
+    Behind the end: past the run's segment, the median depth of the line's own samples within
+    ``background_reach_px``; where none lies that near, the line's data stopped there: the
+    scans' depth past the line's end (``past_ends_m``) when the segment is the line's last,
+    else nothing in the capture volume. No depth there at all takes the largest share; a
+    segment ending at something no further than its end (a hole in the face) keeps the whole
+    window, as does an end that is no occluding edge (it is not trimmed)."""
+    ratio, cap = params.far_background_ratio, params.far_window_shares
+    reach = params.background_reach_px * pixel_rad
+    past = np.asarray(past_ends_m, dtype=np.float64).tolist()
+    out = []
+    for ln in lines:
+        run, last = ln.run, len(ln.points) - 1
+        c, s_ = math.cos(ln.angle), math.sin(ln.angle)
+        for k, end in enumerate((int(run[0]), int(run[-1]))):
+            if end != last * k:
+                out.append(1.0)
+                continue
+            x, y, z = ln.points[end].tolist()
+            beyond = ln.beyond[k] if ln.beyond else _NO_POINTS
+            if len(beyond):
+                q = (beyond[:, 0] * c + beyond[:, 1] * s_) / beyond[:, 2]
+                near = np.abs(q - (x * c + y * s_) / z) <= reach
+                behind = float(np.median(beyond[near, 2])) if near.any() else 0.0
+            else:
+                behind = past[ln.index][k] if ln.index < len(past) else 0.0
+            if behind == 0.0:
+                out.append(cap)
+            elif behind <= z:
+                out.append(1.0)
+            else:
+                out.append(min((behind / z - 1.0) / ratio, cap))
+    return out
 
 
 def _unless_rounded(uv: np.ndarray, uncut: list[list[float]], direction: np.ndarray) -> np.ndarray:
@@ -1965,6 +2021,7 @@ def _decide(
     if len(on_face) < 2:
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
     measured = 0.0
+    window = False
     if params.edge_fattening_px == 0 and params.measure_fattening:
         measured = _fattening(on_face)
         if measured == 0 and scan_lines is not None and params.window_fattening_px > 0:
@@ -1972,9 +2029,16 @@ def _decide(
             if correlation >= params.window_correlation_gate:
                 measured = params.window_fattening_px
                 extra["residual_correlation"] = correlation
+                window = True
         extra["fattening_px"] = measured
     seeds = _collect_seeds(on_face, params, extend=True, face=solid)
     seeds = replace(seeds, points=solid.project(seeds.points))
+    past = getattr(scan_lines, "past_ends_m", None)
+    if window and past is not None and seeds.occluding is not None:
+        share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), params))
+        extra["near_ends"] = float(np.count_nonzero(seeds.occluding & (share < 1.0)))
+        # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
+        seeds = replace(seeds, occluding=seeds.occluding * share)
     walk = replace(params, edge_fattening_px=measured) if measured else params
     beyond = _beyond_edges(on_face, solid, walk) if params.bevels else None
     face = _face_geometry(

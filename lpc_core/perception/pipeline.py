@@ -61,6 +61,12 @@ class ScansState:
     seq: int = 0
 
 
+def _past_ends(lines: object) -> list[list[float] | None]:
+    past = getattr(lines, "past_ends_m", None)
+    count = len(lines.points)  # type: ignore[attr-defined]
+    return [None] * count if past is None else past.tolist()
+
+
 def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[ScansState, ScanLines]:
     """Cut the four scan lines of one depth frame. ``t_ns`` stays the frame's capture time."""
     del now_ns  # capture time, not processing time, travels with the scans
@@ -75,8 +81,11 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
             ScanLine(
                 angle_deg=float(np.degrees(angle)),
                 points=to_wire(points.astype(np.float32)),
+                past_ends_m=past,
             )
-            for angle, points in zip(lines.angles_rad, lines.points, strict=True)
+            for angle, points, past in zip(
+                lines.angles_rad, lines.points, _past_ends(lines), strict=True
+            )
         ],
         capture_points=int(getattr(lines, "capture_count", lines.total_points)),
         truth=frame.truth,

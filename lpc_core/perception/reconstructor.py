@@ -60,7 +60,16 @@ def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
         points.append(array)
     angles = np.radians([line.angle_deg for line in message.lines])
     no_pixels = np.empty(0, dtype=np.int64)
-    return CoreScanLines(angles_rad=angles, points=tuple(points), pixels=(no_pixels,) * len(points))
+    past = [line.past_ends_m for line in message.lines]
+    if any(p is not None and len(p) != 2 for p in past):
+        raise ValueError("a scan line's past_ends_m must hold two depths, one per end")
+    return CoreScanLines(
+        angles_rad=angles,
+        points=tuple(points),
+        pixels=(no_pixels,) * len(points),
+        # Scans recorded before the depth past the lines' ends was measured have none.
+        past_ends_m=None if any(p is None for p in past) else np.array(past, dtype=np.float64),
+    )
 
 
 def _finite(value: float | None) -> float | None:

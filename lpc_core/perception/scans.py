@@ -67,7 +67,9 @@ class ScanLines:
     pixel index (row * width + column) of each point, for overlays. A line with fewer than
     ``min_points`` points keeps them (aim guidance uses every point) but is not ``line_ok``.
     ``capture_count`` is the number of valid points in the whole capture volume (what the
-    full-cloud method would see), or -1 when not counted.
+    full-cloud method would see), or -1 when not counted. ``past_ends_m`` (L, 2): per line,
+    the depth the image holds just past its first and last point (``past_line_ends``), 0
+    where it holds none (as in a depth image); None when not measured.
     """
 
     angles_rad: np.ndarray
@@ -75,6 +77,7 @@ class ScanLines:
     pixels: tuple[np.ndarray, ...]
     min_points: int = 10
     capture_count: int = -1
+    past_ends_m: np.ndarray | None = None
 
     def plane_coords(self, i: int) -> np.ndarray:
         """(N_i, 2) in-plane coordinates (s, z) of line ``i``."""
@@ -255,6 +258,7 @@ def cut_scan_lines(
     counts = np.bincount(line, minlength=len(params.angles_deg)).tolist()
     bounds = [0, *itertools.accumulate(counts)]
     pixels = tab.flat_index[keep]
+    past = past_line_ends(depth, intrinsics, params.angles_rad, pixels, bounds)
     capture_count = -1
     if count_capture:
         win = _volume_window(intrinsics, params)
@@ -269,7 +273,81 @@ def cut_scan_lines(
         pixels=tuple(pixels[a:b] for a, b in itertools.pairwise(bounds)),
         min_points=params.min_points,
         capture_count=capture_count,
+        past_ends_m=past,
     )
+
+
+# Pixels past a line's end whose depth tells what lies behind it: 8 px is past a 9 x 9
+# window's fattened band, 30 px past the hole an occlusion or the projector's shadow leaves
+# (as the full-cloud method's cloud._far_behind reads the background past a face's side).
+_PAST_STEPS_PX = np.arange(8.0, 31.0, 2.0)
+
+
+def past_line_ends(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    angles_rad: np.ndarray,
+    pixels: np.ndarray,
+    bounds: list[int],
+) -> np.ndarray:
+    """(L, 2) per scan line, the median depth (metres) of the image 8-30 px past its first and
+    last point, outward along the line's image direction; 0 where no pixel there has depth
+    (or the line has no point), as a depth image marks no depth (the bus carries no NaN).
+
+    A line keeps only its samples inside the capture volume, so a face's occluding edge and
+    the capture volume's far limit look alike on it; this tells the four-line method whether
+    the background behind a face's edge lies far behind it or nowhere (where a window matcher
+    fattens the edge) or just behind it (a table, which it hardly fattens). ``pixels`` are
+    the lines' flat pixel indices concatenated, line ``i``'s in ``bounds[i]:bounds[i + 1]``.
+    """
+    count = len(bounds) - 1
+    out = np.zeros((count, 2))
+    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    if not filled:
+        return out
+    width, height = intrinsics.width, intrinsics.height
+    d_row, d_col = _past_offsets(intrinsics, tuple(np.asarray(angles_rad).tolist()))
+    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
+    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
+    flat = ends[:, None] + (d_row[lines] * width + d_col[lines])
+    # A handful of ends: Python ints for the bounds check, numpy only for the gather.
+    reach = int(_PAST_STEPS_PX[-1]) + 1
+    if all(
+        reach <= r < height - reach and reach <= c < width - reach
+        for r, c in (divmod(e, width) for e in ends.tolist())
+    ):
+        values = depth.reshape(-1)[flat].tolist()
+    else:
+        row, col = np.divmod(ends, width)
+        r, c = row[:, None] + d_row[lines], col[:, None] + d_col[lines]
+        inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+        values = np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0).tolist()
+    scale = intrinsics.depth_scale
+    medians = []
+    for row_values in values:
+        valid = sorted(v for v in row_values if v)
+        n = len(valid)
+        medians.append(0.5 * (valid[(n - 1) // 2] + valid[n // 2]) * scale if n else 0.0)
+    out[filled] = np.array(medians).reshape(-1, 2)
+    return out
+
+
+@lru_cache(maxsize=16)
+def _past_offsets(
+    intrinsics: Intrinsics, angles_rad: tuple[float, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(2L, steps) row and column offsets of the pixels past each line's first end (row 2i,
+    walking back along the line) and last end (row 2i + 1, walking on)."""
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    du, dv = intrinsics.fx * np.cos(angles), intrinsics.fy * np.sin(angles)
+    norm = np.hypot(du, dv)
+    sign = np.tile([-1.0, 1.0], len(angles))
+    du, dv = np.repeat(du / norm, 2) * sign, np.repeat(dv / norm, 2) * sign
+    d_row = np.rint(dv[:, None] * _PAST_STEPS_PX).astype(np.int64)
+    d_col = np.rint(du[:, None] * _PAST_STEPS_PX).astype(np.int64)
+    d_row.setflags(write=False)
+    d_col.setflags(write=False)
+    return d_row, d_col
 
 
 def capture_points(
