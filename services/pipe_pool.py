@@ -18,10 +18,6 @@ not ``multiprocessing``'s spawned ones. A spawned child first imports its parent
 (the service, with Zenoh: 12 MB a worker) and brings a resource-tracker process along (13 MB)
 that nothing here uses. The worker gets the parent's ``sys.path``, then the pickled initializer,
 over the socket, so it imports only what ``initializer`` needs.
-
-``nice`` is the least niceness a worker runs at. A worker started by a service running at
-nice 0 (``lpc up --together`` runs every service in one process) would otherwise take the CPU
-from the control path on a par with it; a worker already nicer keeps its own.
 """
 
 from __future__ import annotations
@@ -45,13 +41,9 @@ Work = Callable[[bytes], bytes | str]
 _RESULT, _ERROR, _READY = b"R", b"E", b"W"
 
 
-def _worker_main(fd: int, parent_pid: int, nice: int = 0) -> None:
+def _worker_main(fd: int, parent_pid: int) -> None:
     # A worker must not outlive its service, even one killed with SIGKILL.
     die_with_parent(parent_pid=parent_pid)
-    # Raised, never lowered: lowering it needs a privilege the service may not have.
-    now = os.getpriority(os.PRIO_PROCESS, 0)
-    if nice > now:
-        os.setpriority(os.PRIO_PROCESS, 0, nice)
     conn = Connection(fd)
     sys.path[:] = pickle.loads(conn.recv_bytes())
     initializer, initargs = pickle.loads(conn.recv_bytes())
@@ -88,7 +80,6 @@ class PipePool:
         initializer: Callable[..., Work],
         initargs: tuple,
         on_done: Callable[[Any, bytes | str], None],
-        nice: int = 0,
     ) -> None:
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
@@ -102,7 +93,6 @@ class PipePool:
         # forking after a Zenoh session is open hangs.
         self._setup = (pickle.dumps(sys.path), pickle.dumps((initializer, initargs)))
         self._on_done = on_done
-        self._nice = nice
         self._all_ready = asyncio.Event()
         self.failed: str | None = None
         self.restarts = 0
@@ -113,8 +103,7 @@ class PipePool:
         ours, theirs = socket.socketpair()
         with theirs:
             fd = theirs.fileno()
-            argv = [sys.executable, "-m", "services.pipe_pool", str(fd), str(os.getpid()),
-                    str(self._nice)]  # fmt: skip
+            argv = [sys.executable, "-m", "services.pipe_pool", str(fd), str(os.getpid())]
             process = subprocess.Popen(argv, pass_fds=(fd,))
         worker = _Worker(process, Connection(ours.detach()))
         for part in self._setup:
@@ -204,4 +193,4 @@ class PipePool:
 
 
 if __name__ == "__main__":
-    _worker_main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))
+    _worker_main(int(sys.argv[1]), int(sys.argv[2]))

@@ -37,12 +37,6 @@ from services.pipe_pool import PipePool
 from services.reconstructor_worker import init_worker
 from services.runtime import Bus, service_main, service_parser
 
-# The workers' least niceness. lpc up starts this service at nice 5, and its workers inherit
-# that; with --together the service runs in a process at nice 0, and its workers would take
-# the CPU from the control path on a par with it. Where CPU is short, the workers now fall
-# behind first, and the camera sheds for their dropped frames (lpc_core.perception.shedding).
-WORKER_NICE = 5
-
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
@@ -55,11 +49,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     def finished(seq: int, result: bytes | str) -> None:
         inbox.put_nowait(("done", seq, result))
 
-    # Counted from the start, so that the camera's shedding takes the first drops as drops.
-    bus.health.counters["dropped_frames"] = 0
     started = time.monotonic()
-    params = initial_state(args).params
-    pool = PipePool(args.workers, init_worker, (args.method, params), finished, nice=WORKER_NICE)
+    pool = PipePool(args.workers, init_worker, (args.method, initial_state(args).params), finished)
 
     async def pump() -> None:
         # Depth frames are big: keep the newest only. Scans all queue, for in-order release.

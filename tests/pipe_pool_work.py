@@ -12,8 +12,6 @@ def make_work(prefix: bytes):
             return "cannot do 'fail'"
         if job == b"die":
             os._exit(3)
-        if job == b"nice":
-            return prefix + str(os.getpriority(os.PRIO_PROCESS, 0)).encode()
         if job.startswith(b"sleep"):
             time.sleep(float(job[5:]))
         return prefix + job + b"@" + str(os.getpid()).encode()

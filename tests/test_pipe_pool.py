@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import os
 
 import pytest
 
@@ -11,9 +10,7 @@ from services.pipe_pool import PipePool
 from tests.pipe_pool_work import broken_start, make_work
 
 
-async def _collect(
-    pool_size: int, jobs: list[bytes], nice: int = 0
-) -> tuple[dict[int, bytes | str], PipePool]:
+async def _collect(pool_size: int, jobs: list[bytes]) -> tuple[dict[int, bytes | str], PipePool]:
     done: dict[int, bytes | str] = {}
     finished = asyncio.Event()
 
@@ -22,7 +19,7 @@ async def _collect(
         if len(done) == len(jobs):
             finished.set()
 
-    pool = PipePool(pool_size, make_work, (b"ok:",), on_done, nice=nice)
+    pool = PipePool(pool_size, make_work, (b"ok:",), on_done)
     try:
         async with asyncio.timeout(60):
             await pool.ready()
@@ -60,14 +57,6 @@ def test_every_job_comes_back_with_its_tag_spread_over_the_workers() -> None:
     pids = {r.split(b"@")[1] for r in done.values() if isinstance(r, bytes)}
     assert len(pids) == 2  # both workers took jobs
     assert pool.restarts == 0
-
-
-def test_workers_run_at_least_as_nice_as_asked_and_never_less_nice_than_their_service() -> None:
-    own = os.getpriority(os.PRIO_PROCESS, 0)
-    done, _ = asyncio.run(_collect(1, [b"nice"], nice=own + 3))
-    assert done[0] == f"ok:{own + 3}".encode()
-    done, _ = asyncio.run(_collect(1, [b"nice"], nice=own - 1))  # lowering needs a privilege
-    assert done[0] == f"ok:{own}".encode()
 
 
 def test_a_refused_job_is_reported_as_its_reason() -> None:

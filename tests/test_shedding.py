@@ -174,34 +174,6 @@ def test_shed_step_ignores_services_without_tick_counters() -> None:
     assert change is None and state.reports == {}
 
 
-def frames_report(received: int, dropped: int) -> Health:
-    counters = {"received": received, "dropped_frames": dropped, "worker_restarts": 0}
-    return Health(seq=1, t_ns=0, service="reconstructor", pid=1, counters=counters)
-
-
-def test_shed_step_halves_on_one_window_of_dropped_frames_and_climbs_gently_near_it() -> None:
-    state = ShedState(ShedParams(max_rate_hz=90.0))
-    state, _ = shed_step(state, frames_report(0, 0), 0)
-    # A dropped frame is lost already: one window of drops is enough.
-    state, change = shed_step(state, frames_report(90, 3), 1 * S)
-    assert change == RateChange(90.0, 45.0, 3 / 90, "reconstructor", "dropped_frames")
-    # Clean windows: a tenth of the rate a second up to 3/4 of the 90 Hz that dropped frames,
-    # then 1 Hz a second.
-    received, rates = 90, []
-    for second in range(2, 10):
-        received += 60
-        state, _ = shed_step(state, frames_report(received, 3), second * S)
-        rates.append(round(state.rate, 2))
-    assert rates == [49.5, 54.45, 59.9, 65.88, 72.47, 73.47, 74.47, 75.47]
-    state, change = shed_step(state, frames_report(received + 75, 4), 10 * S)  # 1 in 75
-    assert isinstance(change, RateChange) and change.late_fraction == 1 / 75
-    assert change.rate_hz == pytest.approx(change.previous_hz / 2) == pytest.approx(37.73, abs=0.01)
-    # A controller late in too many ticks still needs two windows in a row.
-    state, _ = shed_step(state, report("controller", 100, 0), 10 * S)
-    state, change = shed_step(state, report("controller", 200, 40), 11 * S)
-    assert change is None
-
-
 def test_shed_step_settles_where_the_control_path_keeps_its_rate() -> None:
     # The share of the controller's ticks more than 10 ms late against the camera's rate, as
     # measured with lpc bench footprint --together --record --cpus 0.5 (device at a fixed rate,
@@ -231,10 +203,6 @@ def test_shed_params_reject_bad_values() -> None:
         ShedParams(max_rate_hz=10.0, min_rate_hz=20.0)
     with pytest.raises(ValueError, match="clean_below"):
         ShedParams(clean_below=0.5, late_above=0.3)
-    with pytest.raises(ValueError, match="dropped_clean_below"):
-        ShedParams(dropped_clean_below=0.05, dropped_above=0.02)
-    with pytest.raises(ValueError, match="gentle_above"):
-        ShedParams(gentle_above=0.0)
     with pytest.raises(ValueError, match="decrease"):
         ShedParams(decrease=1.0)
     with pytest.raises(ValueError, match="increase_hz_per_s"):

@@ -4,32 +4,20 @@ lateness.
 When the set has less CPU than it needs (a small board, a CPU quota, a busy machine), the
 camera would still deliver every frame, the perception behind it would take what CPU there is,
 and the control path (EMG, controller, hand commands at 100 Hz) would wake late. Here the
-camera sheds frames at the source instead. The feedback is what the services report in
-their health (``lpc/health/<service>``, once a second):
+camera sheds frames at the source instead. The feedback is what the control path reports in
+its health (``lpc/health/<service>``, once a second): ``ticks``, the periodic ticks of its
+100 Hz timer, and ``late_ticks``, those that woke more than one period late. The rate follows
+AIMD, as TCP's congestion window does:
 
-- the control path: ``ticks``, the periodic ticks of its 100 Hz timer, and ``late_ticks``,
-  those that woke more than one period late;
-- the reconstructor: the frames it ``received`` and the ``dropped_frames`` it had no worker
-  for. Its workers run at a higher niceness than the control path (``services.reconstructor``),
-  so that where CPU is short they fall behind first, and their drops set the rate.
-
-The rate follows AIMD, as TCP's congestion window does:
-
-- a window of one service whose share of late ticks exceeds ``late_above`` (of dropped
-  frames, ``dropped_above``) multiplies the rate by ``decrease``. Late ticks take two windows
-  in a row: one alone is taken for a passing burst (a busy neighbour, services starting up),
-  which under load here made the camera shed at full CPU. Dropped frames take one: they are
-  lost already. At most once per report window: a report whose window began before the last
-  decrease describes the old rate and is not acted on again;
-- a report under ``clean_below`` (``dropped_clean_below``) adds, for each second since the
-  last change, ``increase_hz_per_s`` or ``increase_share_per_s`` of the rate, whichever is
-  more, up to ``max_rate_hz`` (1 Hz a second near the 10 Hz a half-core quota leaves here,
-  but 45 Hz back to 90 in 7 s after a neighbour's burst of load); in between the rate holds.
-  Above ``gentle_above`` of the rate at which the reconstructor last dropped frames, the
-  climb is ``increase_hz_per_s`` alone, as TCP's congestion avoidance above its slow-start
-  threshold: each probe past what the workers keep up with loses frames. Climbing a tenth of
-  the rate a second all the way, the reconstructor dropped 2.2 % of the frames under half a
-  core (9 frames at each top of the saw), against 0.35 % at 1 Hz a second;
+- two windows in a row of one service whose share of late ticks exceeds ``late_above``
+  multiply the rate by ``decrease``: one window alone is taken for a passing burst (a busy
+  neighbour, services starting up), which under load here made the camera shed at full CPU.
+  At most once per report window: a report whose window began before the last decrease
+  describes the old rate and is not acted on again;
+- a report under ``clean_below`` adds, for each second since the last change,
+  ``increase_hz_per_s`` or ``increase_share_per_s`` of the rate, whichever is more, up to
+  ``max_rate_hz`` (1 Hz a second near the 10 Hz a half-core quota leaves here, but 45 Hz back
+  to 90 in 7 s after a neighbour's burst of load); in between the rate holds;
 - with no report for ``stale_ns`` (the reporting service stopped), the rate climbs back the
   same way, so that a control path that went away does not leave the camera throttled.
 
@@ -69,9 +57,6 @@ class ShedParams:
     min_rate_hz: float = 5.0
     late_above: float = 0.30
     clean_below: float = 0.20
-    dropped_above: float = 0.004
-    dropped_clean_below: float = 0.001
-    gentle_above: float = 0.75
     decrease: float = 0.5
     increase_hz_per_s: float = 1.0
     increase_share_per_s: float = 0.1
@@ -88,17 +73,10 @@ class ShedParams:
                 f"need 0 <= clean_below <= late_above < 1, got clean_below {self.clean_below}, "
                 f"late_above {self.late_above}"
             )
-        if not 0 <= self.dropped_clean_below <= self.dropped_above < 1:
-            raise ValueError(
-                "need 0 <= dropped_clean_below <= dropped_above < 1, got dropped_clean_below "
-                f"{self.dropped_clean_below}, dropped_above {self.dropped_above}"
-            )
         if not 0 < self.decrease < 1:
             raise ValueError(f"decrease must be in (0, 1), got {self.decrease}")
         if self.increase_hz_per_s <= 0:
             raise ValueError(f"increase_hz_per_s must be positive, got {self.increase_hz_per_s}")
-        if not 0 < self.gentle_above <= 1:
-            raise ValueError(f"gentle_above must be in (0, 1], got {self.gentle_above}")
         if self.increase_share_per_s < 0:
             raise ValueError(f"increase_share_per_s must be >= 0, got {self.increase_share_per_s}")
         if self.stale_ns <= 0:
@@ -106,14 +84,13 @@ class ShedParams:
 
 
 @dataclass(frozen=True)
-class WorkCount:
-    """A reporting service's counters as last seen (its ticks and the late ones, or its frames
-    and the dropped ones), and when (``now_ns`` of the report)."""
+class TickCount:
+    """A reporting service's counters as last seen, and when (``now_ns`` of the report)."""
 
-    work: int
-    missed: int
+    ticks: int
+    late_ticks: int
     seen_ns: int
-    behind: bool = False  # the window that ended with this report missed too much
+    behind: bool = False  # the window that ended with this report had too many late ticks
 
 
 @dataclass(frozen=True)
@@ -125,11 +102,8 @@ class ShedState:
     last_decrease_ns: int = -1
     last_increase_ns: int = -1
     last_report_ns: int = -1
-    reports: Mapping[str, WorkCount] = field(default_factory=lambda: MappingProxyType({}))
+    reports: Mapping[str, TickCount] = field(default_factory=lambda: MappingProxyType({}))
     shed_frames: int = 0
-    # The rate at which the reconstructor last dropped frames (0: never): the climb slows
-    # near it, since every probe past what the workers keep up with loses frames.
-    dropped_at_hz: float = 0.0
 
     @property
     def rate(self) -> float:
@@ -153,14 +127,12 @@ class Gate(enum.Enum):
 
 @dataclass(frozen=True)
 class RateChange:
-    """The allowed rate moved, on a report of ``service`` that missed ``late_fraction`` of its
-    work: ticks late, or (``missed`` "dropped_frames") frames dropped."""
+    """The allowed rate moved, on a report of ``service`` with ``late_fraction`` late ticks."""
 
     previous_hz: float
     rate_hz: float
     late_fraction: float
     service: str
-    missed: str = "late_ticks"
 
 
 def shed_step(
@@ -195,56 +167,38 @@ def _frame(state: ShedState, now_ns: int) -> tuple[ShedState, Gate | RateChange 
 def _report(
     state: ShedState, health: Health, now_ns: int
 ) -> tuple[ShedState, Gate | RateChange | None]:
+    ticks = health.counters.get("ticks")
+    late = health.counters.get("late_ticks")
+    if ticks is None or late is None:
+        return state, None  # a service without a control timer
     p = state.params
-    counters = health.counters
-    if "ticks" in counters and "late_ticks" in counters:
-        missed_by = "late_ticks"
-        work, missed = counters["ticks"], counters["late_ticks"]
-        above, below = p.late_above, p.clean_below
-    elif "received" in counters and "dropped_frames" in counters:
-        missed_by = "dropped_frames"
-        work, missed = counters["received"], counters["dropped_frames"]
-        above, below = p.dropped_above, p.dropped_clean_below
-    else:
-        return state, None  # a service with nothing that can miss its time
     previous = state.reports.get(health.service)
-    fresh = previous is None or work <= previous.work or missed < previous.missed
-    fraction = 0.0 if fresh else (missed - previous.missed) / (work - previous.work)
+    fresh = previous is None or ticks <= previous.ticks or late < previous.late_ticks
+    fraction = 0.0 if fresh else (late - previous.late_ticks) / (ticks - previous.ticks)
     reports = dict(state.reports)
-    reports[health.service] = WorkCount(work, missed, now_ns, fraction > above)
+    reports[health.service] = TickCount(ticks, late, now_ns, fraction > p.late_above)
     state = replace(state, reports=MappingProxyType(reports), last_report_ns=now_ns)
     if previous is None or fresh:
         return state, None  # the first report, or the service restarted: a new baseline
     before = state.rate
-    if fraction > above:
-        # One late window alone is taken for a passing burst; a dropped frame is lost
-        # already, so one window of drops is enough. A window that began before the last
-        # decrease describes the old rate.
-        alone = missed_by == "late_ticks" and not previous.behind
-        if alone or previous.seen_ns < state.last_decrease_ns:
+    if fraction > p.late_above:
+        if not previous.behind or previous.seen_ns < state.last_decrease_ns:
+            # One late window alone, or one that saw the rate before the last decrease.
             return state, None
         rate = max(p.min_rate_hz, before * p.decrease)
-        state = replace(
-            state,
-            rate_hz=rate,
-            last_decrease_ns=now_ns,
-            last_increase_ns=now_ns,
-            dropped_at_hz=before if missed_by == "dropped_frames" else state.dropped_at_hz,
-        )
-    elif fraction < below:
+        state = replace(state, rate_hz=rate, last_decrease_ns=now_ns, last_increase_ns=now_ns)
+    elif fraction < p.clean_below:
         state = _increase(state, max(state.last_increase_ns, previous.seen_ns), now_ns)
     else:
         state = replace(state, last_increase_ns=now_ns)  # hold
     if state.rate == before:
         return state, None
-    return state, RateChange(before, state.rate, fraction, health.service, missed_by)
+    return state, RateChange(before, state.rate, fraction, health.service)
 
 
 def _increase(state: ShedState, since_ns: int, now_ns: int) -> ShedState:
     p = state.params
     seconds = min(max(0, now_ns - since_ns) / 1e9, 2.0)  # no leap after a long silence
-    near_drops = state.rate >= p.gentle_above * state.dropped_at_hz > 0
-    share = 0.0 if near_drops else p.increase_share_per_s
-    step_hz = max(p.increase_hz_per_s, share * state.rate)
+    step_hz = max(p.increase_hz_per_s, p.increase_share_per_s * state.rate)
     rate = min(p.max_rate_hz, state.rate + step_hz * seconds)
     return replace(state, rate_hz=rate, last_increase_ns=now_ns)
