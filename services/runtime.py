@@ -87,15 +87,6 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-# Zenoh's five runtimes (receive, transmit, accept, network, application; five threads, receive
-# two) as one thread: the 100 Hz streams are a few small messages every 10 ms, and a message
-# handed from one runtime's thread to another's cost a wake-up each time. Zenoh reads this when
-# a process opens its first session; a ZENOH_RUNTIME of the user's own is kept.
-ZENOH_RUNTIME = (
-    "(rx: (handover: app), tx: (handover: app), acc: (handover: app), net: (handover: app))"
-)
-
-
 def zenoh_config(
     *,
     mode: str = "peer",
@@ -105,10 +96,8 @@ def zenoh_config(
 ) -> zenoh.Config:
     """Peer mode on loopback with multicast scouting off, unless a config file says otherwise.
 
-    Gossip stays on so that peers which reach one rendezvous peer form a full mesh. Zenoh's
-    runtimes share one thread (``ZENOH_RUNTIME``), unless the environment says otherwise.
+    Gossip stays on so that peers which reach one rendezvous peer form a full mesh.
     """
-    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     if config_file:
         try:
             conf = zenoh.Config.from_file(config_file)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import os
 import signal
 import subprocess
 import sys
@@ -259,38 +258,3 @@ def test_health_latency_quantiles_by_partition_equal_the_sorted_ones() -> None:
         assert got == (_quantile(ordered, 0.50), _quantile(ordered, 0.99))
         assert all(type(q) is float for q in got)
     assert _latency_quantiles([collections.deque(), collections.deque()]) is None
-
-
-_ZENOH_THREADS = textwrap.dedent(
-    """
-    import os
-    import zenoh
-    from services.runtime import zenoh_config
-
-    with zenoh.open(zenoh_config(connect=[], listen=["tcp/127.0.0.1:0"])):
-        tasks = os.listdir("/proc/self/task")
-        names = {open(f"/proc/self/task/{t}/comm").read().strip() for t in tasks}
-        print(" ".join(sorted(n for n in names if n[:3] in ("app", "acc", "net", "rx-", "tx-"))))
-    """
-)
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread names from /proc")
-@pytest.mark.parametrize(
-    ("env", "threads"),
-    [
-        (None, "app-0"),  # every runtime handed over to the application's one thread
-        ("(rx: (worker_threads: 1))", "acc-0 app-0 net-0"),  # the user's own: no hand-overs
-    ],
-)
-def test_zenoh_runtimes_share_one_thread_unless_the_environment_says(
-    env: str | None, threads: str
-) -> None:
-    environ = {k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}
-    if env is not None:
-        environ["ZENOH_RUNTIME"] = env
-    out = subprocess.run(
-        [sys.executable, "-c", _ZENOH_THREADS], env=environ, capture_output=True, text=True
-    )
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == threads.split()
