@@ -1078,7 +1078,15 @@ def _scattered_direction(
     if best is not None:
         return best
     if on == need - 1:
-        return _unless_one_scattered(uv, cropped, direction, wide)
+        # A lone seed off the sides is a bevel or a corner under lpc's noise model, but a
+        # matcher moves every seed at an occluding edge by its own fattening: with few uncut
+        # seeds (a face larger than the capture volume leaves four), the count then holds
+        # three of them by chance along a direction 5-14 degrees off (the lying box at SGBM 9),
+        # and leaves the fourth beyond any scatter, where the pooled fit, 0.2-2.6 degrees off,
+        # holds them all within the wider tolerance.
+        pooled = _pooled_sides_direction(uv, cropped, direction)
+        pooled_wide, _ = _rectangle_score(pts, valid, pooled.tolist(), wide)
+        return pooled if pooled_wide >= need else direction
     wider = _edge_direction(uv, cropped, wide)
     if wider is not None:
         on_wide, _ = _rectangle_score(pts, valid, wider.tolist(), wide)
@@ -1133,29 +1141,6 @@ _POOLED_START_DIRECTIONS = [
     np.array([math.cos(math.radians(a)), math.sin(math.radians(a))])
     for a in np.arange(0.0, 90.0, _POOLED_STARTS)
 ]
-
-
-def _unless_one_scattered(
-    uv: np.ndarray, cropped: np.ndarray, direction: np.ndarray, wide: float
-) -> np.ndarray:
-    """``direction``, which leaves one uncut seed off its sides, or the least-squares fit of
-    every uncut seed to its nearest side (``_pooled_sides_direction``) when that fit holds
-    them all within ``wide`` and ``direction`` does not.
-
-    A lone seed off the sides is a bevel or a corner under lpc's noise model, but a matcher
-    moves every seed at an occluding edge by its own fattening: with few uncut seeds (a face
-    larger than the capture volume leaves four), the count then holds three of them by
-    chance along a direction 5-14 degrees off (the lying box at SGBM 9), and it leaves the
-    fourth beyond any scatter, where the pooled fit, 0.2-2.6 degrees off, holds them all."""
-    valid = (~cropped).tolist()
-    pts = uv.tolist()
-    need = sum(valid)
-    on_wide, _ = _rectangle_score(pts, valid, direction.tolist(), wide)
-    if on_wide >= need:
-        return direction
-    pooled = _pooled_sides_direction(uv, cropped, direction)
-    pooled_wide, _ = _rectangle_score(pts, valid, pooled.tolist(), wide)
-    return pooled if pooled_wide >= need else direction
 
 
 def _pooled_sides_direction(
