@@ -16,7 +16,6 @@ from lpc_core.perception.cloud import (
     PlaneModel,
     SphereModel,
     _plane_hypotheses,
-    _support_hypotheses,
     crop_points,
     estimate_normals,
     find_support_plane,
@@ -194,9 +193,9 @@ def test_find_support_plane_none_for_a_lone_ball():
     assert find_support_plane(cloud, PARAMS, np.random.default_rng(0)) is None
 
 
-def test_support_hypotheses_are_the_plane_hypotheses_to_the_bit() -> None:
-    # The support search's row layout must give the planes the (T, 3) layout gave, bit for
-    # bit, and the same scores, degenerate triples (a repeated point, three collinear) too.
+def test_plane_hypotheses_are_the_triples_planes_facing_away_from_the_camera() -> None:
+    # Against np.cross and np.linalg.norm, degenerate triples (a repeated point, three
+    # collinear) flagged.
     rng = np.random.default_rng(5)
     table = np.column_stack([rng.uniform(-0.05, 0.05, (300, 2)), rng.normal(0.25, 0.002, 300)])
     table[7] = table[3]
@@ -204,14 +203,15 @@ def test_support_hypotheses_are_the_plane_hypotheses_to_the_bit() -> None:
     picks = rng.integers(0, len(table), size=(64, 3))
     picks[0] = (3, 7, 9)
     picks[1] = (3, 9, 11)
-    normals, offsets, valid = _support_hypotheses(table, picks)
-    triples = table[picks]
-    expected = _plane_hypotheses(triples[:, 0], triples[:, 1], triples[:, 2])
+    normals, offsets, valid = _plane_hypotheses(table, picks)
     assert not valid[0] and not valid[1] and valid[2:].all()
-    np.testing.assert_array_equal(normals.T, expected[0])
-    np.testing.assert_array_equal(offsets, expected[1])
-    np.testing.assert_array_equal(valid, expected[2])
-    np.testing.assert_array_equal(table @ normals + offsets, table @ expected[0].T + expected[1])
+    p0, p1, p2 = (table[picks[:, i]] for i in range(3))
+    cross = np.cross(p1 - p0, p2 - p0)[2:]
+    unit = cross / np.linalg.norm(cross, axis=1)[:, None]
+    unit *= np.where(np.einsum("ij,ij->i", unit, p0[2:]) < 0, -1.0, 1.0)[:, None]
+    np.testing.assert_allclose(normals.T[2:], unit, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(offsets[2:], -np.einsum("ij,ij->i", unit, p0[2:]), atol=1e-12)
+    assert (offsets[2:] <= 0).all()  # the camera (the origin) on the normals' negative side
 
 
 def test_grid_clusters_separates_objects_30mm_apart():

@@ -433,46 +433,21 @@ def _sample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
     return np.arange(n) if n <= size else rng.choice(n, size, replace=False)
 
 
-# Index orders that rotate (x, y, z) to (y, z, x) and (z, x, y): a x b is
-# a_yzx * b_zxy - a_zxy * b_yzx, the products np.cross forms, in two array operations.
-_YZX, _ZXY = [1, 2, 0], [2, 0, 1]
-
-
-def _plane_hypotheses(
-    p0: np.ndarray, p1: np.ndarray, p2: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Planes through point triples ``(T, 3)`` each: unit normals facing away from the camera.
-
-    On a few hundred triples the cost is the count of array operations, not their size: the
-    cross product by rotated columns, the norm by one reduction (what ``np.linalg.norm`` does
-    under its argument handling) and the flips by one sign vector, not masked assignments.
-    """
-    a, b = p1 - p0, p2 - p0
-    normals = a[:, _YZX] * b[:, _ZXY] - a[:, _ZXY] * b[:, _YZX]
-    norms = np.sqrt(np.add.reduce(normals * normals, axis=1))
-    valid = norms > 1e-10
-    normals /= np.where(valid, norms, 1.0)[:, None]
-    offsets = -np.add.reduce(normals * p0, axis=1)
-    sign = np.where(offsets > 0, -1.0, 1.0)
-    normals *= sign[:, None]
-    offsets *= sign
-    return normals, offsets, valid
-
-
 # Rows (x, y, z, x, y): the rotated rows of a cross product are then slices of one gather.
 _XYZXY = [0, 1, 2, 0, 1]
 
 
-def _support_hypotheses(
+def _plane_hypotheses(
     points: np.ndarray, picks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``_plane_hypotheses`` of the triples ``points[picks]`` ((T, 3) indices), to the bit,
-    with the normals as rows (3, T). The support search runs on every frame of the aim step
-    and on every round of the four-line method, on a few hundred samples and 64 triples: one
-    gather of (x, y, z, x, y) rows serves the cross product's rotations as slices, where the
-    (T, 3) layout took four gathers, and the norms and offsets add three rows in the order
-    the reductions over (T, 3) added them (34 -> 26 us a call, same bits on the 2547 calls
-    of a 20 s live recording)."""
+    """Planes through the point triples ``points[picks]`` ((T, 3) indices): unit normals
+    facing away from the camera as rows (3, T), offsets (T,) and which triples span a plane.
+
+    On a few hundred triples the cost is the count of array operations, not their size (the
+    support search runs on every frame of the aim step and every round of the four-line
+    method): one gather of (x, y, z, x, y) rows serves the cross product's rotations as
+    slices, where a (T, 3) layout took four gathers (34 -> 26 us a call), the norm is three
+    rows added, and the flips one sign vector, not masked assignments."""
     # (5, 3, T): coordinate, corner, triple; gathered at the 3T picks, whatever the cloud.
     rows = points[picks.T].transpose(2, 0, 1)[_XYZXY]
     p0 = rows[:, 0]
@@ -510,7 +485,7 @@ def find_support_plane(
         return None
     threshold = params.support_threshold_m
     picks = rng.integers(0, n, size=(params.support_trials, 3))
-    normals, offsets, valid = _support_hypotheses(points, picks)
+    normals, offsets, valid = _plane_hypotheses(points, picks)
     # All the points when they are few (no copy: _sample's arange would only copy them).
     if n <= params.score_sample:
         sub = np.ascontiguousarray(points)
@@ -894,7 +869,8 @@ def fit_cuboid(
         return FailedFit("fewer than 3 points")
     trials = params.face_trials
     picks = rng.integers(0, n, size=(trials, 3))
-    hyp_n, hyp_d, valid = _plane_hypotheses(*(points[picks[:, i]] for i in range(3)))
+    rows, hyp_d, valid = _plane_hypotheses(points, picks)
+    hyp_n = np.ascontiguousarray(rows.T)
     first = _best_face(points, normals, hyp_n, hyp_d, valid, params, rng)
     if first is None:
         return FailedFit("no plane hypothesis")
