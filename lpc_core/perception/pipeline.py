@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.scans import ScanLines as CoreScanLines
 from lpc_core.perception.scans import ScanParams, cut_scan_lines
 from schemas import CameraIntrinsics, DepthFrame, ScanLine, ScanLines, from_wire, to_wire
 
@@ -61,10 +62,10 @@ class ScansState:
     seq: int = 0
 
 
-def _past_ends(lines: object) -> list[list[float] | None]:
-    past = getattr(lines, "past_ends_m", None)
-    count = len(lines.points)  # type: ignore[attr-defined]
-    return [None] * count if past is None else past.tolist()
+def _past_ends(lines: CoreScanLines) -> list[list[float] | None]:
+    if lines.past_ends_m is None:
+        return [None] * len(lines.points)
+    return lines.past_ends_m.tolist()
 
 
 def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[ScansState, ScanLines]:
