@@ -75,7 +75,9 @@ MODELS = ("line", "circle", "ellipse")
 
 
 class ScanLinesLike(Protocol):
-    """What the method reads from ``lpc_core.perception.scans.ScanLines``."""
+    """What the method reads from ``lpc_core.perception.scans.ScanLines``; and, where they
+    carry it, ``past_ends_m`` (read with ``getattr``: scan lines without it, as recorded
+    before it was measured, size a box's window trim as a whole window)."""
 
     @property
     def angles_rad(self) -> Any: ...
