@@ -16,6 +16,7 @@ from lpc_core.perception.cloud import (
     PlaneModel,
     SphereModel,
     _plane_hypotheses,
+    _support_refit,
     crop_points,
     estimate_normals,
     find_support_plane,
@@ -191,6 +192,32 @@ def test_find_support_plane_none_for_a_lone_ball():
     depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.03))
     cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
     assert find_support_plane(cloud, PARAMS, np.random.default_rng(0)) is None
+
+
+def test_the_support_refit_is_plane_models_plane() -> None:
+    """The support search refits its best hypothesis with PlaneSolid's closed-form eigenvector
+    where PlaneModel's SVD gives the same plane: normal away from the camera, offset, to 1e-12;
+    through the camera (a scan line's own plane) and on collinear points, PlaneModel decides."""
+    rng = np.random.default_rng(3)
+    uv = rng.uniform(-0.08, 0.08, (120, 2))
+    table = np.column_stack([uv[:, 0], 0.06 + 0.3 * uv[:, 1], 0.3 + uv[:, 1]])
+    table += rng.normal(0.0, 0.001, table.shape)
+    normal, offset = _support_refit(table)
+    model = PlaneModel.estimate(table)
+    np.testing.assert_allclose(normal, model.normal, atol=1e-12)
+    assert offset == pytest.approx(model.offset, abs=1e-12)
+    assert offset < 0  # the camera's side: behind is n . p + d > 0
+    # One scan line's samples lie in a plane through the optical axis (offset 0): which side
+    # is behind is the SVD's sign, as before.
+    line = np.column_stack([uv[:, 0], np.zeros(120), 0.3 + 0.5 * uv[:, 1] ** 2])
+    through = _support_refit(line)
+    model = PlaneModel.estimate(line)
+    assert through is not None
+    np.testing.assert_array_equal(through[0], model.normal)
+    assert through[1] == model.offset
+    straight = np.column_stack([uv[:, 0], np.full(120, 0.05), np.full(120, 0.3)])
+    assert _support_refit(straight) is None
+    assert _support_refit(table[:2]) is None
 
 
 def test_plane_hypotheses_are_the_triples_planes_facing_away_from_the_camera() -> None:

@@ -474,3 +474,54 @@ def test_a_bumpy_potato_is_as_wide_as_its_runs_span(matcher: str | None) -> None
         assert result.shape == "cylinder", (view.frame, result.shape, result.reason)
         widths.append(result.grasp_width_mm)
     assert abs(float(np.median(widths)) - 62.0) < 15.0, widths
+
+
+_BALL = sphere((0.0, 0.0, 0.2), 0.02)
+_LYING = union(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), _TABLE)
+
+
+@pytest.mark.parametrize(
+    ("hit", "shape", "fattening_px"),
+    [(_BALL, "sphere", 0.0), (_LYING, "cylinder", 0.0), (_BALL, "sphere", 3.0),
+     (_LYING, "cylinder", 3.0)],
+    ids=["sphere", "cylinder", "fattened-sphere", "fattened-cylinder"],
+)  # fmt: skip
+def test_the_camera_facing_trim_stops_once_it_keeps_the_points_it_kept(
+    hit: Hit, shape: str, fattening_px: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Once a pass of laser._camera_facing keeps the points the refit was fitted on, the fit on
+    every inlier stands where the refit is within the tolerance by more than a refit of the
+    same points can move it (laser._SETTLED_M); the passes left are not fitted. The result is
+    the three passes' on every seed, and without fattening some seeds are spared passes."""
+    from lpc_core.perception import laser
+
+    fits = []
+    for solid_type in (laser.SphereSolid, laser.CylinderSolid):
+        estimate = solid_type.estimate
+
+        def counted(*args: object, _estimate=estimate, **kwargs: object) -> object:
+            fits.append(1)
+            return _estimate(*args, **kwargs)
+
+        monkeypatch.setattr(solid_type, "estimate", counted)
+    if fattening_px:
+        hit = fattened(hit, fattening_px)
+    candidate = laser._sphere_candidate if shape == "sphere" else laser._cylinder_candidate
+    shortened = 0
+    for seed in range(4):
+        lines = analyse_lines(scan(hit, seed), EXACT_EDGES, seed=seed)
+        clean = np.concatenate([ln.points.take(ln.run, axis=0) for ln in lines])
+        round_ = candidate(lines, clean, EXACT_EDGES)
+        pixel = laser._pixel_rad(lines, EXACT_EDGES)
+        results = []
+        for settled in (laser._SETTLED_M, (math.inf, math.inf)):
+            monkeypatch.setattr(laser, "_SETTLED_M", settled)
+            fits.clear()
+            facing = laser._camera_facing(round_.solid, clean, EXACT_EDGES, pixel, round_.residuals)
+            results.append((facing is round_.solid, facing.radius, len(fits)))
+        (stood, radius, passes), (all_stood, all_radius, all_passes) = results
+        assert (stood, radius) == (all_stood, all_radius), seed
+        assert all_passes == 3
+        shortened += passes < all_passes
+    # A fattened rim moves the trim (and the refit stands narrower): every pass is fitted.
+    assert (shortened == 0) if fattening_px else (shortened > 0)

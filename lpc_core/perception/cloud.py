@@ -471,6 +471,24 @@ def _plane_hypotheses(
 SCAN_LINE_SUPPORT = CloudParams(support_trials=64, support_min_points=30)
 
 
+def _support_refit(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """``PlaneModel.estimate``'s plane through ``points`` as (unit normal away from the camera,
+    offset), or None, from ``PlaneSolid``'s closed-form eigenvector where it can: the same
+    plane to the last bits at a third of the SVD's cost (the support search refits on every
+    frame of the aim step and every resting round). Where the points are (nearly) collinear,
+    or their plane passes through the camera (one scan line's own plane: no side of it is
+    behind the other), PlaneModel's own test and its SVD's sign decide, as before."""
+    if len(points) >= 3:
+        solid = PlaneSolid.estimate(points)
+        if solid:
+            normal = -solid.normal
+            offset = -float(normal @ solid.point)
+            if offset < -1e-9:
+                return normal, offset
+    model = PlaneModel.estimate(points)
+    return (model.normal, model.offset) if model else None
+
+
 def find_support_plane(
     points: np.ndarray, params: CloudParams, rng: np.random.Generator
 ) -> np.ndarray | None:
@@ -503,9 +521,9 @@ def find_support_plane(
     best = int(np.argmax(np.where(ok, inliers, -1)))
     signed_all = points @ normals[:, best] + offsets[best]
     mask = np.abs(signed_all) <= threshold
-    model = PlaneModel.estimate(points[mask])
-    if model:
-        signed_all = points @ model.normal + model.offset
+    refit = _support_refit(points[mask])
+    if refit is not None:
+        signed_all = points @ refit[0] + refit[1]
         mask = np.abs(signed_all) <= threshold
     behind_all = np.count_nonzero(signed_all > threshold)
     # The hypothesis passed on the sample; the whole cloud may hold a little more behind by the
