@@ -1079,6 +1079,7 @@ def _cuboid_geometry(
     pixel_rad: float = 0.0,
     support: np.ndarray | None = None,
     trimmed: Callable[[np.ndarray, np.ndarray], bool] | None = None,
+    matched: bool = False,
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Grasp width, principal axis and centre of the face the optical axis pierces.
 
@@ -1087,9 +1088,11 @@ def _cuboid_geometry(
     ``pierce_tolerance_m`` of their own points, the one met furthest; when the axis meets
     none (the benchmark forgives loose aiming), the face whose points come closest to the
     axis. Its edges follow the other faces' normals when there are any, else its smallest
-    bounding rectangle; the principal axis runs along its longer side and the grasp width is
-    its shorter side, measured on the whole segment (``whole``), not only on the subset the
-    faces were fitted on, so that the extreme points are not lost to sampling. A side that no
+    bounding rectangle, or where a matcher made the frame (``matched``) the straightest sides
+    near it (``_straightest_sides``); the principal axis runs along its longer side and the
+    grasp width is its shorter side, measured on the whole segment (``whole``), not only on
+    the subset the faces were fitted on, so that the extreme points are not lost to
+    sampling. A side that no
     other face's points reach, nor the supporting plane's (``support``, see ``_on_support``),
     is an occluding edge: where stretches of it reach further out than the rest, the median
     stretch bounds it (``_strip_sides``), and it moves in by ``edge_fattening_px`` (stereo
@@ -1106,7 +1109,7 @@ def _cuboid_geometry(
         e2h = np.cross(face.normal, helper)
         uv = np.column_stack([face_points @ helper, face_points @ e2h])
         side = _min_area_rectangle(uv)
-        if params.edge_fattening_px > 0:
+        if matched:
             # A matcher fattened the face's occluding edges: the smallest rectangle follows
             # the stretches that reach furthest (see _straightest_sides).
             side = _straightest_sides(uv, side, 2 * params.voxel_m, params.voxel_m)
@@ -1254,6 +1257,18 @@ def _measured_fattening(
     if correlation < params.window_correlation_gate:
         return 0.0, None
     return params.window_fattening_px, correlation
+
+
+def _correlated_like_a_matcher(
+    depth: np.ndarray, intrinsics: Intrinsics, params: CloudParams
+) -> bool:
+    """Whether the scan lines' residuals correlate as a matcher's do (at least
+    ``window_correlation_gate``, see ``_measured_fattening``)."""
+    from lpc_core.perception.scans import cut_scan_lines, residual_correlation
+
+    scan_lines = cut_scan_lines(depth, intrinsics)
+    correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
+    return correlation >= params.window_correlation_gate
 
 
 def _far_behind(
@@ -1440,6 +1455,7 @@ def reconstruct_cloud(
     assert isinstance(fit, _CuboidFit)
     pierced = _pierced_face(segment, fit, params)
     trimmed = None
+    matched = params.edge_fattening_px > 0
     if params.edge_fattening_px == 0 and params.measure_fattening:
         fattening, correlation = _measured_fattening(depth, intrinsics, pierced[0], params)
         extra["fattening_px"] = fattening
@@ -1448,9 +1464,14 @@ def reconstruct_cloud(
             extra["residual_correlation"] = correlation
             ratio = params.far_background_ratio
             trimmed = partial(_far_behind, depth, intrinsics, ratio=ratio)
+        matched = fattening > 0 or correlation is not None
+        if not matched and params.window_fattening_px == 0:
+            # Whether a matcher made the frame does not hang on whether its window is trimmed.
+            matched = _correlated_like_a_matcher(depth, intrinsics, params)
     width, axis, center = _cuboid_geometry(
-        segment, whole, fit, pierced, params, pixel_rad, support=support, trimmed=trimmed
-    )
+        segment, whole, fit, pierced, params, pixel_rad, support=support, trimmed=trimmed,
+        matched=matched,
+    )  # fmt: skip
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))
     return Reconstruction(
