@@ -172,7 +172,9 @@ def test_the_full_cloud_trims_a_window_only_where_the_background_lies_far_behind
             trimmed += 1
             assert result.extra["fattening_px"] == window
             before = reconstruct_cloud(view.depth, lv.INTRINSICS, no_window, seed=view.seq)
-            assert before.grasp_width_m - result.grasp_width_m > 0.003
+            # Both sides by 2.4-2.5 mm on three frames; on the first the probe past the left
+            # side's middle (190, 112 px) meets no far background, and only the right moves.
+            assert before.grasp_width_m - result.grasp_width_m > 0.002
     assert trimmed == 4
     assert np.mean(np.abs(errors)) < 0.0025, errors  # 5.5 mm without the window
     for view in lv.views("rotation", 1, 1, 0, names=["prism_40"], sensor=sensor):
