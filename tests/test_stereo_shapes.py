@@ -289,21 +289,25 @@ def test_a_lying_cylinder_is_no_narrower_than_its_runs_span() -> None:
     assert checked == 2
 
 
-def test_an_upright_can_whose_whole_arc_fit_sgbm_flattened_is_bounded_by_its_silhouette() -> None:
-    """SGBM (block 7, uniqueness 5), the 60 mm can, trial 0 frame 1: the window pulled the
-    can's flanks toward the camera, the whole arc's fit came out 80 mm with its silhouette
-    2-12 px beyond the samples on each side, the rims lay on it (no bow for the rim refit)
-    and the width was 73.4 mm. The samples' own silhouette, their rims fattened before the
-    room far behind, bounds it (laser._silhouette_bound)."""
+@pytest.mark.parametrize(("block", "uniqueness", "trial", "frame"), [(7, 5, 0, 1), (9, 10, 0, 2)])
+def test_an_upright_can_whose_whole_arc_fit_sgbm_flattened_is_bounded_by_its_silhouette(
+    block: int, uniqueness: int, trial: int, frame: int
+) -> None:
+    """SGBM, the 60 mm can before the table 80 mm behind it: the window pulled the can's
+    flanks toward the camera, the whole arc's fit came out 80 mm with its silhouette 2-12 px
+    beyond the samples on each side and the rims lying on it (no bow for the rim refit); the
+    widths were 73.4 mm (block 7, uniqueness 5, trial 0 frame 1) and 79.6 mm (block 9, trial
+    0 frame 2). The samples' own silhouette, their rims fattened before a background further
+    than the can is wide, bounds them (laser._silhouette_bound)."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
     from lpc_core.sim.stereo_settings import Matcher
     from services.cli import _laser_views as lv
 
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7, uniqueness=5))
+    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=block, uniqueness=uniqueness))
     # The bench's 2 x 5 views: the frame's seed (its seq) is the bench's.
     views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (0, 1))
+    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
     result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert "silhouette_width_mm" in result.extra

@@ -2390,11 +2390,12 @@ def _silhouette_bound(
     its silhouette (1.5-2.5 mm within 6 px at block 9), so the whole arc's fit comes out too
     flat: 8-28 mm too wide on the 60 mm can at SGBM 9 and BM 9, whose rims then lie on it
     (``_rim_free`` finds no bow) while its silhouette lies 2-12 px beyond the samples on each
-    side. Where the rims are occluding edges a matcher fattened (``_occluding_rims``), SGBM's
-    samples reach the true silhouette or pass it (0-3 px), so their extent bounds the width:
-    the bound was within 3.6 mm of the truth on every such upright can at SGBM 5-9. Not BM's
-    samples, whose rims end in holes 5-14 px inside (their extent 5-18 mm narrow), nor lpc's
-    noise model's (samples within 1.4 px of the fit's silhouette, residuals uncorrelated)."""
+    side. Where the rims are occluding edges before a far background (``_occluding_rims``),
+    SGBM's samples reach the true silhouette or pass it (0-3 px), so their extent bounds the
+    width: the bound was within 3.6 mm of the truth on every such upright can at SGBM 5-9.
+    Not BM's samples, whose rims end in holes 5-14 px inside (their extent 5-18 mm narrow),
+    nor lpc's noise model's (samples within 1.4 px of the fit's silhouette, residuals
+    uncorrelated)."""
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0 or scan_lines is None or params.window_correlation_gate <= 0:
         return None
@@ -2420,8 +2421,6 @@ def _silhouette_bound(
     half = math.asin(full.radius / distance)
     if min(first + half, half - last) < _FLAT_FIT_PX * pixel_rad:
         return None
-    if not _occluding_rims(lines, angle, residuals, params, pixel_rad, scan_lines):
-        return None
     correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
     if correlation < params.window_correlation_gate:
         return None
@@ -2445,6 +2444,8 @@ def _silhouette_bound(
     lo, hi = params.radius_limits_m
     if not (math.isfinite(width) and 2 * lo <= width <= 2 * hi):
         return None
+    if not _occluding_rims(lines, angle, residuals, params, pixel_rad, scan_lines, width):
+        return None
     return width
 
 
@@ -2455,18 +2456,22 @@ def _occluding_rims(
     params: LaserParams,
     pixel_rad: float,
     scan_lines: ScanLinesLike,
+    width: float,
 ) -> bool:
     """Whether the round's two outermost samples (by ``angle``, among those within four inlier
-    bands) each end their segment at an occluding edge that a matcher fattened: the
+    bands) each end their segment at an occluding edge before a far background: the
     segment's last ``_RIM_SAMPLES`` samples there step one pixel at a time (no hole: BM
     loses a round's rims to holes and its samples stop 5-14 px inside the silhouette), and
     what lies behind the end (the line's own samples past the segment within
-    ``background_reach_px``, else the scans' ``past_ends_m``) lies ``far_background_ratio``
-    of the end's depth further or more, or nothing does (the room behind an upright can), as
-    for a box side that takes a whole window's fattening (``_window_shares``). Not the
-    table 0.17-0.45 of the depth behind a round lying on it seen from above: its samples
-    stopped 2-7 px short of the rims (the bound came out 3-13 mm narrow on the rotation
-    suite's 40 and 75 mm cylinders), and a hole beside a rim says the same."""
+    ``background_reach_px``, else the scans' ``past_ends_m``) lies further behind it than
+    ``width`` (the round's diameter), or nothing does.
+
+    A support the round lies on is within about its radius behind its rims seen from above,
+    and there its samples stopped 2-7 px short of the rims (the rotation suite's 40 and 75 mm
+    cylinders: the surface behind the outermost samples 0.67-0.94 of the bound's diameter
+    further, the bound 3-13 mm narrow), as they do beside a hole; the room or the table
+    behind an upright can lay 1.3-1.5 diameters further (or out of range), its rims
+    fattened outward, and the bound was within 3.6 mm of the truth."""
     past = getattr(scan_lines, "past_ends_m", None)
     if past is None:
         return False
@@ -2510,7 +2515,7 @@ def _occluding_rims(
             behind = float(np.median(beyond[near, 2]))
         elif ln.index < len(past):
             behind = float(past[ln.index][side])
-        if behind != 0.0 and behind < (1.0 + params.far_background_ratio) * z:
+        if behind != 0.0 and behind - z < width:
             return False
     return True
 
