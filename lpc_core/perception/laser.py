@@ -2399,12 +2399,18 @@ def _silhouette_bound(
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0 or scan_lines is None or params.window_correlation_gate <= 0:
         return None
-    foot = full.point - (full.point @ full.axis) * full.axis
-    distance = float(np.linalg.norm(foot))
+    # The cross-section's frame in plain floats: np.cross and np.linalg.norm on 3-vectors
+    # cost more than this whole check on a frame it does not apply to.
+    ax, ay, az = full.axis.tolist()
+    px, py, pz = full.point.tolist()
+    along = px * ax + py * ay + pz * az
+    fx, fy, fz = px - along * ax, py - along * ay, pz - along * az
+    distance = math.sqrt(fx * fx + fy * fy + fz * fz)
     if distance <= full.radius:
         return None
-    towards = foot / distance
-    side = np.cross(full.axis, towards)
+    towards = np.array([fx, fy, fz]) / distance
+    tx, ty, tz = towards.tolist()
+    side = np.array([ay * tz - az * ty, az * tx - ax * tz, ax * ty - ay * tx])
     samples = np.concatenate([ln.points for ln in lines])
     x, y = samples @ towards, samples @ side
     angle = np.arctan2(y, x)
