@@ -287,3 +287,47 @@ def test_a_lying_cylinder_is_no_narrower_than_its_runs_span() -> None:
         assert abs(error) < 0.003, (view.frame, error)
         checked += 1
     assert checked == 2
+
+
+@pytest.mark.parametrize(("block", "uniqueness", "trial", "frame"), [(7, 5, 0, 1), (9, 10, 0, 2)])
+def test_an_upright_can_whose_whole_arc_fit_sgbm_flattened_is_bounded_by_its_silhouette(
+    block: int, uniqueness: int, trial: int, frame: int
+) -> None:
+    """SGBM, the 60 mm can before the table 80 mm behind it: the window pulled the can's
+    flanks toward the camera, the whole arc's fit came out 80 mm with its silhouette 2-12 px
+    beyond the samples on each side and the rims lying on it (no bow for the rim refit); the
+    widths were 73.4 mm (block 7, uniqueness 5, trial 0 frame 1) and 79.6 mm (block 9, trial
+    0 frame 2). The samples' own silhouette, their rims fattened before a background further
+    than the can is wide, bounds them (laser._silhouette_bound)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=block, uniqueness=uniqueness))
+    # The bench's 2 x 5 views: the frame's seed (its seq) is the bench's.
+    views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "silhouette_width_mm" in result.extra
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.004
+
+
+def test_a_can_whose_rims_block_matching_lost_to_holes_keeps_its_fit() -> None:
+    """BM (block 5), the same can, trial 0 frame 1: the samples stop 5-14 px inside the
+    silhouette where holes took the rims (the last samples before them skip pixels), so their
+    extent (50 mm) bounds nothing; the width stays the fit's."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(kind="bm", block_size=5))
+    # The bench's 2 x 5 views: the frame's seed (its seq) is the bench's.
+    views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (0, 1))
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "silhouette_width_mm" not in result.extra
+    assert result.grasp_width_m > view.truth.grasp_width_m

@@ -1990,6 +1990,10 @@ def _decide(
                 # camera-facing or plateau-free fit) stands. As in _camera_facing, the rims
                 # shift the radius, hardly the axis.
                 solid = replace(solid, radius=inner.radius)
+            bound = _silhouette_bound(lines, full, params, _pixel_rad(lines, params), scan_lines)
+            if bound is not None and bound < 2 * solid.radius:
+                extra["silhouette_width_mm"] = 1000 * bound
+                solid = replace(solid, radius=bound / 2)
         axis = _canonical_axis(solid.axis)
         return Reconstruction(
             shape="cylinder",
@@ -2374,6 +2378,167 @@ def _rim_free(
     if _narrower_than_runs(solid, clean, pixel_rad):
         return None
     return solid
+
+
+# How far (pixels) the fit on every inlier's silhouette must lie beyond the samples on both
+# sides for the samples' own silhouette to bound its width.
+_FLAT_FIT_PX = 2.0
+# The samples at a segment's end that must step one pixel at a time for it to end at a rim.
+_RIM_SAMPLES = 6
+
+
+def _silhouette_bound(
+    lines: list[LineModels],
+    full: CylinderSolid,
+    params: LaserParams,
+    pixel_rad: float,
+    scan_lines: ScanLinesLike | None,
+) -> float | None:
+    """The width of the cylinder along ``full``'s axis whose silhouette is the samples' own
+    (the extremes of their view angles across the axis) and whose front meets the samples
+    between them, at least ``rim_bias_px`` inside; ``None`` unless ``full``'s silhouette lies
+    ``_FLAT_FIT_PX`` or more beyond the samples on both sides and the scan lines' residuals
+    are correlated like SGBM's (``scans.residual_correlation`` at least
+    ``window_correlation_gate``).
+
+    An SGBM window pulls a round's flanks toward the camera as far as a window or more inside
+    its silhouette (1.5-2.5 mm within 6 px at block 9), so the whole arc's fit comes out too
+    flat: 8-28 mm too wide on the 60 mm can at SGBM 9 and BM 9, whose rims then lie on it
+    (``_rim_free`` finds no bow) while its silhouette lies 2-12 px beyond the samples on each
+    side. Where the rims are occluding edges before a far background (``_occluding_rims``),
+    SGBM's samples reach the true silhouette or pass it (0-3 px), so their extent bounds the
+    width: the bound was within 3.6 mm of the truth on every such upright can at SGBM 5-9.
+    Not BM's samples, whose rims end in holes 5-14 px inside (their extent 5-18 mm narrow),
+    nor lpc's noise model's (samples within 1.4 px of the fit's silhouette, residuals
+    uncorrelated)."""
+    margin = params.rim_bias_px * pixel_rad
+    if margin <= 0 or scan_lines is None or params.window_correlation_gate <= 0:
+        return None
+    # The cross-section's frame in plain floats: np.cross and np.linalg.norm on 3-vectors
+    # cost more than this whole check on a frame it does not apply to.
+    ax, ay, az = full.axis.tolist()
+    px, py, pz = full.point.tolist()
+    along = px * ax + py * ay + pz * az
+    fx, fy, fz = px - along * ax, py - along * ay, pz - along * az
+    distance = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if distance <= full.radius:
+        return None
+    towards = np.array([fx, fy, fz]) / distance
+    tx, ty, tz = towards.tolist()
+    side = np.array([ay * tz - az * ty, az * tx - ax * tz, ax * ty - ay * tx])
+    samples = np.concatenate([ln.points for ln in lines])
+    x, y = samples @ towards, samples @ side
+    angle = np.arctan2(y, x)
+    residuals = full.residuals(samples)
+    on_round = angle.compress(residuals <= 4 * params.solid_threshold_m)
+    if len(on_round) == 0:
+        return None
+    first, last = float(on_round.min()), float(on_round.max())
+    if (
+        np.count_nonzero(angle < first) >= _ROUND_GOES_ON
+        or np.count_nonzero(angle > last) >= _ROUND_GOES_ON
+    ):
+        return None  # a side whose segments go on (onto the support) shows no silhouette
+    half = math.asin(full.radius / distance)
+    if min(first + half, half - last) < _FLAT_FIT_PX * pixel_rad:
+        return None
+    correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
+    if correlation < params.window_correlation_gate:
+        return None
+    inset = np.minimum(angle - first, last - angle)
+    front = (residuals <= 2 * params.solid_threshold_m) & (inset >= margin)
+    if np.count_nonzero(front) < params.min_points_per_line:
+        return None
+    # The axis's distance D in the cross-section, with the radius D sin(half extent): one
+    # Gauss-Newton fit of the front samples' distances from the centre to that radius.
+    centre = 0.5 * (first + last)
+    u = np.array([math.cos(centre), math.sin(centre)])
+    sine = math.sin(0.5 * (last - first))
+    q = np.stack([x.compress(front), y.compress(front)], axis=1)
+    for _ in range(5):
+        d = q - distance * u
+        norm = np.sqrt(np.einsum("ij,ij->i", d, d))
+        f = norm - distance * sine
+        jac = -(d @ u) / norm - sine
+        distance -= float(jac @ f) / float(jac @ jac)
+    width = 2 * distance * sine
+    lo, hi = params.radius_limits_m
+    if not (math.isfinite(width) and 2 * lo <= width <= 2 * hi):
+        return None
+    if not _occluding_rims(lines, angle, residuals, params, pixel_rad, scan_lines, width):
+        return None
+    return width
+
+
+def _occluding_rims(
+    lines: list[LineModels],
+    angle: np.ndarray,
+    residuals: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
+    scan_lines: ScanLinesLike,
+    width: float,
+) -> bool:
+    """Whether the round's two outermost samples (by ``angle``, among those within four inlier
+    bands) each end their segment at an occluding edge before a far background: the
+    segment's last ``_RIM_SAMPLES`` samples there step one pixel at a time (no hole: BM
+    loses a round's rims to holes and its samples stop 5-14 px inside the silhouette), and
+    what lies behind the end (the line's own samples past the segment within
+    ``background_reach_px``, else the scans' ``past_ends_m``) lies further behind it than
+    ``width`` (the round's diameter), or nothing does.
+
+    A support the round lies on is within about its radius behind its rims seen from above,
+    and there its samples stopped 2-7 px short of the rims (the rotation suite's 40 and 75 mm
+    cylinders: the surface behind the outermost samples 0.67-0.94 of the bound's diameter
+    further, the bound 3-13 mm narrow), as they do beside a hole; the room or the table
+    behind an upright can lay 1.3-1.5 diameters further (or out of range), its rims
+    fattened outward, and the bound was within 3.6 mm of the truth."""
+    past = getattr(scan_lines, "past_ends_m", None)
+    if past is None:
+        return False
+    past = np.asarray(past, dtype=np.float64)
+    reach = params.background_reach_px * pixel_rad
+    hw = params.capture_half_width_m
+    zlo, zhi = params.capture_z_m
+    sizes = [len(ln.points) for ln in lines]
+    owner = np.repeat(np.arange(len(lines)), sizes)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
+    for i in (int(on[np.argmin(angle[on])]), int(on[np.argmax(angle[on])])):
+        ln = lines[int(owner[i])]
+        k = i - int(offsets[owner[i]])
+        last = len(ln.points) - 1
+        if k not in (0, last) or ln.step <= 0 or last < _RIM_SAMPLES:
+            return False
+        x, y, z = ln.points[k].tolist()
+        if (
+            max(abs(x), abs(y)) >= hw - params.crop_margin_m
+            or z <= zlo + params.crop_margin_m
+            or z >= zhi - params.crop_margin_m
+        ):
+            return False  # the capture volume's edge, not the round's
+        side = 0 if k == 0 else 1
+        c, s_ = math.cos(ln.angle), math.sin(ln.angle)
+        along = ln.points.take(
+            np.arange(_RIM_SAMPLES + 1) if side == 0 else np.arange(last - _RIM_SAMPLES, last + 1),
+            axis=0,
+        )
+        q = (along[:, 0] * c + along[:, 1] * s_) / along[:, 2]
+        if float(np.abs(np.diff(q)).max()) > 1.5 * ln.step:
+            return False
+        beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
+        behind = 0.0
+        if len(beyond):
+            b = (beyond[:, 0] * c + beyond[:, 1] * s_) / beyond[:, 2]
+            near = np.abs(b - (x * c + y * s_) / z) <= reach
+            if not near.any():
+                return False  # a hole beside the rim: the samples may stop short of it
+            behind = float(np.median(beyond[near, 2]))
+        elif ln.index < len(past):
+            behind = float(past[ln.index][side])
+        if behind != 0.0 and behind - z < width:
+            return False
+    return True
 
 
 def _narrower_than_runs(solid: CylinderSolid, clean: np.ndarray, pixel_rad: float) -> bool:
