@@ -9,7 +9,26 @@ import numpy as np
 import pytest
 
 from lpc_core.perception.laser import reconstruct_laser
+from lpc_core.perception.reconstruction import Reconstruction
 from lpc_core.perception.scans import cut_scan_lines
+from services.cli._laser_views import View
+
+
+def _bench_frame(
+    name: str, trial: int, frame: int, **matcher: object
+) -> tuple[View, Reconstruction]:
+    """The stereo frame ``(trial, frame)`` of the bench's 2 x 5 views of ``name`` (its seed,
+    the frame's seq, is the bench's) through a matcher of ``matcher``'s settings, and the
+    four-line method's result on it."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(**matcher))  # type: ignore[arg-type]
+    views = lv.views("functional", 2, 5, 0, names=[name], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
+    return view, reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
 
 
 def test_a_small_ball_under_block_matching_is_a_sphere() -> None:
@@ -34,15 +53,7 @@ def test_a_jar_under_semi_global_matching_keeps_its_circles_past_a_bump() -> Non
     """SGBM (block 5) pulls the 75 mm jar's depth 2 mm toward the camera over four samples
     where the axis pierces it: that bump, outside the circle, broke the circle's run on the
     horizontal line, the line model won it and the jar came out a box."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
-
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=5))
-    views = lv.views("functional", 2, 5, 0, names=["cylinder_tilt_left"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (1, 2))
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    view, result = _bench_frame("cylinder_tilt_left", 1, 2, kind="sgbm", block_size=5)
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert result.lines[0].model == "circle"
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.008
@@ -299,16 +310,9 @@ def test_an_upright_can_whose_whole_arc_fit_sgbm_flattened_is_bounded_by_its_sil
     widths were 73.4 mm (block 7, uniqueness 5, trial 0 frame 1) and 79.6 mm (block 9, trial
     0 frame 2). The samples' own silhouette, their rims fattened before a background further
     than the can is wide, bounds them (laser._silhouette_bound)."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
-
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=block, uniqueness=uniqueness))
-    # The bench's 2 x 5 views: the frame's seed (its seq) is the bench's.
-    views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    view, result = _bench_frame(
+        "cylinder_upright", trial, frame, kind="sgbm", block_size=block, uniqueness=uniqueness
+    )
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert "silhouette_width_mm" in result.extra
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.004
@@ -318,16 +322,7 @@ def test_a_can_whose_rims_block_matching_lost_to_holes_keeps_its_fit() -> None:
     """BM (block 5), the same can, trial 0 frame 1: the samples stop 5-14 px inside the
     silhouette where holes took the rims (the last samples before them skip pixels), so their
     extent (50 mm) bounds nothing; the width stays the fit's."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
-
-    sensor = StereoSensor(matcher=Matcher(kind="bm", block_size=5))
-    # The bench's 2 x 5 views: the frame's seed (its seq) is the bench's.
-    views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (0, 1))
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    view, result = _bench_frame("cylinder_upright", 0, 1, kind="bm", block_size=5)
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert "silhouette_width_mm" not in result.extra
     assert result.grasp_width_m > view.truth.grasp_width_m
