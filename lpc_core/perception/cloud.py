@@ -1259,8 +1259,9 @@ def _measured_fattening(
     """The edge fattening (pixels) the frame shows at the pierced ``face``'s edges, measured on
     the four scan lines as the four-line method measures it
     (``lpc_core.perception.laser.measured_fattening_px``); where they show none, the
-    window's (``window_fattening_px``) if their residuals are correlated like a matcher's:
-    then the second value is that correlation (``scans.residual_correlation``), else None."""
+    window's (``window_fattening_px``, which may be 0) if their residuals are correlated like
+    a matcher's: then the second value is that correlation (``scans.residual_correlation``),
+    else None."""
     from lpc_core.perception.laser import measured_fattening_px
     from lpc_core.perception.scans import cut_scan_lines, residual_correlation
     from lpc_core.perception.solids import PlaneSolid
@@ -1269,24 +1270,12 @@ def _measured_fattening(
     plane = PlaneSolid(point=-face.offset * face.normal, normal=-face.normal)
     scan_lines = cut_scan_lines(depth, intrinsics)
     measured = measured_fattening_px(scan_lines, plane)
-    if measured > 0 or params.window_fattening_px == 0:
+    if measured > 0:
         return measured, None
     correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
     if correlation < params.window_correlation_gate:
         return 0.0, None
     return params.window_fattening_px, correlation
-
-
-def _correlated_like_a_matcher(
-    depth: np.ndarray, intrinsics: Intrinsics, params: CloudParams
-) -> bool:
-    """Whether the scan lines' residuals correlate as a matcher's do (at least
-    ``window_correlation_gate``, see ``_measured_fattening``)."""
-    from lpc_core.perception.scans import cut_scan_lines, residual_correlation
-
-    scan_lines = cut_scan_lines(depth, intrinsics)
-    correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
-    return correlation >= params.window_correlation_gate
 
 
 def _far_behind(
@@ -1482,10 +1471,8 @@ def reconstruct_cloud(
             extra["residual_correlation"] = correlation
             ratio = params.far_background_ratio
             trimmed = partial(_far_behind, depth, intrinsics, ratio=ratio)
+        # A matcher made the frame whether or not its window is trimmed (window_fattening_px 0).
         matched = fattening > 0 or correlation is not None
-        if not matched and params.window_fattening_px == 0:
-            # Whether a matcher made the frame does not hang on whether its window is trimmed.
-            matched = _correlated_like_a_matcher(depth, intrinsics, params)
     width, axis, center = _cuboid_geometry(
         segment, whole, fit, pierced, params, pixel_rad, support=support, trimmed=trimmed,
         matched=matched,
