@@ -1984,13 +1984,14 @@ def _decide(
         if resting is None:
             # The support pins a resting round's radius already (and _resting_width starts
             # from the solid as fitted).
-            inner = _rim_free(lines, full, clean, params, _pixel_rad(lines, params))
+            pixel_rad = _pixel_rad(lines, params)
+            inner = _rim_free(lines, full, clean, params, pixel_rad)
             if inner is not None and inner.radius < solid.radius:
                 # The pull toward the camera only widens a fit: one narrower already (the
                 # camera-facing or plateau-free fit) stands. As in _camera_facing, the rims
                 # shift the radius, hardly the axis.
                 solid = replace(solid, radius=inner.radius)
-            bound = _silhouette_bound(lines, full, params, _pixel_rad(lines, params), scan_lines)
+            bound = _silhouette_bound(lines, full, params, pixel_rad, scan_lines)
             if bound is not None and bound < 2 * solid.radius:
                 extra["silhouette_width_mm"] = 1000 * bound
                 solid = replace(solid, radius=bound / 2)
