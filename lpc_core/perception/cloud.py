@@ -1110,12 +1110,12 @@ def _cuboid_geometry(
     near it (``_straightest_sides``); the principal axis runs along its longer side and the
     grasp width is its shorter side, measured on the whole segment (``whole``), not only on
     the subset the faces were fitted on, so that the extreme points are not lost to
-    sampling. A side that no
-    other face's points reach, nor the supporting plane's (``support``, see ``_on_support``),
-    is an occluding edge: where stretches of it reach further out than the rest, the median
-    stretch bounds it (``_strip_sides``), and it moves in by ``edge_fattening_px`` (stereo
-    matching's fattening lies on the face's own plane there), if ``trimmed`` (given the
-    side's middle and its outward direction, both 3-D) says so or is None.
+    sampling. A side that no other face's points reach, nor the supporting plane's
+    (``support``, see ``_on_support``), is an occluding edge: where stretches of it reach
+    further out than the rest, the median stretch bounds it (``_strip_sides``), and it moves
+    in by ``edge_fattening_px`` (stereo matching's fattening lies on the face's own plane
+    there), if ``trimmed`` (given the side's middle and its outward direction, both 3-D) says
+    so or is None.
     """
     face, face_points, index = pierced
     others = [f.normal for i, f in enumerate(fit.faces) if i != index]
