@@ -1366,11 +1366,12 @@ def _face_geometry(
         alo, ahi, blo, bhi = _trimmed_sides(
             plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order],
             _consistent_sides(
-                pts, cropped.tolist(), (ux, uy), a, b,
+                pts, cropped.tolist(), (seeds.occluding[order] > 0).tolist(), (ux, uy), a, b,
                 # Points beyond the edges: bevels or further faces there, no occluding edge
                 # (a hexagonal prism lost 3-5 mm at SGBM 7 dots 0.04 and BM 5 without this).
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2])
                 if len(pts_all) == len(pts) else math.inf,
+                _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2]),
             ),
             trim_px * pixel_rad, params,
         )  # fmt: skip
@@ -1402,18 +1403,22 @@ def _face_geometry(
 def _consistent_sides(
     seeds: list[list[float]],
     cropped: list[bool],
+    occluding: list[bool],
     u: tuple[float, float],
     a: list[float],
     b: list[float],
     apart_m: float,
+    cut_apart_m: float,
 ) -> tuple[float, float, float, float]:
     """The rectangle's sides ``(alo, ahi, blo, bhi)`` along the unit direction ``u`` where a
     matcher fattened the edges: each side through the farthest uncut seed nearest it once the
     seeds lying more than ``apart_m`` beyond every other seed of that side are dropped, one
     at a time (two seeds or more; a side keeps one). Points beyond the face's edges (``a`` and
     ``b`` hold the seeds' coordinates, then those points') still extend it; seeds cut by the
-    capture volume bound only the sides with fewer than two uncut seeds (a fattened run may
-    reach the capture volume past the edge: the tilted box at SGBM 9 was 21 mm wide so).
+    capture volume bound only the sides with fewer than two uncut seeds, and a side with one
+    at an ``occluding`` edge only where none of them lies more than ``cut_apart_m`` beyond it
+    (a fattened run may reach the capture volume past the edge: the tilted box at SGBM 9 was
+    21 mm wide so).
 
     A window matcher fattens an occluding edge by an amount that varies along it: at SGBM 7
     the cuboids' seeds lay 0.95 mm past the true side on the nearest, 3.1 on the median and
@@ -1428,13 +1433,31 @@ def _consistent_sides(
     out = [min(a), max(a), min(b), max(b)]
     # Coordinates across each side, positive outward: sides 0 and 2 face the negative way.
     groups: list[list[float]] = [[], [], [], []]
-    for k, (d, cut) in enumerate(zip(_side_distances(seeds, u), cropped, strict=True)):
-        if not cut:
-            side = d.index(min(d))
-            sign = -1.0 if side % 2 == 0 else 1.0
-            groups[side].append(sign * (a[k] if side < 2 else b[k]))
+    cut_groups: list[list[float]] = [[], [], [], []]
+    edge = [False] * 4  # the side's uncut seeds include one at an occluding edge
+    for k, (d, cut, occludes) in enumerate(
+        zip(_side_distances(seeds, u), cropped, occluding, strict=True)
+    ):
+        side = d.index(min(d))
+        sign = -1.0 if side % 2 == 0 else 1.0
+        (cut_groups if cut else groups)[side].append(sign * (a[k] if side < 2 else b[k]))
+        edge[side] |= occludes and not cut
     for side, outward in enumerate(groups):
-        if len(outward) < 2:
+        cut = cut_groups[side]
+        if len(outward) == 1 and cut and edge[side]:
+            # One uncut seed, at an occluding edge: the side's cut seeds bound it too, unless
+            # one lies more than cut_apart_m beyond it, a run fattened past the edge to the
+            # capture volume (the box tilted left at SGBM 9, trial 1 frames 0 and 1: a cut
+            # seed 21.6 mm past the true side, the side's one uncut seed 6.4 and 7.5 mm, the
+            # width 18-19 mm too wide). Points beyond the face's edges do not stand for such
+            # a run: it keeps the face's plane, and they leave it. A run ending elsewhere (a
+            # hole, a bump) is no edge and bounds nothing: the box tilted right at BM 5,
+            # trial 0 frame 2, had its one uncut seed 35 mm inside the side so.
+            near = [c for c in cut if c - outward[0] <= cut_apart_m]
+            if len(near) == len(cut):
+                continue
+            outward = outward + near
+        elif len(outward) < 2:
             continue
         outward.sort(reverse=True)
         while len(outward) > 1 and outward[0] - outward[1] > apart_m:
