@@ -227,6 +227,17 @@ def test_a_box_side_with_one_edge_seed_ignores_a_run_fattened_to_the_capture_vol
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.006
 
 
+def test_a_box_edge_smeared_down_to_the_table_is_no_bevel() -> None:
+    """SGBM (block 7), the box tilted left, trial 0 frame 0: the matcher smeared the step from
+    the box's lower edge down to the table over about its window, and the walk past the face's
+    edge (laser._beyond_edges) took the smear, which falls away like a bevel, for more of the
+    object: a point 8.9 mm past the true side, the box 9.4 mm too wide. A walk no longer than
+    the fattening shows no surface."""
+    view, result = _bench_frame("cuboid_tilt_left", 0, 0, kind="sgbm", block_size=7)
+    assert result.shape == "cuboid", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002  # 9.4 mm before
+
+
 def test_a_cylinder_whose_rims_a_matcher_pulls_forward_is_fitted_inside_them() -> None:
     """SGBM (block 7): the 60 mm can upright (trial 1 frames 1 and 2) and the 50 mm bottle
     tilted right (trial 0 frames 0 and 2). The matcher pulls the steep surface near the
