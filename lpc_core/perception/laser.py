@@ -1307,6 +1307,7 @@ def _face_geometry(
     *,
     paper: bool,
     beyond: np.ndarray | None = None,
+    smeared: bool = False,
     trim_px: float = 0.0,
     pixel_rad: float = 0.0,
 ) -> _Face | str:
@@ -1368,9 +1369,11 @@ def _face_geometry(
             _consistent_sides(
                 pts, cropped.tolist(), (seeds.occluding[order] > 0).tolist(), (ux, uy), a, b,
                 # Points beyond the edges: bevels or further faces there, no occluding edge
-                # (a hexagonal prism lost 3-5 mm at SGBM 7 dots 0.04 and BM 5 without this).
+                # (a hexagonal prism lost 3-5 mm at SGBM 7 dots 0.04 and BM 5 without this);
+                # so too a walk past an edge dropped as the fattening's smear (the box tilted
+                # left at SGBM 3 lost 26 mm once it let a hole's seed stand for its side).
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2])
-                if len(pts_all) == len(pts) else math.inf,
+                if len(pts_all) == len(pts) and not smeared else math.inf,
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2]),
             ),
             trim_px * pixel_rad, params,
@@ -1595,7 +1598,9 @@ def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float
     return max(min(d) for d in _side_distances(pts, u))
 
 
-def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
+def _beyond_edges(
+    lines: list[LineModels], plane: PlaneSolid, params: LaserParams
+) -> tuple[np.ndarray, bool]:
     """Points of the object past the face's edges: from each end of a line's run, outward
     through its segment, while the surface falls away from the face (a bevel, a rounded edge,
     a prism's next face) and before it turns parallel to the face again (a table). A walk
@@ -1606,9 +1611,11 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
     tilted left at SGBM 7, trial 0 frame 0: a point 8.9 mm past the true side, the width 9.4
     mm too wide). Longer walks keep their length: they follow a surface that is there (the
     soap bar's rounded edges; trimming every walk cost its median width 1.4-2.7 mm at SGBM
-    5-9 and the hexagonal prism's 0.3-1.8 mm, for 0.1 mm on the functional boxes)."""
+    5-9 and the hexagonal prism's 0.3-1.8 mm, for 0.1 mm on the functional boxes). Also
+    returned: whether such a walk was dropped (something fell away past an edge there)."""
     trim = params.edge_fattening_px  # in samples, as in _collect_seeds
     out = []
+    smeared = False
     n = plane.normal
     slope, free = math.tan(params.bevel_min_rad), params.bevel_free_depth_m
     for line in lines:
@@ -1632,6 +1639,7 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
                 q = line.sz[last : last + k + 1, 0] / line.sz[last : last + k + 1, 1]
                 short = int(np.count_nonzero(q <= q[-1] - trim * line.step)) - 1
                 if last + k == m - 1 or short <= 0:
+                    smeared |= last + k < m - 1
                     k = short
             if k > 0:
                 out.append(pts[last + k])
@@ -1646,10 +1654,11 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
                 q = line.sz[first - k : first + 1, 0] / line.sz[first - k : first + 1, 1]
                 short = int(np.count_nonzero(q >= q[0] + trim * line.step)) - 1
                 if first - k == 0 or short <= 0:
+                    smeared |= first - k > 0
                     k = short
             if k > 0:
                 out.append(pts[first - k])
-    return plane.project(np.array(out)) if out else np.empty((0, 3))
+    return (plane.project(np.array(out)) if out else np.empty((0, 3))), smeared
 
 
 # --------------------------------------------------------------------------- 3-D candidates
@@ -2065,9 +2074,9 @@ def _decide(
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
     walk = replace(params, edge_fattening_px=measured) if measured else params
-    beyond = _beyond_edges(on_face, solid, walk) if params.bevels else None
+    beyond, smeared = _beyond_edges(on_face, solid, walk) if params.bevels else (None, False)
     face = _face_geometry(
-        solid, seeds, params, paper=False, beyond=beyond,
+        solid, seeds, params, paper=False, beyond=beyond, smeared=smeared,
         trim_px=measured, pixel_rad=_pixel_rad(lines, params),
     )  # fmt: skip
     if isinstance(face, str):
