@@ -208,6 +208,36 @@ def test_a_box_side_ignores_a_seed_fattened_far_beyond_the_others() -> None:
         assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002, name
 
 
+def test_a_box_side_with_one_edge_seed_ignores_a_run_fattened_to_the_capture_volume() -> None:
+    """SGBM (block 9), the box tilted left, trial 1 frames 0 and 1: one line's run on the face
+    carried the face's depth 21.6 mm past the true side, to the capture volume's edge, while
+    the side's one uncut seed, at an occluding edge, lay 6.4 and 7.5 mm out. The cut seed
+    bounded the side (laser._consistent_sides) and the box came out 19.2 and 18.2 mm too
+    wide; a cut seed lying more than two trims beyond the side's edge seed no longer does.
+    Block matching (block 5), the box tilted right, trial 0 frame 2: the side's one uncut
+    seed ended at no edge, 35 mm inside the side, and the cut seed still bounds it (44.5 mm
+    too narrow had it been dropped)."""
+    for name, trial, frame in (("cuboid_tilt_left", 1, 0), ("cuboid_tilt_left", 1, 1)):
+        view, result = _bench_frame(name, trial, frame, kind="sgbm", block_size=9)
+        assert result.shape == "cuboid", (frame, result.shape, result.reason)
+        error = result.grasp_width_m - view.truth.grasp_width_m
+        assert abs(error) < 0.005, (frame, error)  # 19.2 and 18.2 mm before
+    view, result = _bench_frame("cuboid_tilt_right", 0, 2, kind="bm", block_size=5)
+    assert result.shape == "cuboid", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.006
+
+
+def test_a_box_edge_smeared_down_to_the_table_is_no_bevel() -> None:
+    """SGBM (block 7), the box tilted left, trial 0 frame 0: the matcher smeared the step from
+    the box's lower edge down to the table over about its window, and the walk past the face's
+    edge (laser._beyond_edges) took the smear, which falls away like a bevel, for more of the
+    object: a point 8.9 mm past the true side, the box 9.4 mm too wide. A walk no longer than
+    the fattening shows no surface."""
+    view, result = _bench_frame("cuboid_tilt_left", 0, 0, kind="sgbm", block_size=7)
+    assert result.shape == "cuboid", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002  # 9.4 mm before
+
+
 def test_a_cylinder_whose_rims_a_matcher_pulls_forward_is_fitted_inside_them() -> None:
     """SGBM (block 7): the 60 mm can upright (trial 1 frames 1 and 2) and the 50 mm bottle
     tilted right (trial 0 frames 0 and 2). The matcher pulls the steep surface near the

@@ -1307,6 +1307,7 @@ def _face_geometry(
     *,
     paper: bool,
     beyond: np.ndarray | None = None,
+    smeared: bool = False,
     trim_px: float = 0.0,
     pixel_rad: float = 0.0,
 ) -> _Face | str:
@@ -1366,11 +1367,14 @@ def _face_geometry(
         alo, ahi, blo, bhi = _trimmed_sides(
             plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order],
             _consistent_sides(
-                pts, cropped.tolist(), (ux, uy), a, b,
+                pts, cropped.tolist(), (seeds.occluding[order] > 0).tolist(), (ux, uy), a, b,
                 # Points beyond the edges: bevels or further faces there, no occluding edge
-                # (a hexagonal prism lost 3-5 mm at SGBM 7 dots 0.04 and BM 5 without this).
+                # (a hexagonal prism lost 3-5 mm at SGBM 7 dots 0.04 and BM 5 without this);
+                # so too a walk past an edge dropped as the fattening's smear (the box tilted
+                # left at SGBM 3 lost 26 mm once it let a hole's seed stand for its side).
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2])
-                if len(pts_all) == len(pts) else math.inf,
+                if len(pts_all) == len(pts) and not smeared else math.inf,
+                _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2]),
             ),
             trim_px * pixel_rad, params,
         )  # fmt: skip
@@ -1402,18 +1406,22 @@ def _face_geometry(
 def _consistent_sides(
     seeds: list[list[float]],
     cropped: list[bool],
+    occluding: list[bool],
     u: tuple[float, float],
     a: list[float],
     b: list[float],
     apart_m: float,
+    cut_apart_m: float,
 ) -> tuple[float, float, float, float]:
     """The rectangle's sides ``(alo, ahi, blo, bhi)`` along the unit direction ``u`` where a
     matcher fattened the edges: each side through the farthest uncut seed nearest it once the
     seeds lying more than ``apart_m`` beyond every other seed of that side are dropped, one
     at a time (two seeds or more; a side keeps one). Points beyond the face's edges (``a`` and
     ``b`` hold the seeds' coordinates, then those points') still extend it; seeds cut by the
-    capture volume bound only the sides with fewer than two uncut seeds (a fattened run may
-    reach the capture volume past the edge: the tilted box at SGBM 9 was 21 mm wide so).
+    capture volume bound only the sides with fewer than two uncut seeds, and a side with one
+    at an ``occluding`` edge only where none of them lies more than ``cut_apart_m`` beyond it
+    (a fattened run may reach the capture volume past the edge: the tilted box at SGBM 9 was
+    21 mm wide so).
 
     A window matcher fattens an occluding edge by an amount that varies along it: at SGBM 7
     the cuboids' seeds lay 0.95 mm past the true side on the nearest, 3.1 on the median and
@@ -1428,13 +1436,31 @@ def _consistent_sides(
     out = [min(a), max(a), min(b), max(b)]
     # Coordinates across each side, positive outward: sides 0 and 2 face the negative way.
     groups: list[list[float]] = [[], [], [], []]
-    for k, (d, cut) in enumerate(zip(_side_distances(seeds, u), cropped, strict=True)):
-        if not cut:
-            side = d.index(min(d))
-            sign = -1.0 if side % 2 == 0 else 1.0
-            groups[side].append(sign * (a[k] if side < 2 else b[k]))
+    cut_groups: list[list[float]] = [[], [], [], []]
+    edge = [False] * 4  # the side's uncut seeds include one at an occluding edge
+    for k, (d, cut, occludes) in enumerate(
+        zip(_side_distances(seeds, u), cropped, occluding, strict=True)
+    ):
+        side = d.index(min(d))
+        sign = -1.0 if side % 2 == 0 else 1.0
+        (cut_groups if cut else groups)[side].append(sign * (a[k] if side < 2 else b[k]))
+        edge[side] |= occludes and not cut
     for side, outward in enumerate(groups):
-        if len(outward) < 2:
+        cut = cut_groups[side]
+        if len(outward) == 1 and cut and edge[side]:
+            # One uncut seed, at an occluding edge: the side's cut seeds bound it too, unless
+            # one lies more than cut_apart_m beyond it, a run fattened past the edge to the
+            # capture volume (the box tilted left at SGBM 9, trial 1 frames 0 and 1: a cut
+            # seed 21.6 mm past the true side, the side's one uncut seed 6.4 and 7.5 mm, the
+            # width 18-19 mm too wide). Points beyond the face's edges do not stand for such
+            # a run: it keeps the face's plane, and they leave it. A run ending elsewhere (a
+            # hole, a bump) is no edge and bounds nothing: the box tilted right at BM 5,
+            # trial 0 frame 2, had its one uncut seed 35 mm inside the side so.
+            near = [c for c in cut if c - outward[0] <= cut_apart_m]
+            if len(near) == len(cut):
+                continue
+            outward = outward + near
+        elif len(outward) < 2:
             continue
         outward.sort(reverse=True)
         while len(outward) > 1 and outward[0] - outward[1] > apart_m:
@@ -1572,14 +1598,24 @@ def _rectangle_residual(pts: list[list[float]], u: tuple[float, float]) -> float
     return max(min(d) for d in _side_distances(pts, u))
 
 
-def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParams) -> np.ndarray:
+def _beyond_edges(
+    lines: list[LineModels], plane: PlaneSolid, params: LaserParams
+) -> tuple[np.ndarray, bool]:
     """Points of the object past the face's edges: from each end of a line's run, outward
     through its segment, while the surface falls away from the face (a bevel, a rounded edge,
     a prism's next face) and before it turns parallel to the face again (a table). A walk
     that reaches the segment's end stops ``edge_fattening_px`` short of it: that end is an
-    occluding edge (see ``_collect_seeds``)."""
+    occluding edge (see ``_collect_seeds``). A walk no longer than that fattening wherever it
+    ends shows no surface: a window matcher smears the step from a box's edge down to the
+    table behind it over about its window, and the smear falls away like a bevel (the box
+    tilted left at SGBM 7, trial 0 frame 0: a point 8.9 mm past the true side, the width 9.4
+    mm too wide). Longer walks keep their length: they follow a surface that is there (the
+    soap bar's rounded edges; trimming every walk cost its median width 1.4-2.7 mm at SGBM
+    5-9 and the hexagonal prism's 0.3-1.8 mm, for 0.1 mm on the functional boxes). Also
+    returned: whether such a walk was dropped (something fell away past an edge there)."""
     trim = params.edge_fattening_px  # in samples, as in _collect_seeds
     out = []
+    smeared = False
     n = plane.normal
     slope, free = math.tan(params.bevel_min_rad), params.bevel_free_depth_m
     for line in lines:
@@ -1599,9 +1635,12 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
             )
             bad = (~ok).nonzero()[0]
             k = int(bad[0]) if len(bad) else len(ok)
-            if k > 0 and trim > 0 and last + k == m - 1:
-                q = line.sz[last:, 0] / line.sz[last:, 1]
-                k = int(np.count_nonzero(q <= q[-1] - trim * line.step)) - 1
+            if k > 0 and trim > 0:
+                q = line.sz[last : last + k + 1, 0] / line.sz[last : last + k + 1, 1]
+                short = int(np.count_nonzero(q <= q[-1] - trim * line.step)) - 1
+                if last + k == m - 1 or short <= 0:
+                    smeared |= last + k < m - 1
+                    k = short
             if k > 0:
                 out.append(pts[last + k])
         if first > 0:
@@ -1611,12 +1650,15 @@ def _beyond_edges(lines: list[LineModels], plane: PlaneSolid, params: LaserParam
             )
             bad = (~ok).nonzero()[0]
             k = first - 1 - int(bad[-1]) if len(bad) else first
-            if k > 0 and trim > 0 and first - k == 0:
-                q = line.sz[: first + 1, 0] / line.sz[: first + 1, 1]
-                k = int(np.count_nonzero(q >= q[0] + trim * line.step)) - 1
+            if k > 0 and trim > 0:
+                q = line.sz[first - k : first + 1, 0] / line.sz[first - k : first + 1, 1]
+                short = int(np.count_nonzero(q >= q[0] + trim * line.step)) - 1
+                if first - k == 0 or short <= 0:
+                    smeared |= first - k > 0
+                    k = short
             if k > 0:
                 out.append(pts[first - k])
-    return plane.project(np.array(out)) if out else np.empty((0, 3))
+    return (plane.project(np.array(out)) if out else np.empty((0, 3))), smeared
 
 
 # --------------------------------------------------------------------------- 3-D candidates
@@ -2032,9 +2074,9 @@ def _decide(
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
     walk = replace(params, edge_fattening_px=measured) if measured else params
-    beyond = _beyond_edges(on_face, solid, walk) if params.bevels else None
+    beyond, smeared = _beyond_edges(on_face, solid, walk) if params.bevels else (None, False)
     face = _face_geometry(
-        solid, seeds, params, paper=False, beyond=beyond,
+        solid, seeds, params, paper=False, beyond=beyond, smeared=smeared,
         trim_px=measured, pixel_rad=_pixel_rad(lines, params),
     )  # fmt: skip
     if isinstance(face, str):
