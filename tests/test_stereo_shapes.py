@@ -345,3 +345,13 @@ def test_a_lying_marker_whose_trimmed_fit_floats_off_the_table_keeps_its_whole_a
     result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002
+
+
+def test_a_lying_marker_whose_whole_arc_fit_sinks_into_the_table_rests_on_it() -> None:
+    """SGBM (block 9), the 40 mm marker lying before the camera, trial 1 frame 2: the whole
+    arc's fit, 46.8 mm, sank 5.8 mm into the table; the camera-facing refit, 34.5 mm, touched
+    it (within the solids' threshold), so the resting rule left it its own width. Fitted
+    again touching the table, as the whole arc's fit says the marker rests, it is 40 mm."""
+    view, result = _bench_frame("cylinder_lying", 1, 2, kind="sgbm", block_size=9)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002

@@ -1970,10 +1970,17 @@ def _decide(
     support = _support_plane(lines, params) if shape in ("sphere", "cylinder") else None
     resting = _resting_width(lines, clean, solid, params, support)
     if shape == "cylinder" and resting is None and solid is not full:
-        # The trims may have lifted the round off the support its whole arc's fit lies on.
+        # The trims may have lifted the round off the support its whole arc's fit lies on, or
+        # left it touching the support where that fit sinks into it: the contact refit takes
+        # every sample of the runs whichever fit says the round rests, so the whole arc's fit
+        # may say so too (the 40 mm marker lying before the camera under SGBM 5-9: fits of
+        # 41-47 mm sinking 2-6 mm into the table, camera-facing ones of 30-35 mm touching it
+        # or standing off it, 5.3-10.4 mm narrow; on the contact within 2.3 mm).
         lifted = _lifted_off(full, solid, support, params)
         if lifted is not None:
             solid = replace(solid, radius=lifted)
+        else:
+            resting = _resting_width(lines, clean, full, params, support)
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
