@@ -356,3 +356,32 @@ def test_a_can_whose_rims_block_matching_lost_to_holes_keeps_its_fit() -> None:
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert "silhouette_width_mm" not in result.extra
     assert result.grasp_width_m > view.truth.grasp_width_m
+
+
+def test_a_lying_marker_whose_trimmed_fit_floats_off_the_table_keeps_its_whole_arc() -> None:
+    """SGBM (block 7), the rotation suite's 40 mm cylinder lying on the table seen from above,
+    wrist roll 0, trial 0 frame 4: the whole arc's fit was 39.9 mm and touched the table; the
+    camera-facing refit, 31.0 mm, stood 4.7 mm off it, too little for the resting rule to move
+    it onto the table, and stood as the width. A trim that lifts the round off the support
+    its whole arc lies on took off no fattening (laser._lifted_off)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7))
+    views = lv.views("rotation", 2, 5, 0, names=["cylinder_40"], sensor=sensor)
+    view = next(v for v in views if (v.detail, v.trial, v.frame) == ("roll   0 deg", 0, 4))
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002
+
+
+def test_a_lying_marker_whose_whole_arc_fit_sinks_into_the_table_rests_on_it() -> None:
+    """SGBM (block 9), the 40 mm marker lying before the camera, trial 1 frame 2: the whole
+    arc's fit, 46.8 mm, sank 5.8 mm into the table; the camera-facing refit, 34.5 mm, touched
+    it (within the solids' threshold), so the resting rule left it its own width. Fitted
+    again touching the table, as the whole arc's fit says the marker rests, it is 40 mm."""
+    view, result = _bench_frame("cylinder_lying", 1, 2, kind="sgbm", block_size=9)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002

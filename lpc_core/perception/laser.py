@@ -2009,9 +2009,20 @@ def _decide(
             )  # fmt: skip
             if params.end_plateaus:
                 solid = _without_end_plateaus(lines, full, solid, params)
-    resting = (
-        _resting_width(lines, clean, solid, params) if shape in ("sphere", "cylinder") else None
-    )
+    support = _support_plane(lines, params) if shape in ("sphere", "cylinder") else None
+    resting = _resting_width(lines, clean, solid, params, support)
+    if shape == "cylinder" and resting is None and solid is not full:
+        # The trims may have lifted the round off the support its whole arc's fit lies on, or
+        # left it touching the support where that fit sinks into it: the contact refit takes
+        # every sample of the runs whichever fit says the round rests, so the whole arc's fit
+        # may say so too (the 40 mm marker lying before the camera under SGBM 5-9: fits of
+        # 41-47 mm sinking 2-6 mm into the table, camera-facing ones of 30-35 mm touching it
+        # or standing off it, 5.3-10.4 mm narrow; on the contact within 2.3 mm).
+        lifted = _lifted_off(full, solid, support, params)
+        if lifted is not None:
+            solid = replace(solid, radius=lifted)
+        else:
+            resting = _resting_width(lines, clean, full, params, support)
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
@@ -2138,15 +2149,9 @@ def _support_rng() -> np.random.Generator:
 _SUPPORT_MIN_LINE_POINTS = 10
 
 
-def _resting_width(
-    lines: list[LineModels],
-    clean: np.ndarray,
-    solid: SphereSolid | CylinderSolid,
-    params: LaserParams,
-) -> float | None:
-    """The width of a round that rests on the support, fitted again touching it
-    (``solids.resting_width``) to ``clean``, every sample of the lines' runs; ``None`` when
-    the lines show no support or the round does not rest on it.
+def _support_plane(lines: list[LineModels], params: LaserParams) -> PlaneSolid | None:
+    """The support the lines show beside the round, or ``None`` (or when resting is off,
+    ``rest_gap_ratio`` 0).
 
     The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
     almost no sample behind it) among the lines' samples off the round's runs, on at least two
@@ -2174,7 +2179,23 @@ def _resting_width(
     if np.count_nonzero(per_line >= _SUPPORT_MIN_LINE_POINTS) < 2:
         return None
     support = PlaneSolid.estimate(beside.compress(mask, axis=0))
-    if not support:
+    return support if support else None
+
+
+def _resting_width(
+    lines: list[LineModels],
+    clean: np.ndarray,
+    solid: SphereSolid | CylinderSolid,
+    params: LaserParams,
+    support: PlaneSolid | bool | None = True,
+) -> float | None:
+    """The width of a round that rests on the support the lines show (``_support_plane``,
+    or ``support`` where the caller found it already), fitted again touching it
+    (``solids.resting_width``) to ``clean``, every sample of the lines' runs; ``None`` when
+    the lines show no support or the round does not rest on it."""
+    if support is True:
+        support = _support_plane(lines, params)
+    if not isinstance(support, PlaneSolid):
         return None
     # Every sample of the runs: the contact holds the fit where a free one would follow a
     # fattened tail, and a fit that was far off leaves few samples near it to choose.
@@ -2191,6 +2212,35 @@ def _resting_width(
         tolerance_m=params.solid_threshold_m,
         radius_limits_m=params.radius_limits_m,
     )
+
+
+def _lifted_off(
+    full: CylinderSolid, solid: CylinderSolid, support: PlaneSolid | None, params: LaserParams
+) -> float | None:
+    """The radius of ``full`` (the fit on every inlier) when the round lies on ``support``,
+    ``full`` touches it (within ``solid_threshold_m``) and ``solid``, the camera-facing or
+    plateau-free refit, stands off it by more: ``None`` otherwise.
+
+    The trims take off what a matcher's fattened rims added to the whole arc's fit, which
+    then sinks into the support it lies on; one already touching it had nothing to take off,
+    and a narrower refit that floats off the support is the shorter arc trading its radius
+    against its centre's depth (the rotation suite's 40 mm cylinder seen from above under
+    SGBM 7-9: the whole arc's fit within 1 mm of the truth and touching the table, the
+    camera-facing refit 7-9 mm narrower standing 4-5.5 mm off it: past the quarter radius
+    within which the resting rule moves a round onto its support, and the runs, stopping
+    short of the rims, spread too little to move it from further off).
+    """
+    if support is None or solid.radius >= full.radius:
+        return None
+    n = support.normal
+    if abs(float(n @ full.axis)) > math.sin(params.rest_max_tilt_rad):
+        return None  # not lying along the support
+    tol = params.solid_threshold_m
+    gap_full = float((full.point - support.point) @ n) - full.radius
+    gap_solid = float((solid.point - support.point) @ n) - solid.radius
+    if abs(gap_full) <= tol < gap_solid:
+        return full.radius
+    return None
 
 
 def _pixel_rad(lines: list[LineModels], params: LaserParams) -> float:
