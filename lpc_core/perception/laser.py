@@ -912,12 +912,17 @@ def _collect_seeds(
     *,
     extend: bool,
     face: PlaneSolid | None = None,
+    past: list[list[float]] | None = None,
+    pixel_rad: float = 0.0,
 ) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
     by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge).
 
-    With a ``face``, a seed at an occluding edge (its run ends where its segment does: the
-    depth jumps away or the data stops) is moved in by ``edge_fattening_px`` as well, onto
+    With a ``face``, a seed whose line's data stops near the capture volume's side counts as
+    cut where the depth ``past`` the line's ends (``past_ends_m``; ``pixel_rad``, the angle
+    of a pixel) shows the face going on (``_face_goes_on``). A seed at an occluding edge (its
+    run ends where its segment does: the depth jumps away or the data stops) is moved in by
+    ``edge_fattening_px`` as well, onto
     the face's plane: stereo matching gives the foreground's depth to the background pixels
     within about half its window of the edge, and on a flat face those fattened pixels lie
     on the face's own plane, so nothing in the line itself tells them apart.
@@ -958,6 +963,16 @@ def _collect_seeds(
                 if e is not None
             )
             occluding = run[-k] == (len(line.points) - 1) * k  # run[0] == 0 or run[-1] == last
+            if (
+                not at_crop
+                and occluding
+                and face is not None
+                and past is not None
+                and line.index < len(past)
+                and not (line.beyond and len(line.beyond[k]))
+            ):
+                at_crop = _face_goes_on(p, c, s_, sign, past[line.index][k], face, params,
+                                        pixel_rad, line.step)  # fmt: skip
             if extend and not at_crop and trim > 0 and occluding and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
                 q += sign * (params.edge_extension - trim) * line.step
@@ -987,6 +1002,42 @@ _CROP_SLACK = 1
 # ... when that sample lies within this of the face's plane (1.5 mm at SGBM 7): those a real
 # edge ends the run before lie further (5-8 mm behind on the golden grasp replay's box).
 _CROP_OFF_FACE_M = 0.003
+
+
+# A seed where its line's data stops (no sample past it in the capture volume) within this
+# many samples of the capture volume's side is cut when the depth past the line's end
+# (scans.past_line_ends, 8-30 px past it: its middle here) lies within _PAST_ON_FACE_M of the
+# face's plane: the face goes on, and the matcher's holes, not an edge, ended the data (BM 5,
+# the box tilted right, trial 1 frame 3: its line along x stopped 2 mm short of the side, and
+# that seed, on no side, turned the box 16 degrees; 2.9 cut).
+_EDGE_REACH_SAMPLES = 2.0
+_PAST_MIDDLE_PX = 19.0
+_PAST_ON_FACE_M = 0.003
+
+
+def _face_goes_on(
+    end: list[float],
+    c: float,
+    s_: float,
+    sign: float,
+    behind: float,
+    face: PlaneSolid,
+    params: LaserParams,
+    pixel_rad: float,
+    step: float,
+) -> bool:
+    """Whether the seed ``end``, where its line's data stops, lies at the capture volume's
+    edge: within _EDGE_REACH_SAMPLES samples (``step``) of its side, and the depth ``behind``
+    past the line's end (``sign``: which end, along the line's direction ``c, s_``) on the
+    face's plane, as the face going on outside the capture volume would put it."""
+    if behind <= 0.0 or pixel_rad <= 0.0 or step <= 0.0:
+        return False
+    hw = params.capture_half_width_m - params.crop_margin_m
+    if max(abs(end[0]), abs(end[1])) < hw - _EDGE_REACH_SAMPLES * step * end[2]:
+        return False
+    q = (end[0] * c + end[1] * s_) / end[2] + sign * _PAST_MIDDLE_PX * pixel_rad
+    on = _on_plane(end, (q * c, q * s_, 1.0), face)
+    return abs(on[2] - behind) <= _PAST_ON_FACE_M
 
 
 def _on_plane(end: list[float], ray: tuple[float, float, float], plane: PlaneSolid) -> list[float]:
@@ -2047,9 +2098,13 @@ def _decide(
                 extra["residual_correlation"] = correlation
                 window = True
         extra["fattening_px"] = measured
-    seeds = _collect_seeds(on_face, params, extend=True, face=solid)
-    seeds = replace(seeds, points=solid.project(seeds.points))
     past = getattr(scan_lines, "past_ends_m", None)
+    seeds = _collect_seeds(
+        on_face, params, extend=True, face=solid,
+        past=np.asarray(past, dtype=np.float64).tolist() if past is not None else None,
+        pixel_rad=_pixel_rad(lines, params),
+    )  # fmt: skip
+    seeds = replace(seeds, points=solid.project(seeds.points))
     if window and past is not None and seeds.occluding is not None:
         share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), params))
         extra["near_ends"] = float(np.count_nonzero(seeds.occluding & (share < 1.0)))
