@@ -2756,20 +2756,25 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
 
 
 def _across_face_holes(line: LineModels, plane: PlaneSolid, params: LaserParams) -> None:
-    """Where the face run reaches its segment's end and the line's next samples past the gap
-    lie on ``plane`` again (``min_points_per_line`` of them in a run, the first of them
-    among the first ``max_outlier_run`` + 1), the run goes on through them: the gap was a
-    hole in the face (a matcher's failed windows: BM 5 broke the tilted box's lines 18-56 mm
-    inside it), not its edge, and the seed there lay inside the face, on no side. An edge
-    leaves the next samples off the plane: the background, the table (whose contact line
-    meets the face's plane for a sample or two), an object in front. The whole segment past
-    the hole joins, as a segment (split at the next jump): a run ending short of its end is
-    no occluding edge (see ``_collect_seeds``)."""
+    """Where the face run reaches within ``max_outlier_run`` samples of its segment's end (a hole's
+    border leaves the face: BM 5's tilted box turned 17 degrees, trial 0 frame 2, and 0.7 so
+    joined) and the line's next samples past the gap lie on ``plane`` again
+    (``min_points_per_line`` of them in a run, the first of them among the first
+    ``max_outlier_run`` + 1), the run goes on through them: the gap was a hole in the face (a
+    matcher's failed windows: BM 5 broke the tilted box's lines 18-56 mm inside it), not its
+    edge, and the seed there lay inside the face, on no side. An edge leaves the next samples
+    off the plane: the background, the table (whose contact line meets the face's plane for a
+    sample or two), an object in front. The whole segment past the hole joins, as a segment
+    (split at the next jump): a run ending short of its end is no occluding edge (see
+    ``_collect_seeds``)."""
     before, after = line.beyond
     c, s_ = math.cos(line.angle), math.sin(line.angle)
     for k, side in ((1, after), (0, before)):
         end = len(line.points) - 1 if k else 0
-        if len(side) < params.min_points_per_line or int(line.run[-k]) != end:
+        if (
+            len(side) < params.min_points_per_line
+            or abs(int(line.run[-k]) - end) > params.max_outlier_run
+        ):
             continue
         ordered = side if k else side[::-1]  # outward from the gap
         heights = (ordered - plane.point) @ plane.normal
