@@ -199,6 +199,19 @@ def test_a_box_face_broken_by_holes_gets_its_axis() -> None:
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002
 
 
+def test_a_box_face_whose_runs_stop_at_a_holes_border_gets_its_axis() -> None:
+    """BM 5, the box tilted right, trial 0 frame 2: two lines' runs stopped 1-3 samples short
+    of the holes that split them (the holes' borders leave the face), and the seeds there,
+    5-20 mm inside the face, turned the box 17 degrees off its axis; joined across the holes,
+    0.7 degrees."""
+    from services.cli import _laser_views as lv
+
+    view = _stereo_view("cuboid_tilt_right", 0, 2, kind="bm", block_size=5)
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cuboid"
+    assert _angle_off(result, view) < 1.5
+
+
 def test_a_stray_last_sample_at_the_capture_edge_leaves_the_seed_cut() -> None:
     """SGBM 7, the box tilted left, trial 0 frame 3: the line along the box reaches the
     capture volume's edge, but its last sample lies 1.5 mm behind the face and ends the run a
