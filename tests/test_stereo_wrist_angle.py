@@ -170,3 +170,56 @@ def test_an_upright_box_with_a_seed_moved_12_px_gets_its_axis() -> None:
     assert _angle_off(after, view) < 3.0
     width = view.truth.grasp_width_m
     assert abs(after.grasp_width_m - width) < abs(before.grasp_width_m - width) - 0.005
+
+
+def _stereo_view(name: str, trial: int, frame: int, **matcher: Any) -> Any:
+    """Trial ``trial``'s frame ``frame`` of the functional suite's ``name`` (2 trials x 5
+    frames, as the bench's stereo sweep), under a matcher of the given settings."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(**matcher))
+    views = lv.views("functional", 2, 5, 0, names=[name], sensor=sensor)
+    return next(v for v in views if (v.trial, v.frame) == (trial, frame))
+
+
+def test_a_box_face_broken_by_holes_gets_its_axis() -> None:
+    """BM 5, the box tilted right, trial 1 frame 1: the matcher's holes broke two lines 20-30
+    mm inside the face, and the seeds there, on no side, turned the box 62 degrees off its
+    axis and left it 16 mm narrow; the samples past the holes lie on the face's plane, and
+    the face's runs go on through them: 0.8 degrees, the width within 1 mm."""
+    from services.cli import _laser_views as lv
+
+    view = _stereo_view("cuboid_tilt_right", 1, 1, kind="bm", block_size=5)
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cuboid"
+    assert _angle_off(result, view) < 1.5
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002
+
+
+def test_a_box_face_whose_runs_stop_at_a_holes_border_gets_its_axis() -> None:
+    """BM 5, the box tilted right, trial 0 frame 2: two lines' runs stopped 1-3 samples short
+    of the holes that split them (the holes' borders leave the face), and the seeds there,
+    5-20 mm inside the face, turned the box 17 degrees off its axis; joined across the holes,
+    0.7 degrees."""
+    from services.cli import _laser_views as lv
+
+    view = _stereo_view("cuboid_tilt_right", 0, 2, kind="bm", block_size=5)
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cuboid"
+    assert _angle_off(result, view) < 1.5
+
+
+def test_a_stray_last_sample_at_the_capture_edge_leaves_the_seed_cut() -> None:
+    """SGBM 7, the box tilted left, trial 0 frame 3: the line along the box reaches the
+    capture volume's edge, but its last sample lies 1.5 mm behind the face and ends the run a
+    sample short, past the crop margin; counted on a side, that seed turned the box 7.5
+    degrees off its axis. Cut, as the segment's end is: 0.7 degrees."""
+    from services.cli import _laser_views as lv
+
+    view = _stereo_view("cuboid_tilt_left", 0, 3)
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cuboid"
+    assert _angle_off(result, view) < 1.5

@@ -912,12 +912,17 @@ def _collect_seeds(
     *,
     extend: bool,
     face: PlaneSolid | None = None,
+    past: list[list[float]] | None = None,
+    pixel_rad: float = 0.0,
 ) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
     by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge).
 
-    With a ``face``, a seed at an occluding edge (its run ends where its segment does: the
-    depth jumps away or the data stops) is moved in by ``edge_fattening_px`` as well, onto
+    With a ``face``, a seed whose line's data stops near the capture volume's side counts as
+    cut where the depth ``past`` the line's ends (``past_ends_m``; ``pixel_rad``, the angle
+    of a pixel) shows the face going on (``_face_goes_on``). A seed at an occluding edge (its
+    run ends where its segment does: the depth jumps away or the data stops) is moved in by
+    ``edge_fattening_px`` as well, onto
     the face's plane: stereo matching gives the foreground's depth to the background pixels
     within about half its window of the edge, and on a flat face those fattened pixels lie
     on the face's own plane, so nothing in the line itself tells them apart.
@@ -932,6 +937,16 @@ def _collect_seeds(
         # The two ends and their neighbours along the run, as Python floats (a handful of
         # scalars: numpy indexing would cost more than the arithmetic).
         ends = line.points.take((run[0], run[-1]), axis=0).tolist()
+        # The segment's own ends, where a face's run stops within _CROP_SLACK samples of them
+        # and they stay near the face.
+        line_ends: list[list[float] | None] = [None, None]
+        if face is not None:
+            last = len(line.points) - 1
+            for k, (r, e) in enumerate(((int(run[0]), 0), (int(run[-1]), last))):
+                if 0 < abs(r - e) <= _CROP_SLACK:
+                    q = line.points[e]
+                    if abs(float((q - face.point) @ face.normal)) <= _CROP_OFF_FACE_M:
+                        line_ends[k] = q.tolist()
         ends_sz = (
             line.sz.take((run[0], run[1], run[-1], run[-2]), axis=0).tolist()
             if len(run) > 1
@@ -940,12 +955,24 @@ def _collect_seeds(
         c, s_ = math.cos(line.angle), math.sin(line.angle)
         for k, sign in ((0, -1.0), (1, 1.0)):
             p = ends[k]
-            at_crop = bool(
-                max(abs(p[0]), abs(p[1])) >= hw - margin
-                or p[2] <= zlo + margin
-                or p[2] >= zhi - margin
+            at_crop = any(
+                max(abs(e[0]), abs(e[1])) >= hw - margin
+                or e[2] <= zlo + margin
+                or e[2] >= zhi - margin
+                for e in (p, line_ends[k])
+                if e is not None
             )
             occluding = run[-k] == (len(line.points) - 1) * k  # run[0] == 0 or run[-1] == last
+            if (
+                not at_crop
+                and occluding
+                and face is not None
+                and past is not None
+                and line.index < len(past)
+                and not (line.beyond and len(line.beyond[k]))
+            ):
+                at_crop = _face_goes_on(p, c, s_, sign, past[line.index][k], face, params,
+                                        pixel_rad, line.step)  # fmt: skip
             if extend and not at_crop and trim > 0 and occluding and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
                 q += sign * (params.edge_extension - trim) * line.step
@@ -963,6 +990,54 @@ def _collect_seeds(
         cropped=np.array(cropped, dtype=bool),
         occluding=np.array(occludes, dtype=bool),
     )
+
+
+# A face's run that stops this many samples short of its segment's end at the capture
+# volume's edge is cut there too: a matcher's last sample may leave the face (1.5 mm behind it
+# on the box tilted left at SGBM 7, trial 0 frame 3), ending the run a sample inside the edge
+# and past crop_margin_m; that seed, on no side, turned the box's axis 7.5 degrees (0.7 cut).
+# Two samples cost lpc's noise model: a clutter box's edge rounding off two samples short of
+# the capture volume's edge was cut, and its axis turned 0.4 -> 1.8 degrees.
+_CROP_SLACK = 1
+# ... when that sample lies within this of the face's plane (1.5 mm at SGBM 7): those a real
+# edge ends the run before lie further (5-8 mm behind on the golden grasp replay's box).
+_CROP_OFF_FACE_M = 0.003
+
+
+# A seed where its line's data stops (no sample past it in the capture volume) within this
+# many samples of the capture volume's side is cut when the depth past the line's end
+# (scans.past_line_ends, 8-30 px past it: its middle here) lies within _PAST_ON_FACE_M of the
+# face's plane: the face goes on, and the matcher's holes, not an edge, ended the data (BM 5,
+# the box tilted right, trial 1 frame 3: its line along x stopped 2 mm short of the side, and
+# that seed, on no side, turned the box 16 degrees; 2.9 cut).
+_EDGE_REACH_SAMPLES = 2.0
+_PAST_MIDDLE_PX = 19.0
+_PAST_ON_FACE_M = 0.003
+
+
+def _face_goes_on(
+    end: list[float],
+    c: float,
+    s_: float,
+    sign: float,
+    behind: float,
+    face: PlaneSolid,
+    params: LaserParams,
+    pixel_rad: float,
+    step: float,
+) -> bool:
+    """Whether the seed ``end``, where its line's data stops, lies at the capture volume's
+    edge: within _EDGE_REACH_SAMPLES samples (``step``) of its side, and the depth ``behind``
+    past the line's end (``sign``: which end, along the line's direction ``c, s_``) on the
+    face's plane, as the face going on outside the capture volume would put it."""
+    if behind <= 0.0 or pixel_rad <= 0.0 or step <= 0.0:
+        return False
+    hw = params.capture_half_width_m - params.crop_margin_m
+    if max(abs(end[0]), abs(end[1])) < hw - _EDGE_REACH_SAMPLES * step * end[2]:
+        return False
+    q = (end[0] * c + end[1] * s_) / end[2] + sign * _PAST_MIDDLE_PX * pixel_rad
+    on = _on_plane(end, (q * c, q * s_, 1.0), face)
+    return abs(on[2] - behind) <= _PAST_ON_FACE_M
 
 
 def _on_plane(end: list[float], ray: tuple[float, float, float], plane: PlaneSolid) -> list[float]:
@@ -2076,9 +2151,13 @@ def _decide(
                 extra["residual_correlation"] = correlation
                 window = True
         extra["fattening_px"] = measured
-    seeds = _collect_seeds(on_face, params, extend=True, face=solid)
-    seeds = replace(seeds, points=solid.project(seeds.points))
     past = getattr(scan_lines, "past_ends_m", None)
+    seeds = _collect_seeds(
+        on_face, params, extend=True, face=solid,
+        past=np.asarray(past, dtype=np.float64).tolist() if past is not None else None,
+        pixel_rad=_pixel_rad(lines, params),
+    )  # fmt: skip
+    seeds = replace(seeds, points=solid.project(seeds.points))
     if window and past is not None and seeds.occluding is not None:
         share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), params))
         extra["near_ends"] = float(np.count_nonzero(seeds.occluding & (share < 1.0)))
@@ -2763,7 +2842,59 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
     _ = line.step  # the step belongs to the model's run, not the face run
     moved = copy.copy(line)  # dataclasses.replace, without re-running __init__
     moved.run = run
+    if line.beyond:
+        _across_face_holes(moved, plane, params)
     return moved
+
+
+def _across_face_holes(line: LineModels, plane: PlaneSolid, params: LaserParams) -> None:
+    """Where the face run reaches within ``max_outlier_run`` samples of its segment's end (a hole's
+    border leaves the face: BM 5's tilted box turned 17 degrees, trial 0 frame 2, and 0.7 so
+    joined) and the line's next samples past the gap lie on ``plane`` again
+    (``min_points_per_line`` of them in a run, the first of them among the first
+    ``max_outlier_run`` + 1), the run goes on through them: the gap was a hole in the face (a
+    matcher's failed windows: BM 5 broke the tilted box's lines 18-56 mm inside it), not its
+    edge, and the seed there lay inside the face, on no side. An edge leaves the next samples
+    off the plane: the background, the table (whose contact line meets the face's plane for a
+    sample or two), an object in front. The whole segment past the hole joins, as a segment
+    (split at the next jump): a run ending short of its end is no occluding edge (see
+    ``_collect_seeds``)."""
+    before, after = line.beyond
+    c, s_ = math.cos(line.angle), math.sin(line.angle)
+    for k, side in ((1, after), (0, before)):
+        end = len(line.points) - 1 if k else 0
+        if (
+            len(side) < params.min_points_per_line
+            or abs(int(line.run[-k]) - end) > params.max_outlier_run
+        ):
+            continue
+        ordered = side if k else side[::-1]  # outward from the gap
+        heights = (ordered - plane.point) @ plane.normal
+        runs = _runs(np.abs(heights) <= params.solid_threshold_m, ordered, params, heights > 0)
+        if (
+            not runs
+            or runs[0][0] > params.max_outlier_run
+            or len(runs[0]) < params.min_points_per_line
+        ):
+            continue
+        jumps = squared_norms(ordered[1:] - ordered[:-1]) > params.segment_gap_m**2
+        reach = int(jumps.argmax()) + 1 if jumps.any() else len(ordered)
+        if int(runs[0][-1]) >= reach:
+            continue
+        joined = ordered[:reach] if k else ordered[:reach][::-1]
+        sz = np.column_stack([joined[:, 0] * c + joined[:, 1] * s_, joined[:, 2]])
+        if k:
+            first = len(line.points)
+            line.points = np.concatenate([line.points, joined])
+            line.sz = np.concatenate([line.sz, sz])
+            line.run = np.concatenate([line.run, first + runs[0]])
+            line.beyond = (line.beyond[0], side[reach:])
+        else:
+            # runs[0] counts outward from the gap: as indices of the joined points, reversed.
+            line.points = np.concatenate([joined, line.points])
+            line.sz = np.concatenate([sz, line.sz])
+            line.run = np.concatenate([(reach - 1 - runs[0])[::-1], reach + line.run])
+            line.beyond = (side[: len(side) - reach], line.beyond[1])
 
 
 def _plateau_end(z: np.ndarray, end: int, inward: int, tolerance_m: float) -> int:
