@@ -374,6 +374,8 @@ class Subscription:
             if not self._decode:
                 return key, payload, received_ns
             try:
+                if self._router is not None:
+                    return key, self._router.decode(key, payload), received_ns
                 return key, topic_for_key(key).decode(payload, key), received_ns
             except (BadMessage, KeyError) as exc:
                 stream.rejected += 1
@@ -440,6 +442,10 @@ class Router:
             collections.deque()
         )
         self._scheduled = False
+        # The sample decoded last on this loop, with its payload: the subscriptions of several
+        # services that take one sample (the hand's status: the controller and the simulated
+        # user; the controller's state) decode it once. Messages are frozen structs.
+        self._decoded: tuple[bytes, Any] | None = None
         self._lock = threading.Lock()
         self._clock = SystemClock()
         self._prefix = zenoh.KeyExpr(self.PREFIX)
@@ -517,6 +523,16 @@ class Router:
             return
         for sub in subs:
             sub._push(item)
+
+    def decode(self, key: str, payload: bytes) -> Any:
+        """``topic_for_key(key).decode(payload, key)``, once for a payload that every
+        subscription of this loop is handed as the same object (a bad one raises each time)."""
+        last = self._decoded
+        if last is not None and last[0] is payload:
+            return last[1]
+        message = topic_for_key(key).decode(payload, key)
+        self._decoded = (payload, message)
+        return message
 
     def _subs_for(self, key: str) -> list[Subscription]:
         return self._route(key)[0]

@@ -258,3 +258,35 @@ def test_health_latency_quantiles_by_partition_equal_the_sorted_ones() -> None:
         assert got == (_quantile(ordered, 0.50), _quantile(ordered, 0.99))
         assert all(type(q) is float for q in got)
     assert _latency_quantiles([collections.deque(), collections.deque()]) is None
+
+
+def test_router_decodes_a_sample_once_for_all_its_subscriptions(endpoint: str) -> None:
+    """Two services on one loop that take the same sample (the controller and the simulated
+    user, the hand's status) get one decoded message; each still counts it, and a bad payload
+    is rejected by each of them."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        controller = Bus(session, "controller", loop=loop, router=router, quiet=True)
+        user = Bus(session, "emg", loop=loop, router=router, quiet=True)
+        subs = [bus.subscribe("lpc/emg", latest=False) for bus in (controller, user)]
+        sample = EmgSample(seq=7, t_ns=1, channels=[0.25, 0.5])
+        router.deliver("lpc/emg", encode(sample))
+        (_, first, _), (_, second, _) = [await sub.receive() for sub in subs]
+        assert first == sample and second is first, "decoded once, the same frozen message"
+        router.deliver("lpc/emg", encode(EmgSample(seq=8, t_ns=2, channels=[0.0, 0.0])))
+        third, fourth = [(await sub.receive())[1] for sub in subs]
+        assert third.seq == fourth.seq == 8 and third is not first, "a new sample decoded anew"
+        router.deliver("lpc/emg", b"\xc1 not msgpack")
+        router.deliver("lpc/emg", encode(EmgSample(seq=9, t_ns=3, channels=[0.0, 0.0])))
+        assert [(await sub.receive())[1].seq for sub in subs] == [9, 9]
+        for bus in (controller, user):
+            assert bus.health.received["lpc/emg"].count == 4
+            assert bus.health.received["lpc/emg"].rejected == 1
+            bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())

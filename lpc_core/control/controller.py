@@ -305,8 +305,9 @@ def controller_step(
             commanded = any(isinstance(o, ProsthesisCommand) for o in out)
             hand_gone = HAND in core.stale or HAND not in core.seen_ns
             if not commanded and (hand_gone or not core.commanded_since_tick):
-                core = _command(core, now_ns, out)
-            core = evolve(core, commanded_since_tick=False)
+                core = _command(core, now_ns, out, since_tick=False)
+            elif core.commanded_since_tick:
+                core = evolve(core, commanded_since_tick=False)
         case _:
             raise ValueError(f"message: the controller does not take {type(message).__name__}")
 
@@ -565,9 +566,14 @@ def _servo(
     return max(min(v, 1.0), -1.0), False
 
 
-def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> ControllerCore:
+def _command(
+    core: ControllerCore, now_ns: int, out: list[Output], since_tick: bool = True
+) -> ControllerCore:
+    """One ``ProsthesisCommand``; ``since_tick=False`` for the tick's own, which the tick then
+    clears (``commanded_since_tick``) in the same copy."""
     grasp = wrist = 0.0
     p = core.params
+    holding = core.holding
     hand_ns = core.seen_ns.get(HAND)
     hand_fresh = hand_ns is not None and now_ns - hand_ns <= p.velocity_hold_ms * 1e6
     if core.mode is S.PRESHAPING and core.setpoint is not None and core.hand is not None:
@@ -577,7 +583,7 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
         hold_ap, hold_wr = core.holding
         grasp, hold_ap = _servo(ap_err, p.aperture_gain_per_mm, p.aperture_tol_mm, hold_ap, p)
         wrist, hold_wr = _servo(wr_err, p.wrist_gain_per_deg, p.wrist_tol_deg, hold_wr, p)
-        core = evolve(core, holding=(hold_ap, hold_wr))
+        holding = (hold_ap, hold_wr)
     elif core.mode is S.DIRECT:
         emg_ns = core.seen_ns.get(EMG)
         fresh = emg_ns is not None and now_ns - emg_ns <= p.velocity_hold_ms * 1e6
@@ -596,7 +602,8 @@ def _command(core: ControllerCore, now_ns: int, out: list[Output]) -> Controller
             grip=core.grip,  # type: ignore[arg-type]
         )
     )
-    return evolve(core, command_seq=seq, commanded_since_tick=True)
+    # One copy for the servo's rest flags and the count: this runs on every hand status.
+    return evolve(core, holding=holding, command_seq=seq, commanded_since_tick=since_tick)
 
 
 def _publish(

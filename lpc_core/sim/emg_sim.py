@@ -98,13 +98,22 @@ def _noise_block(seed: int, block: int) -> np.ndarray:
     return noise
 
 
-def _noise(seed: int, seq: int, n: int) -> np.ndarray:
+@functools.lru_cache(maxsize=8)
+def _noise_rows(seed: int, block: int) -> list[list[float]]:
+    """``_noise_block`` as Python floats (the same values), converted once per block of 100
+    samples: the live user reads one row a tick, where a numpy slice and its ``tolist`` were
+    most of the row's cost. Read only."""
+    return _noise_block(seed, block).tolist()
+
+
+def _noise(seed: int, seq: int, n: int) -> list[list[float]]:
+    """Rows ``seq`` to ``seq + n`` of the seeded noise, as Python floats."""
     first, last = seq // NOISE_BLOCK, (seq + n - 1) // NOISE_BLOCK
     start = seq - first * NOISE_BLOCK
     if first == last:  # the live user's one sample a tick: no concatenation
-        return _noise_block(seed, first)[start : start + n]
-    blocks = [_noise_block(seed, b) for b in range(first, last + 1)]
-    return np.concatenate(blocks)[start : start + n]
+        return _noise_rows(seed, first)[start : start + n]
+    rows = [row for b in range(first, last + 1) for row in _noise_rows(seed, b)]
+    return rows[start : start + n]
 
 
 def simulate_emg(
@@ -123,15 +132,14 @@ def simulate_emg(
         raise ValueError(f"drive must have shape (N, 2), got {drive.shape}")
     if len(drive) == 0:
         return state, np.empty((0, 2))
-    return _simulate_rows(state, drive.tolist(), params, seed, seq)
+    state, rows = _simulate_rows(state, drive.tolist(), params, seed, seq)
+    return state, np.array(rows, dtype=float).reshape(len(rows), 2)
 
 
-def _simulate_rows(
-    state: MuscleState, drive: list[list[float]], params: MuscleParams, seed: int, seq: int
-) -> tuple[MuscleState, np.ndarray]:
-    """``simulate_emg`` of a drive already in [0, 1], as rows of floats."""
-    n = len(drive)
-    noise = _noise(seed, seq, n)
+@functools.lru_cache(maxsize=8)
+def _rates(params: MuscleParams) -> tuple[float, float, float, float, float, list[float]]:
+    """The per-sample constants of ``params``: (k_rise, k_fall, k_artifact, innovation, hit_p,
+    span), worked out once, not on each sample of the live user."""
     dt = 1.0 / RATE_HZ
     k_rise = 1.0 - math.exp(-dt * 1e3 / params.rise_ms)
     k_fall = 1.0 - math.exp(-dt * 1e3 / params.fall_ms)
@@ -140,13 +148,25 @@ def _simulate_rows(
     innovation = math.sqrt(1.0 - rho * rho)
     hit_p = params.artifact_rate_hz / RATE_HZ
     span = [m - r for r, m in zip(params.rest, params.maximal, strict=True)]
+    return k_rise, k_fall, k_artifact, innovation, hit_p, span
+
+
+def _simulate_rows(
+    state: MuscleState, drive: list[list[float]], params: MuscleParams, seed: int, seq: int
+) -> tuple[MuscleState, list[list[float]]]:
+    """``simulate_emg`` of a drive already in [0, 1], as rows of floats; the envelopes as rows
+    of floats too (the live user publishes them as they are, with no array between)."""
+    n = len(drive)
+    rows = _noise(seed, seq, n)
+    dt = 1.0 / RATE_HZ
+    k_rise, k_fall, k_artifact, innovation, hit_p, span = _rates(params)
+    rho = params.noise_corr
 
     # A loop over time in plain floats: the activation dynamics are asymmetric and the fatigue
     # state-dependent, and at one sample per call numpy's per-call overhead would dominate.
     a, f = list(state.activation), list(state.fatigue)
     z, art = list(state.fluctuation), list(state.artifact)
-    out = np.empty((n, 2))
-    rows = noise.tolist()
+    out = [[0.0, 0.0] for _ in range(n)]
     for i, u in enumerate(drive):
         row = rows[i]
         for c in range(2):
@@ -161,7 +181,7 @@ def _simulate_rows(
             seen = a[c] + params.crosstalk * a[1 - c]
             amplitude = seen * (1.0 - f[c]) * span[c]
             envelope = math.sqrt(params.rest[c] ** 2 + amplitude**2) * (1.0 + params.noise * z[c])
-            out[i, c] = max(envelope + art[c] * span[c], 0.0)
+            out[i][c] = max(envelope + art[c] * span[c], 0.0)
     new_state = MuscleState(
         activation=(a[0], a[1]),
         fatigue=(f[0], f[1]),
@@ -308,14 +328,13 @@ def user_step(
                 cur + min(max(goal - cur, -3.0 / RATE_HZ), 1.2 / RATE_HZ)
                 for cur, goal in zip(state.sustained, state.sustain, strict=True)
             )
-            state = evolve(state, sustained=sustained)  # type: ignore[arg-type]
             drive = _drive_at(state.plan, t_s, sustained)  # type: ignore[arg-type]
             muscle, raw = _simulate_rows(state.muscle, [drive], state.params, state.seed, state.seq)
             plan = tuple(s for s in state.plan if s.end_s > t_s)
-            sample = EmgSample(
-                seq=state.seq, t_ns=message.t_ns, channels=[float(raw[0, 0]), float(raw[0, 1])]
-            )
-            return evolve(state, muscle=muscle, plan=plan, seq=state.seq + 1), [sample]
+            sample = EmgSample(seq=state.seq, t_ns=message.t_ns, channels=raw[0])
+            # One copy of the state a tick: its fields change together.
+            new = evolve(state, sustained=sustained, muscle=muscle, plan=plan, seq=state.seq + 1)
+            return new, [sample]  # type: ignore[arg-type]
         case _:
             raise ValueError(f"message: unexpected {type(message).__name__}")
 
