@@ -1932,14 +1932,23 @@ def _decide(
         # runs may lie on two faces, but never a sphere's or a cylinder's (see
         # _straight_pieces).
         bar = math.inf
+    short_of_ball = False
     if bar < 1.0:
         candidates["sphere"] = _sphere_candidate(lines, clean, params)
         if candidates["sphere"].score > bar:
-            shape, bar = "sphere", candidates["sphere"].score + params.cylinder_margin
+            short_of_ball = _short_of_ball(lines, candidates["sphere"].solid, params)
+            if not short_of_ball:
+                shape, bar = "sphere", candidates["sphere"].score + params.cylinder_margin
     if bar < 1.0:
         candidates["cylinder"] = _cylinder_candidate(lines, clean, params)
         if candidates["cylinder"].score > bar:
             shape = "cylinder"
+    if short_of_ball:
+        extra["short_of_ball"] = 1.0
+        if shape != "cylinder":
+            # No cylinder explains more of the lines than the face does: the ball stands, as
+            # without the test (a cylinder below the face's bar is below the ball's too).
+            shape = "sphere"
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -2632,6 +2641,61 @@ def _plateau_free(
     if not refit or not lo <= refit.radius <= hi:
         return None
     return refit
+
+
+# A ball seen through a scan line spans its whole chord on the line (bar the rims a matcher
+# or the table takes): a surface that covers less than this share of the fitted ball's chord
+# on two lines or more is some other round (the jar cap seen from the front: a 15 mm band of a
+# 60 mm cylinder, 0.25-0.51 on stereo; real balls 0.64-1.0 over the sweep's eight settings and
+# lpc's noise model, the pear's lower bulb included).
+_BALL_SPAN = 0.57
+# Samples along each line's chord of the ball (the chord's angle in the scan plane).
+_CHORD_SAMPLES = 48
+
+
+def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserParams) -> bool:
+    """Whether the surface the lines see covers less than ``_BALL_SPAN`` of ``ball``'s visible
+    chord on two lines or more: no ball then, whose outline the lines would cross whole.
+
+    On each line the chord runs between the rays that graze the ball in the scan plane, and
+    only the part whose front surface lies in the capture volume counts (the lines hold no
+    other samples). The line covers it from its first to its last sample within three inlier
+    bands of the ball (matchers' holes within a ball do not shorten it).
+    """
+    center, radius = ball.center, ball.radius
+    hw = params.capture_half_width_m
+    zlo, zhi = params.capture_z_m
+    tol = 3 * params.solid_threshold_m
+    t = np.linspace(-1.0, 1.0, _CHORD_SAMPLES)
+    short = 0
+    for ln in lines:
+        c, s = math.cos(ln.angle), math.sin(ln.angle)
+        off = -s * center[0] + c * center[1]  # the centre's distance from the scan plane
+        if abs(off) >= radius:
+            continue
+        r = math.sqrt(radius * radius - off * off)
+        along, depth = c * center[0] + s * center[1], center[2]
+        rho = math.hypot(along, depth)
+        if rho <= r:
+            continue
+        mid, half = math.atan2(along, depth), math.asin(r / rho)
+        theta = mid + half * t
+        # The front surface on each ray of the chord: the nearer root of |k d - c'| = r.
+        ray_s, ray_z = np.sin(theta), np.cos(theta)
+        b = ray_s * along + ray_z * depth
+        k = b - np.sqrt(np.maximum(b * b - (rho * rho - r * r), 0.0))
+        x, y, z = k * ray_s * c, k * ray_s * s, k * ray_z
+        inside = (z >= zlo) & (z <= zhi) & (np.abs(x) <= hw) & (np.abs(y) <= hw)
+        if inside.sum() < 2:
+            continue
+        p = ln.points
+        on = p.compress(np.abs(np.linalg.norm(p - center, axis=1) - radius) <= tol, axis=0)
+        seen = np.zeros(len(t), dtype=bool)
+        if len(on):
+            angles = np.arctan2(on[:, 0] * c + on[:, 1] * s, on[:, 2])
+            seen = (theta >= angles.min()) & (theta <= angles.max())
+        short += np.count_nonzero(seen & inside) < _BALL_SPAN * np.count_nonzero(inside)
+    return short >= 2
 
 
 def _radius_sd(solid: SphereSolid | CylinderSolid, points: np.ndarray) -> float:
