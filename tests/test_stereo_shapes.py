@@ -368,3 +368,22 @@ def test_balls_and_the_pear_cover_their_chords() -> None:
         result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
         assert result.shape == "sphere", (view.subject, view.trial, view.frame, result.shape)
         assert "short_of_ball" not in result.extra
+
+
+def test_a_ball_under_semi_global_matching_keeps_the_fit_on_every_inlier() -> None:
+    """SGBM (block 5), the 40 mm ball, trial 0 frame 4 and trial 1 frame 2: the lines show no
+    plateau, and the fit on the camera-facing cap alone came out 29.3 and 33.1 mm (the cap
+    trades its radius against its centre's depth under the matcher's staircase). The scan
+    lines' residuals are correlated like SGBM's, and the ball keeps the fit on every inlier:
+    40.0 and 40.2 mm."""
+    from lpc_core.perception.laser import _fattened, analyse_lines, decide
+    from services.cli import _laser_views as lv
+
+    for trial, frame in ((0, 4), (1, 2)):
+        view, result = _bench_frame("sphere_small", trial, frame, kind="sgbm", block_size=5)
+        scan_lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+        assert not _fattened(analyse_lines(scan_lines, seed=view.seq))
+        assert result.shape == "sphere", (result.shape, result.reason)
+        error = result.grasp_width_m - view.truth.grasp_width_m
+        assert abs(error) < 0.001, (trial, frame, error)
+        assert decide(analyse_lines(scan_lines, seed=view.seq), scan_lines=scan_lines) == result
