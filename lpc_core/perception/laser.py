@@ -1949,6 +1949,17 @@ def _decide(
             # No cylinder explains more of the lines than the face does: the ball stands, as
             # without the test (a cylinder below the face's bar is below the ball's too).
             shape = "sphere"
+        elif candidates["cylinder"].score <= candidates["sphere"].score + params.cylinder_margin:
+            # Only the band a ball would have won (the cylinder not ahead of it by the
+            # margin): a cylinder that is ahead keeps its own axis (a tilted can, the horse
+            # toy's torso, the banana).
+            banded = _rim_axis(lines, candidates["sphere"].solid, candidates["cylinder"], clean,
+                               params)  # fmt: skip
+            if banded is not None:
+                extra["rim_axis"] = 1.0
+                candidates["cylinder"] = replace(
+                    candidates["cylinder"], solid=banded, residuals=banded.residuals(clean)
+                )
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -2712,6 +2723,71 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
             seen = (theta >= angles.min()) & (theta <= angles.max())
         short += np.count_nonzero(seen & inside) < _BALL_SPAN * np.count_nonzero(inside)
     return short >= 2
+
+
+# A line crosses a band from rim to rim where the ball's surface faces the camera at both
+# ends of its samples on the ball (the cosine between the surface normal and the view ray):
+# at a round's silhouette it turns away (the jar cap's horizontal line: 0.1-0.5).
+_RIM_FACING = 0.6
+
+
+def _rim_axis(
+    lines: list[LineModels],
+    ball: SphereSolid,
+    cylinder: _Candidate,
+    clean: np.ndarray,
+    params: LaserParams,
+) -> CylinderSolid | None:
+    """The cylinder of a band too short for a ball (``_short_of_ball``: a jar cap seen from
+    the front), fitted across the axis its rims give; None when fewer than two lines cross
+    the band from rim to rim, or the fit fails or leaves the radius limits.
+
+    A band 15-20 mm high pins no axis: its own cylinder fit turned the cap's 5-70 degrees
+    about the view on stereo frames (and on lpc's noise model). Its rims do: circles across
+    the axis, each line that crosses the band ends on both (``_RIM_FACING``). The ends are
+    split between the rims so that each rim's ends lie on a line (the split whose ends
+    scatter least across their rims' common direction), that direction runs along the rims,
+    and the axis lies across it and across the band's surface normal (the ball's, at the
+    band's middle)."""
+    tol = 3 * params.solid_threshold_m
+    center, radius = ball.center, ball.radius
+    ends = []
+    for ln in lines:
+        p = ln.points
+        on = np.flatnonzero(np.abs(np.linalg.norm(p - center, axis=1) - radius) <= tol)
+        if len(on) < 2:
+            continue
+        pair = p.take((on[0], on[-1]), axis=0)
+        normal = (pair - center) / radius
+        facing = np.abs(np.einsum("ij,ij->i", normal, pair)) / np.linalg.norm(pair, axis=1)
+        if facing.min() >= _RIM_FACING:
+            ends.append(pair)
+    if len(ends) < 2:
+        return None
+    best = None
+    for flips in itertools.product((False, True), repeat=len(ends) - 1):
+        sides = [ends[0], *(e[::-1] if f else e for e, f in zip(ends[1:], flips, strict=True))]
+        first = np.array([e[0] for e in sides])
+        second = np.array([e[1] for e in sides])
+        spread = np.vstack([first - first.mean(axis=0), second - second.mean(axis=0)])
+        values, vectors = np.linalg.eigh(spread.T @ spread)
+        if best is None or values[:2].sum() < best[0]:
+            best = (float(values[:2].sum()), vectors[:, 2])
+    assert best is not None
+    along_rims = best[1]
+    inliers = clean.compress(cylinder.residuals <= params.solid_threshold_m, axis=0)
+    if len(inliers) < params.min_points_per_line:
+        return None
+    middle = column_sums(inliers) / len(inliers) - center
+    axis = np.cross(along_rims, middle)
+    norm = float(np.linalg.norm(axis))
+    if norm == 0:
+        return None
+    solid = CylinderSolid.estimate(inliers, axis / norm, iterations=0)
+    lo, hi = params.radius_limits_m
+    if not solid or not lo <= solid.radius <= hi:
+        return None
+    return solid
 
 
 def _radius_sd(solid: SphereSolid | CylinderSolid, points: np.ndarray) -> float:
