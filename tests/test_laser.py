@@ -525,3 +525,29 @@ def test_the_camera_facing_trim_stops_once_it_keeps_the_points_it_kept(
         shortened += passes < all_passes
     # A fattened rim moves the trim (and the refit stands narrower): every pass is fitted.
     assert (shortened == 0) if fattening_px else (shortened > 0)
+
+
+def test_a_fattened_ball_whose_plateau_free_refit_fails_is_refitted_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A ball whose lines show a matcher's fattening is refitted without their end plateaus
+    (laser._plateau_free) before anything else; where that refit fails, the camera-facing fit
+    stands, as it would without the end-plateau rule, and the refit, which would fail the same
+    way, is not tried again after the camera-facing trim (_without_end_plateaus)."""
+    from lpc_core.perception import laser
+
+    lines = scan(sphere((0.003, -0.002, 0.225), 0.025), 1)
+    tried: list[str] = []
+
+    def failing(_lines: object, full: object, _params: object) -> None:
+        tried.append(type(full).__name__)
+
+    monkeypatch.setattr(laser, "_fattened", lambda _lines: True)
+    monkeypatch.setattr(laser, "_plateau_free", failing)
+    result = reconstruct_laser(lines, EXACT_EDGES, seed=1)
+    assert result.shape == "sphere", result.reason
+    assert tried == ["SphereSolid"]
+    facing = reconstruct_laser(lines, replace(EXACT_EDGES, end_plateaus=False), seed=1)
+    assert facing.shape == "sphere"
+    assert result.grasp_width_m == facing.grasp_width_m
+    assert result.center_m == facing.center_m

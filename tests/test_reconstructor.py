@@ -42,6 +42,7 @@ from schemas import (
     ScanLines,
     decode,
     encode,
+    from_wire,
     to_wire,
 )
 from tests.conftest import spawn_service, wait_for
@@ -164,6 +165,51 @@ def test_scan_lines_from_message_round_trip() -> None:
     assert np.allclose(lines.angles_rad, BALL.angles_rad)
     for got, want in zip(lines.points, BALL.points, strict=True):
         assert np.allclose(got, want, atol=1e-6)
+
+
+def test_scan_lines_from_message_reads_float32_lines_as_each_line_alone() -> None:
+    """The scans service's float32 lines are read in one pass over all of them: each line's
+    points are the float64 values from_wire gives for it alone, to the bit, and NaN or inf
+    in any line is refused as from_wire refuses it. Lines of other dtypes are read one by
+    one, with the same checks."""
+    message = _message(1, BALL)
+    lines = scan_lines_from_message(message)
+    assert len(lines.points) == len(message.lines) == 4
+    for got, line in zip(lines.points, message.lines, strict=True):
+        alone = from_wire(line.points).astype(np.float64)
+        assert got.dtype == np.float64 and got.shape == alone.shape
+        assert got.tobytes() == alone.tobytes()
+    wide = [
+        msgspec.structs.replace(ln, points=to_wire(from_wire(ln.points).astype(np.float64)))
+        for ln in message.lines
+    ]
+    mixed = msgspec.structs.replace(message, lines=[wide[0], *message.lines[1:]])
+    for other in (msgspec.structs.replace(message, lines=wide), mixed):
+        assert [p.tobytes() for p in scan_lines_from_message(other).points] == [
+            p.tobytes() for p in lines.points
+        ]
+    for source in (message, mixed):
+        bad = from_wire(source.lines[2].points).copy()
+        bad[5, 1] = np.nan
+        broken = msgspec.structs.replace(
+            source,
+            lines=[
+                *source.lines[:2],
+                msgspec.structs.replace(source.lines[2], points=to_wire(bad)),
+                source.lines[3],
+            ],
+        )
+        with pytest.raises(ValueError, match="NaN or inf"):
+            scan_lines_from_message(broken)
+    flat = msgspec.structs.replace(
+        message,
+        lines=[
+            msgspec.structs.replace(message.lines[0], points=to_wire(np.zeros(6, np.float32))),
+            *message.lines[1:],
+        ],
+    )
+    with pytest.raises(ValueError, match=r"must be \(N, 3\)"):
+        scan_lines_from_message(flat)
 
 
 def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_it() -> None:

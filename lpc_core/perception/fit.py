@@ -908,7 +908,7 @@ def _line_scorer(seg: Segments, threshold: float) -> Scorer:
         inl = dist <= threshold
 
         def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
-            return np.where(inl[rl, rt], dist[rl, rt], 0.0).sum(axis=1)
+            return np.add.reduce(np.where(inl[rl, rt], dist[rl, rt], 0.0), axis=1)
 
         picks = pick_rows(inl, residual_sums)
         r, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])
@@ -1075,8 +1075,9 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
             # scalar; rejected hypotheses get NaN, which is never an inlier.
             scale = np.where(ok, 1.0 / half, np.nan)
             coef = np.empty((*cx.shape, 4))
-            np.multiply(cx, -2.0 * scale, out=coef[:, :, 0])
-            np.multiply(cy, -2.0 * scale, out=coef[:, :, 1])
+            minus_two_scale = -2.0 * scale
+            np.multiply(cx, minus_two_scale, out=coef[:, :, 0])
+            np.multiply(cy, minus_two_scale, out=coef[:, :, 1])
             coef[:, :, 2] = scale
             np.multiply(cx * cx + cy * cy - mid, scale, out=coef[:, :, 3])
             q = coef @ basis  # (L, T, W): (rho^2 - mid) / half, NaN on padding
@@ -1087,7 +1088,7 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
             with np.errstate(all="ignore"):
                 rho2 = q[rl, rt] * half[rl, rt, None] + mid[rl, rt, None]
                 d = np.abs(np.sqrt(np.maximum(rho2, 0.0)) - r[rl, rt, None])
-            return np.where(inl[rl, rt], d, 0.0).sum(axis=1)
+            return np.add.reduce(np.where(inl[rl, rt], d, 0.0), axis=1)
 
         picks = pick_rows(inl, residual_sums)
         k, i = np.arange(len(picks)), np.array([t for t, _, _ in picks])

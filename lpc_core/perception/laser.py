@@ -2109,7 +2109,9 @@ def _decide(
                     solid, clean, params, _pixel_rad(lines, params),
                     candidates[shape].residuals, fattened=fattened,
                 )  # fmt: skip
-            if params.end_plateaus:
+            if params.end_plateaus and not (shape == "sphere" and fattened):
+                # A fattened ball's plateau-free refit was tried above and came out None: the
+                # same call again would too.
                 solid = _without_end_plateaus(lines, full, solid, params)
     support = _support_plane(lines, params) if shape in ("sphere", "cylinder") else None
     resting = _resting_width(lines, clean, solid, params, support)

@@ -158,7 +158,7 @@ class Segments:
             raw[:, i, : n[i]] = p.T
         self.valid = valid = np.arange(width) < np.array(n, dtype=np.intp)[:, None]
         with np.errstate(all="ignore"):
-            mean = raw.sum(axis=2) / np.maximum(np.array(n, dtype=np.float64), 1.0)
+            mean = np.add.reduce(raw, axis=2) / np.maximum(np.array(n, dtype=np.float64), 1.0)
             centred = np.where(valid, raw - mean[:, :, None], np.nan)
         self.x, self.y = centred
         self.ox, self.oy = np.where(valid, raw, np.nan)
@@ -305,7 +305,7 @@ def pick_rows(
     for the tied hypotheses only (``residual_sums(lines, hypotheses)``)."""
     # Counting through uint8 -> uint16 skips numpy's bool -> int64 cast (half the cost here).
     counts = np.add.reduce(inl.view(np.uint8), axis=2, dtype=np.uint16)
-    top = counts.max(axis=1)
+    top = np.maximum.reduce(counts, axis=1)  # counts.max(axis=1) without its Python wrapper
     tl, tt = np.nonzero(counts == top[:, None])
     tops = top.tolist()
     sums = residual_sums(tl, tt).tolist()

