@@ -216,6 +216,8 @@ class LaserParams:
     # fattening (the same at SGBM blocks 5, 7 and 9): it only tells that there is one.
     # 0 turns it off.
     window_fattening_px: float = 3.0
+    # The same gate tells the matcher's frames to the silhouette bound and to balls' fits
+    # (see _matched); 0 turns all of them off.
     window_correlation_gate: float = 0.25
     # Where the scans carry the depth past the lines' ends, an occluding edge's side takes
     # that window's fattening in proportion to the depth jump behind the edge, the whole
@@ -2098,7 +2100,7 @@ def _decide(
             # plateaus, without _camera_facing's trim (see _fattened).
             solid = free
         else:
-            if shape == "cylinder" or not _matched(scan_lines, params):
+            if shape == "cylinder" or _matched(scan_lines, params) is None:
                 # Not a ball's under an SGBM-like matcher: its facing cap alone trades the
                 # radius against the centre's depth (see _fattened) whether or not the lines
                 # show the fattening. Where the cap changed a ball's width on the sweep's
@@ -2173,9 +2175,9 @@ def _decide(
     window = False
     if params.edge_fattening_px == 0 and params.measure_fattening:
         measured = _fattening(on_face)
-        if measured == 0 and scan_lines is not None and params.window_fattening_px > 0:
-            correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
-            if correlation >= params.window_correlation_gate:
+        if measured == 0 and params.window_fattening_px > 0:
+            correlation = _matched(scan_lines, params)
+            if correlation is not None:
                 measured = params.window_fattening_px
                 extra["residual_correlation"] = correlation
                 window = True
@@ -2257,13 +2259,13 @@ def _support_rng() -> np.random.Generator:
 _SUPPORT_MIN_LINE_POINTS = 10
 
 
-def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> bool:
-    """Whether the scan lines' residuals are correlated like an SGBM matcher's
-    (``scans.residual_correlation`` at least ``window_correlation_gate``)."""
+def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | None:
+    """The scan lines' residual correlation (``scans.residual_correlation``) where it is at
+    least ``window_correlation_gate``, correlated like an SGBM matcher's; else ``None``."""
     if scan_lines is None or params.window_correlation_gate <= 0:
-        return False
+        return None
     correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
-    return correlation >= params.window_correlation_gate
+    return correlation if correlation >= params.window_correlation_gate else None
 
 
 def _support_plane(lines: list[LineModels], params: LaserParams) -> PlaneSolid | None:
@@ -2652,8 +2654,7 @@ def _silhouette_bound(
     half = math.asin(full.radius / distance)
     if min(first + half, half - last) < _FLAT_FIT_PX * pixel_rad:
         return None
-    correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
-    if correlation < params.window_correlation_gate:
+    if _matched(scan_lines, params) is None:
         return None
     inset = np.minimum(angle - first, last - angle)
     front = (residuals <= 2 * params.solid_threshold_m) & (inset >= margin)
