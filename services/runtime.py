@@ -445,7 +445,7 @@ class Router:
         # The sample decoded last on this loop, with its payload: the subscriptions of several
         # services that take one sample (the hand's status: the controller and the simulated
         # user; the controller's state) decode it once. Messages are frozen structs.
-        self._decoded: tuple[bytes, Any] | None = None
+        self._decoded: tuple[bytes, str, Any] | None = None
         self._lock = threading.Lock()
         self._clock = SystemClock()
         self._prefix = zenoh.KeyExpr(self.PREFIX)
@@ -526,12 +526,13 @@ class Router:
 
     def decode(self, key: str, payload: bytes) -> Any:
         """``topic_for_key(key).decode(payload, key)``, once for a payload that every
-        subscription of this loop is handed as the same object (a bad one raises each time)."""
+        subscription of this loop is handed as the same object under the same key (a bad one
+        raises each time; one bytes object put on two topics decodes for each)."""
         last = self._decoded
-        if last is not None and last[0] is payload:
-            return last[1]
+        if last is not None and last[0] is payload and last[1] == key:
+            return last[2]
         message = topic_for_key(key).decode(payload, key)
-        self._decoded = (payload, message)
+        self._decoded = (payload, key, message)
         return message
 
     def _subs_for(self, key: str) -> list[Subscription]:
