@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -40,3 +41,24 @@ def from_wire(message: NDArray, *, finite: bool = True) -> np.ndarray:
     if finite and dtype.kind == "f" and not np.isfinite(array).all():
         raise ValueError("array holds NaN or inf")
     return array
+
+
+def joined_points(messages: Sequence[NDArray]) -> np.ndarray | None:
+    """The points of several float32 (N, 3) arrays as one read-only (sum N, 3) float32 array,
+    or ``None`` unless every one is float32 (N, 3) with its bytes (then ``from_wire`` each).
+
+    Raises ``ValueError`` as ``from_wire`` does when a point holds NaN or inf. The scans
+    service sends its four scan lines so: one copy and one finiteness test for all of them
+    instead of one of each per line (aim and the reconstructor read every frame's)."""
+    if not messages or not all(
+        m.dtype == "<f4"
+        and len(m.shape) == 2
+        and m.shape[1] == 3
+        and len(m.data) == 12 * m.shape[0]
+        for m in messages
+    ):
+        return None
+    points = np.frombuffer(b"".join([m.data for m in messages]), dtype="<f4").reshape(-1, 3)
+    if not np.isfinite(points).all():
+        raise ValueError("array holds NaN or inf")
+    return points

@@ -59,6 +59,7 @@ from schemas import (
     ScanLines,
     TactorCommand,
     from_wire,
+    joined_points,
 )
 
 N_TACTORS = 4
@@ -461,21 +462,10 @@ def frame_objects(scans: ScanLines, params: AimParams) -> InView | None:
 
 def _line_points(scans: ScanLines) -> list[np.ndarray]:
     """The points of each scan line, as ``from_wire`` gives them (and with its errors); one
-    array of them all when every line is float32 (N, 3), as the scans service sends them: one
-    copy and one finiteness test instead of four of each."""
+    array of them all where ``joined_points`` takes them, as the scans service sends them."""
     wires = [line.points for line in scans.lines]
-    if wires and all(
-        w.dtype == "<f4"
-        and len(w.shape) == 2
-        and w.shape[1] == 3
-        and len(w.data) == 12 * w.shape[0]
-        for w in wires
-    ):
-        points = np.frombuffer(b"".join([w.data for w in wires]), dtype="<f4").reshape(-1, 3)
-        if not np.isfinite(points).all():
-            raise ValueError("array holds NaN or inf")
-        return [points]
-    return [from_wire(w) for w in wires]
+    joined = joined_points(wires)
+    return [joined] if joined is not None else [from_wire(w) for w in wires]
 
 
 def _cue(

@@ -40,6 +40,7 @@ from schemas import (
     Reconstruction,
     ScanLines,
     from_wire,
+    joined_points,
     to_wire,
 )
 
@@ -52,22 +53,14 @@ Job = TypeVar("Job")
 
 
 def _line_points(message: ScanLines) -> list[np.ndarray]:
-    """Each scan line's (N, 3) points as float64, with ``from_wire``'s errors. Where every line
-    is float32 (N, 3), as the scans service sends them, all lines' bytes are read, tested for
-    NaN and inf and widened at once, and each line is a slice of the result: one of each
-    instead of four (20 -> 12 us a frame on a live recording's scans)."""
+    """Each scan line's (N, 3) points as float64, with ``from_wire``'s errors. Where
+    ``joined_points`` takes the lines, as the scans service sends them, all are widened at
+    once and each line is a slice of the result (20 -> 12 us a frame on a live recording's
+    scans)."""
     wires = [line.points for line in message.lines]
-    if wires and all(
-        w.dtype == "<f4"
-        and len(w.shape) == 2
-        and w.shape[1] == 3
-        and len(w.data) == 12 * w.shape[0]
-        for w in wires
-    ):
-        joined = np.frombuffer(b"".join([w.data for w in wires]), dtype="<f4")
-        if not np.isfinite(joined).all():
-            raise ValueError("array holds NaN or inf")
-        rows = joined.astype(np.float64).reshape(-1, 3)
+    joined = joined_points(wires)
+    if joined is not None:
+        rows = joined.astype(np.float64)
         ends = itertools.accumulate(w.shape[0] for w in wires)
         return [rows[end - w.shape[0] : end] for end, w in zip(ends, wires, strict=True)]
     points = []
