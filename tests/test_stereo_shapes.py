@@ -15,19 +15,28 @@ from services.cli._laser_views import View
 
 
 def _bench_frame(
-    name: str, trial: int, frame: int, **matcher: object
+    name: str,
+    trial: int,
+    frame: int,
+    *,
+    suite: str = "functional",
+    detail: str | None = None,
+    **matcher: object,
 ) -> tuple[View, Reconstruction]:
-    """The stereo frame ``(trial, frame)`` of the bench's 2 x 5 views of ``name`` (its seed,
-    the frame's seq, is the bench's) through a matcher of ``matcher``'s settings, and the
-    four-line method's result on it."""
+    """The stereo frame ``(trial, frame)`` of the bench's 2 x 5 views of ``name`` in ``suite``
+    (with ``detail``, the view's: a wrist roll of the rotation suite), its seed the frame's seq
+    as the bench's, through a matcher of ``matcher``'s settings, and the four-line method's
+    result on it."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
     from lpc_core.sim.stereo_settings import Matcher
     from services.cli import _laser_views as lv
 
     sensor = StereoSensor(matcher=Matcher(**matcher))  # type: ignore[arg-type]
-    views = lv.views("functional", 2, 5, 0, names=[name], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
+    views = lv.views(suite, 2, 5, 0, names=[name], sensor=sensor)
+    view = next(
+        v for v in views if (v.trial, v.frame) == (trial, frame) and detail in (None, v.detail)
+    )
     return view, reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
 
 
@@ -364,15 +373,9 @@ def test_a_lying_marker_whose_trimmed_fit_floats_off_the_table_keeps_its_whole_a
     camera-facing refit, 31.0 mm, stood 4.7 mm off it, too little for the resting rule to move
     it onto the table, and stood as the width. A trim that lifts the round off the support
     its whole arc lies on took off no fattening (laser._lifted_off)."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.sim.stereo import StereoSensor
-    from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
-
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7))
-    views = lv.views("rotation", 2, 5, 0, names=["cylinder_40"], sensor=sensor)
-    view = next(v for v in views if (v.detail, v.trial, v.frame) == ("roll   0 deg", 0, 4))
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    view, result = _bench_frame(
+        "cylinder_40", 0, 4, suite="rotation", detail="roll   0 deg", kind="sgbm", block_size=7
+    )
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002
 
@@ -481,20 +484,14 @@ def test_a_jar_cap_seen_from_the_front_takes_its_axis_from_its_rims() -> None:
 
 def test_a_lying_cylinder_short_of_a_ball_keeps_its_own_axis() -> None:
     """SGBM (block 7), the rotation suite's 40 mm cylinder at a 90 degree wrist roll, trial 0
-    frame 4: a ball beat it
-    and the lines fall short of that ball, so it is a cylinder (it was a sphere); the axis
-    its rims would give leaves 0.57 of the runs on the cylinder (0.98 on its own), no solid,
-    and the cylinder keeps its own, within 5 degrees of the truth."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    frame 4: a ball beat it and the lines fall short of that ball, so it is a cylinder (it was
+    a sphere); the axis its rims would give leaves 0.57 of the runs on the cylinder (0.98 on
+    its own), no solid, and the cylinder keeps its own, within 5 degrees of the truth."""
     from lpc_core.perception.reconstruction import wrap_half_turn
-    from lpc_core.sim.stereo import StereoSensor
-    from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
 
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7))
-    views = lv.views("rotation", 2, 5, 0, names=["cylinder_40"], sensor=sensor)
-    view = next(v for v in views if (v.detail, v.trial, v.frame) == ("roll  90 deg", 0, 4))
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    view, result = _bench_frame(
+        "cylinder_40", 0, 4, suite="rotation", detail="roll  90 deg", kind="sgbm", block_size=7
+    )
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert result.extra["short_of_ball"] == 1.0
     assert "rim_axis" not in result.extra
