@@ -2867,38 +2867,50 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
     bands of the ball (matchers' holes within a ball do not shorten it).
     """
     center, radius = ball.center, ball.radius
-    hw = params.capture_half_width_m
-    zlo, zhi = params.capture_z_m
-    tol = 3 * params.solid_threshold_m
-    t = np.linspace(-1.0, 1.0, _CHORD_SAMPLES)
-    short = 0
+    cx, cy, cz = center.tolist()
+    # Each line whose plane cuts the ball: (line, cos, sin, along, r, rho, the chord's middle
+    # and half angle).
+    chords = []
     for ln in lines:
         c, s = math.cos(ln.angle), math.sin(ln.angle)
-        off = -s * center[0] + c * center[1]  # the centre's distance from the scan plane
+        off = -s * cx + c * cy  # the centre's distance from the scan plane
         if abs(off) >= radius:
             continue
         r = math.sqrt(radius * radius - off * off)
-        along, depth = c * center[0] + s * center[1], center[2]
-        rho = math.hypot(along, depth)
+        along = c * cx + s * cy
+        rho = math.hypot(along, cz)
         if rho <= r:
             continue
-        mid, half = math.atan2(along, depth), math.asin(r / rho)
-        theta = mid + half * t
-        # The front surface on each ray of the chord: the nearer root of |k d - c'| = r.
-        ray_s, ray_z = np.sin(theta), np.cos(theta)
-        b = ray_s * along + ray_z * depth
-        k = b - np.sqrt(np.maximum(b * b - (rho * rho - r * r), 0.0))
-        x, y, z = k * ray_s * c, k * ray_s * s, k * ray_z
-        inside = (z >= zlo) & (z <= zhi) & (np.abs(x) <= hw) & (np.abs(y) <= hw)
-        if inside.sum() < 2:
+        chords.append((ln, c, s, along, r, rho, math.atan2(along, cz), math.asin(r / rho)))
+    if len(chords) < 2:
+        return False
+    # Every line's chord at once (numpy's per-call cost, not the arithmetic, is what a line
+    # alone pays: this runs on every round a ball would win).
+    _, c, s, along, r, rho, mid, half = (np.array(v) for v in zip(*chords, strict=True))
+    c, s, along, r, rho = c[:, None], s[:, None], along[:, None], r[:, None], rho[:, None]
+    theta = mid[:, None] + half[:, None] * np.linspace(-1.0, 1.0, _CHORD_SAMPLES)
+    # The front surface on each ray of the chord: the nearer root of |k d - c'| = r.
+    ray_s, ray_z = np.sin(theta), np.cos(theta)
+    b = ray_s * along + ray_z * cz
+    k = b - np.sqrt(np.maximum(b * b - (rho * rho - r * r), 0.0))
+    hw = params.capture_half_width_m
+    zlo, zhi = params.capture_z_m
+    z = k * ray_z
+    inside = (z >= zlo) & (z <= zhi) & (np.abs(k * ray_s * c) <= hw) & (np.abs(k * ray_s * s) <= hw)
+    tol = 3 * params.solid_threshold_m
+    short = 0
+    for i, (ln, ci, si, *_) in enumerate(chords):
+        wide = np.count_nonzero(inside[i])
+        if wide < 2:
             continue
         p = ln.points
         on = p.compress(np.abs(np.linalg.norm(p - center, axis=1) - radius) <= tol, axis=0)
-        seen = np.zeros(len(t), dtype=bool)
+        seen = 0
         if len(on):
-            angles = np.arctan2(on[:, 0] * c + on[:, 1] * s, on[:, 2])
-            seen = (theta >= angles.min()) & (theta <= angles.max())
-        short += np.count_nonzero(seen & inside) < _BALL_SPAN * np.count_nonzero(inside)
+            angles = np.arctan2(on[:, 0] * ci + on[:, 1] * si, on[:, 2])
+            lo, hi = angles.min(), angles.max()
+            seen = np.count_nonzero((theta[i] >= lo) & (theta[i] <= hi) & inside[i])
+        short += seen < _BALL_SPAN * wide
         if short >= 2:
             return True
     return False
