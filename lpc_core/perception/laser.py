@@ -2904,7 +2904,7 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
         if wide < 2:
             continue
         p = ln.points
-        on = p.compress(np.abs(np.linalg.norm(p - center, axis=1) - radius) <= tol, axis=0)
+        on = p.compress(ball.residuals(p) <= tol, axis=0)
         seen = 0
         if len(on):
             angles = np.arctan2(on[:, 0] * ci + on[:, 1] * si, on[:, 2])
@@ -2946,7 +2946,7 @@ def _rim_axis(
     ends = []
     for ln in lines:
         p = ln.points
-        on = np.flatnonzero(np.abs(np.linalg.norm(p - center, axis=1) - radius) <= tol)
+        on = np.flatnonzero(ball.residuals(p) <= tol)
         if len(on) < 2:
             continue
         pair = p.take((on[0], on[-1]), axis=0)
