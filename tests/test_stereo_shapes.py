@@ -499,3 +499,27 @@ def test_a_lying_cylinder_short_of_a_ball_keeps_its_own_axis() -> None:
     error = wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad)
     assert abs(np.degrees(error)) < 5.0
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003
+
+
+# h23a: a whole-arc fit flattened by the window, whose rims it flattened with it.
+@pytest.mark.parametrize(
+    ("name", "kind", "block", "trial", "frame", "before_mm"),
+    [
+        ("cylinder_upright", "sgbm", 7, 0, 3, 13.9),
+        ("cylinder_tilt_right", "bm", 9, 0, 1, 11.4),
+    ],
+)
+def test_a_round_whose_whole_arc_fit_lies_beyond_its_rims_is_fitted_inside_them(
+    name: str, kind: str, block: int, trial: int, frame: int, before_mm: float
+) -> None:
+    """A matcher's window pulls both flanks toward the camera, and the whole arc's fit comes out
+    so flat that the rims lie on it (no bow: _rim_free's first test) while its silhouette lies
+    2 px or more beyond the samples on both sides, each of which ends its segment at an
+    occluding edge before a background a diameter or more behind: the samples reach the
+    silhouette, and the fit lies beyond them because the window flattened the arc. Without
+    that second test the width came out 11-14 mm wide (``before_mm``); refitted inside the
+    rims, within 3 mm."""
+    view, result = _bench_frame(name, trial, frame, kind=kind, block_size=block)
+    assert result.shape == "cylinder"
+    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    assert abs(error_mm) < 3.0, (error_mm, before_mm)

@@ -2147,7 +2147,7 @@ def _decide(
             # The support pins a resting round's radius already (and _resting_width starts
             # from the solid as fitted).
             pixel_rad = _pixel_rad(lines, params)
-            inner = _rim_free(lines, full, clean, params, pixel_rad)
+            inner = _rim_free(lines, full, clean, params, pixel_rad, scan_lines)
             if inner is not None and inner.radius < solid.radius:
                 # The pull toward the camera only widens a fit: one narrower already (the
                 # camera-facing or plateau-free fit) stands. As in _camera_facing, the rims
@@ -2521,6 +2521,7 @@ def _rim_free(
     clean: np.ndarray,
     params: LaserParams,
     pixel_rad: float,
+    scan_lines: ScanLinesLike | None = None,
 ) -> CylinderSolid | None:
     """The cylinder refitted on its lines' samples at least ``rim_bias_px`` inside both the
     silhouette the samples show (the extremes of their view angles across the axis: every
@@ -2537,6 +2538,16 @@ def _rim_free(
     mm); under lpc's noise model it lies on it (p90 0.18 mm), and the whole arc pins the
     radius far better than the inner part alone (an upright can seen from 45 degrees above:
     2-4 mm narrower on inner samples within 0.6 mm of the truth).
+
+    A fit so flat that the rims lie on it (no bow) is refitted all the same where its
+    silhouette lies ``_FLAT_FIT_PX`` or more beyond the samples on both sides (``_flat_fit``),
+    each of which ends its segment at an occluding edge before a background at least
+    ``full``'s diameter further (``_occluding_rims``, with ``scan_lines``): there the samples
+    reach the silhouette, and the fit's lies beyond it because the window flattened the arc,
+    not because the rims were lost (the 60 mm can under SGBM 7: 13.9 mm wide, 1.9 mm
+    refitted). A round lying on the table has the table within a diameter behind its rims,
+    where a matcher's samples stop 2-7 px short of them (see ``_occluding_rims``): it keeps
+    its fit.
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
@@ -2569,7 +2580,13 @@ def _rim_free(
             w = samples.compress(rim, axis=0) - full.point
             across = w - (w @ full.axis)[:, None] * full.axis
             bow = np.sqrt(np.einsum("ij,ij->i", across, across)) - full.radius
-            if float(np.median(bow)) < params.rim_bow_m:
+            if float(np.median(bow)) < params.rim_bow_m and not (
+                scan_lines is not None
+                and _flat_fit(full, first, last, pixel_rad)
+                and _occluding_rims(
+                    lines, angle, residuals, params, pixel_rad, scan_lines, 2 * full.radius
+                )
+            ):
                 return None
         # Twice the inlier band: the whole arc's fit, too flat, may miss the inner arc by more.
         near = residuals <= 2 * thr
@@ -2598,6 +2615,20 @@ def _rim_free(
 # How far (pixels) the fit on every inlier's silhouette must lie beyond the samples on both
 # sides for the samples' own silhouette to bound its width.
 _FLAT_FIT_PX = 2.0
+
+
+def _flat_fit(full: CylinderSolid, first: float, last: float, pixel_rad: float) -> bool:
+    """Whether ``full``'s silhouette lies ``_FLAT_FIT_PX`` or more beyond the samples on both
+    sides, ``first`` and ``last`` their extreme view angles across its axis (``_across_view``;
+    infinite on a side whose segments go on, which shows no silhouette)."""
+    foot = full.point - float(full.point @ full.axis) * full.axis
+    distance = float(np.linalg.norm(foot))
+    if distance <= full.radius or not (math.isfinite(first) and math.isfinite(last)):
+        return False
+    half = math.asin(full.radius / distance)
+    return min(first + half, half - last) >= _FLAT_FIT_PX * pixel_rad
+
+
 # The samples at a segment's end that must step one pixel at a time for it to end at a rim.
 _RIM_SAMPLES = 6
 
