@@ -1457,14 +1457,16 @@ def _face_geometry(
         )  # fmt: skip
     elif (
         not paper
+        and params.edge_fattening_px == 0
         and pixel_rad > 0
         and seeds.occluding is not None
         and len(pts_all) == len(pts)
         and not smeared
     ):
-        # Points beyond the edges: bevels or further faces there (the hexagonal prism's
-        # seeds lie on no rectangle's sides: on lpc's noise model it lost 2-6 mm), or a
-        # smear dropped there: as in _consistent_sides, no seed is an outlier then.
+        # Not where a fixed edge_fattening_px moved the seeds in already. Points beyond the
+        # edges: bevels or further faces there (the hexagonal prism's seeds lie on no
+        # rectangle's sides: on lpc's noise model it lost 2-6 mm), or a smear dropped there:
+        # as in _consistent_sides, no seed is an outlier then.
         alo, ahi, blo, bhi = _straight_sides(
             pts, cropped.tolist(), (seeds.occluding[order] > 0).tolist(), a, b,
             (alo, ahi, blo, bhi), (ux, uy),
