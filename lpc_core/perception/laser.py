@@ -1455,6 +1455,23 @@ def _face_geometry(
             ),
             trim_px * pixel_rad, params,
         )  # fmt: skip
+    elif (
+        not paper
+        and params.edge_fattening_px == 0
+        and pixel_rad > 0
+        and seeds.occluding is not None
+        and len(pts_all) == len(pts)
+        and not smeared
+    ):
+        # Not where a fixed edge_fattening_px moved the seeds in already. Points beyond the
+        # edges: bevels or further faces there (the hexagonal prism's seeds lie on no
+        # rectangle's sides: on lpc's noise model it lost 2-6 mm), or a smear dropped there:
+        # as in _consistent_sides, no seed is an outlier then.
+        alo, ahi, blo, bhi = _straight_sides(
+            pts, cropped.tolist(), (seeds.occluding[order] > 0).tolist(), a, b,
+            (alo, ahi, blo, bhi), (ux, uy),
+            _STRAIGHT_SIDE_SAMPLES * pixel_rad * float(plane.point[2]),
+        )  # fmt: skip
     if paper:
         principal, width = (ux, uy), bhi - blo
     else:
@@ -1546,6 +1563,58 @@ def _consistent_sides(
         beyond = [sign * c for c in (a[n:] if side < 2 else b[n:])]
         out[side] = sign * max([outward[0], *beyond])
     return out[0], out[1], out[2], out[3]
+
+
+def _straight_sides(
+    seeds: list[list[float]],
+    cropped: list[bool],
+    occluding: list[bool],
+    a: list[float],
+    b: list[float],
+    sides: tuple[float, float, float, float],
+    u: tuple[float, float],
+    apart_m: float,
+) -> tuple[float, float, float, float]:
+    """The rectangle's sides ``(alo, ahi, blo, bhi)`` (``sides`` as the seeds bound them,
+    along the unit direction ``u``; ``a`` and ``b`` hold each seed's coordinates) where no
+    fattening was measured: on a side holding ``_STRAIGHT_SIDE_SEEDS`` uncut seeds or more,
+    the seed at an occluding edge lying more than ``apart_m`` beyond every other seed of the
+    side is dropped, one at a time, and the side goes through the farthest seed left.
+
+    A straight edge puts its seeds on one line: each lies within a sample of it (the last
+    inlier up to a sample inside, moved half a sample out). A block matcher whose fattening
+    neither the plateau nor the residual correlation shows (BM: its fattened pixels follow
+    the face's slope, its residuals hardly correlate) fattens an edge by an amount that
+    varies along it, and the side through the farthest seed takes the most of it: the
+    upright box's sides at BM 7 lay 2.3-4.9 mm out, through a seed more than 2 px beyond the
+    side's others on 29 % of the boxes' sides (BM 5-9: 29-39 %); on lpc's noise model, which
+    does not fatten, 0 of 64 (at most 1.8 px), and the rule changed none of the 2950 frames
+    of ``lpc bench accuracy --quick --trials 5``. Three seeds at least: of two, the nearer
+    may be a hole's, eaten into the face (BM 5, the box tilted right: seeds 1.5-3.5 mm
+    inside its side)."""
+    groups: list[list[tuple[float, int]]] = [[], [], [], []]
+    for k, (d, cut) in enumerate(zip(_side_distances(seeds, u), cropped, strict=True)):
+        if cut:
+            continue
+        side = d.index(min(d))
+        sign = -1.0 if side % 2 == 0 else 1.0
+        groups[side].append((sign * (a[k] if side < 2 else b[k]), k))
+    dropped: set[int] = set()
+    for outward in groups:
+        if len(outward) < _STRAIGHT_SIDE_SEEDS:
+            continue
+        outward.sort(reverse=True)
+        while (
+            len(outward) > 1
+            and occluding[outward[0][1]]
+            and outward[0][0] - outward[1][0] > apart_m
+        ):
+            dropped.add(outward.pop(0)[1])
+    if not dropped:
+        return sides
+    ka = [x for k, x in enumerate(a) if k not in dropped]
+    kb = [x for k, x in enumerate(b) if k not in dropped]
+    return min(ka), max(ka), min(kb), max(kb)
 
 
 def _trimmed_sides(
@@ -3217,6 +3286,11 @@ _INSIDE_SIDES = 0.25
 # A side's seed lying this many fattening trims beyond every other seed of the side is taken
 # as an outlier of the matcher's fattening, not as the side: see _consistent_sides.
 _OUTLYING_TRIMS = 2.0
+# Where no fattening was measured, a side's seed lying this many samples (pixels at the
+# face's depth) beyond every other seed of the side, of this many seeds at least, is taken as
+# the matcher's fattening, not as the side: see _straight_sides.
+_STRAIGHT_SIDE_SAMPLES = 2.0
+_STRAIGHT_SIDE_SEEDS = 3
 _CROSSING_SAMPLES = 1.5
 _PARTED_M = 0.0014
 # A round's end plateau: neighbouring samples within one depth quantum (1 mm, the camera's
