@@ -456,7 +456,7 @@ def test_a_jar_cap_seen_from_the_front_takes_its_axis_from_its_rims() -> None:
     cylinder fit turned the cap's axis 59-74 degrees about the view on three frames (the
     wrist-angle errors' spread about their median 38 degrees, the bench's limit 15). The
     lines that cross the band end on its rims, which lie across the axis (laser._rim_axis):
-    the spread is 7 degrees."""
+    the spread is 5 degrees (7 with the line along the band, laser._across_band)."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.perception.reconstruction import wrap_half_turn
     from lpc_core.sim.stereo import StereoSensor
