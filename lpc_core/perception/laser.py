@@ -2772,20 +2772,25 @@ def _without_end_plateaus(
 ) -> SphereSolid | CylinderSolid:
     """``solid``, or the round refitted without the plateaus that end the lines' segments
     (``_plateau_free``) when that one is narrower by more than ``silhouette_tolerance_m``, or
-    a ball's by more than twice the radius's standard deviation (``_radius_sd``) on its
-    inliers among ``clean``.
+    a ball whose lines reach its silhouette narrower by more than its width's standard
+    deviation (twice ``_radius_sd``, on its inliers among ``clean``).
 
     A ball's fit on its whole cap is pinned far closer than a cylinder's on its arcs: its
-    width's SD was 0.4-0.7 mm on the sweep's 70 mm ball (150-230 samples), so a refit 0.5-1.0
-    mm narrower without the plateaus is their widening, not the noise; such a ball kept the
-    fit with them, 2-5 mm wide, on most SGBM 7-9 and BM 9 frames. On lpc's noise model, which
-    has no matcher to fatten the silhouette, the refits were within 0.1 mm (0.25-0.3 mm SD).
+    width's SD was 0.4-0.7 mm on the sweep's 70 mm ball (150-230 samples), and refits 0.5-1.0
+    mm narrower without the plateaus were their widening, not the noise; such a ball kept the
+    fit with them, 2-5 mm wide, on most SGBM 7-9 and BM 9 frames. A matcher fattens a ball
+    only past its silhouette, where its surface turns away from the camera (the median of
+    the lines' run ends faces it below ``_RIM_FACING``: 0.42-0.59 on that ball); where the
+    ends still face the camera the rim was lost, and a plateau there is the depth quantum on
+    the cap, whose refit trades its radius against its centre's depth (a 40 mm ball's cap
+    within 0.6 of its radius: 0.75-0.77, a refit 1.4 mm narrower, 1.4 SD). On lpc's noise
+    model, which has no matcher to fatten the silhouette, the refits were within 0.1 mm.
     """
     refit = _plateau_free(lines, full, params)
     if refit is None:
         return solid
     tolerance = params.silhouette_tolerance_m
-    if isinstance(full, SphereSolid):
+    if isinstance(full, SphereSolid) and _ends_facing(lines, full) < _RIM_FACING:
         inliers = clean.compress(full.residuals(clean) <= params.solid_threshold_m, axis=0)
         if len(inliers) > 4:
             tolerance = min(tolerance, 2 * _radius_sd(full, inliers))
@@ -2795,6 +2800,15 @@ def _without_end_plateaus(
         # As in _camera_facing: the rims shift the radius, hardly the axis.
         return replace(solid, radius=refit.radius)
     return refit
+
+
+def _ends_facing(lines: list[LineModels], ball: SphereSolid) -> float:
+    """The median, over the lines' run ends, of the cosine between ``ball``'s surface normal
+    there and the line of sight: near 0 at its silhouette, 1 where it faces the camera."""
+    ends = np.concatenate([ln.points.take((ln.run[0], ln.run[-1]), axis=0) for ln in lines])
+    normal = (ends - ball.center) / ball.radius
+    facing = np.abs(np.einsum("ij,ij->i", normal, ends)) / np.linalg.norm(ends, axis=1)
+    return float(np.median(facing))
 
 
 def _fattened(lines: list[LineModels]) -> bool:
