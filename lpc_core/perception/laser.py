@@ -2186,7 +2186,7 @@ def _decide(
             if params.end_plateaus and not (shape == "sphere" and fattened):
                 # A fattened ball's plateau-free refit was tried above and came out None: the
                 # same call again would too.
-                solid = _without_end_plateaus(lines, full, solid, params)
+                solid = _without_end_plateaus(lines, full, solid, params, clean)
     support = _support_plane(lines, params) if shape in ("sphere", "cylinder") else None
     resting = _resting_width(lines, clean, solid, params, support)
     if shape == "cylinder" and resting is None and solid is not full:
@@ -2868,16 +2868,47 @@ def _without_end_plateaus(
     full: SphereSolid | CylinderSolid,
     solid: SphereSolid | CylinderSolid,
     params: LaserParams,
+    clean: np.ndarray,
 ) -> SphereSolid | CylinderSolid:
     """``solid``, or the round refitted without the plateaus that end the lines' segments
-    (``_plateau_free``) when that one is narrower by more than ``silhouette_tolerance_m``."""
+    (``_plateau_free``) when that one is narrower by more than ``silhouette_tolerance_m``, or
+    a ball whose lines reach its silhouette narrower by more than its width's standard
+    deviation (twice ``_radius_sd``, on its inliers among ``clean``).
+
+    A ball's fit on its whole cap is pinned far closer than a cylinder's on its arcs: its
+    width's SD was 0.4-0.7 mm on the sweep's 70 mm ball (150-230 samples), and refits 0.5-1.0
+    mm narrower without the plateaus were their widening, not the noise; such a ball kept the
+    fit with them, 2-5 mm wide, on most SGBM 7-9 and BM 9 frames. A matcher fattens a ball
+    only past its silhouette, where its surface turns away from the camera (the median of
+    the lines' run ends faces it below ``_RIM_FACING``: 0.42-0.59 on that ball); where the
+    ends still face the camera the rim was lost, and a plateau there is the depth quantum on
+    the cap, whose refit trades its radius against its centre's depth (a 40 mm ball's cap
+    within 0.6 of its radius: 0.75-0.77, a refit 1.4 mm narrower, 1.4 SD). On lpc's noise
+    model, which has no matcher to fatten the silhouette, the refits were within 0.1 mm.
+    """
     refit = _plateau_free(lines, full, params)
-    if refit is None or 2 * (solid.radius - refit.radius) <= params.silhouette_tolerance_m:
+    if refit is None:
+        return solid
+    tolerance = params.silhouette_tolerance_m
+    if isinstance(full, SphereSolid) and _ends_facing(lines, full) < _RIM_FACING:
+        inliers = clean.compress(full.residuals(clean) <= params.solid_threshold_m, axis=0)
+        if len(inliers) > 4:
+            tolerance = min(tolerance, 2 * _radius_sd(full, inliers))
+    if 2 * (solid.radius - refit.radius) <= tolerance:
         return solid
     if isinstance(solid, CylinderSolid):
         # As in _camera_facing: the rims shift the radius, hardly the axis.
         return replace(solid, radius=refit.radius)
     return refit
+
+
+def _ends_facing(lines: list[LineModels], ball: SphereSolid) -> float:
+    """The median, over the lines' run ends, of the cosine between ``ball``'s surface normal
+    there and the line of sight: near 0 at its silhouette, 1 where it faces the camera."""
+    ends = np.concatenate([ln.points.take((ln.run[0], ln.run[-1]), axis=0) for ln in lines])
+    normal = (ends - ball.center) / ball.radius
+    facing = np.abs(np.einsum("ij,ij->i", normal, ends)) / np.linalg.norm(ends, axis=1)
+    return float(np.median(facing))
 
 
 def _fattened(lines: list[LineModels]) -> bool:
@@ -3020,6 +3051,8 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
 # ends of its samples on the ball (the cosine between the surface normal and the view ray):
 # at a round's silhouette it turns away (the jar cap's horizontal line: 0.1-0.5).
 _RIM_FACING = 0.6
+# A line that crosses a band spans at least this share of the band's height (see _across_band).
+_BAND_SPAN = 0.5
 
 
 def _rim_axis(
@@ -3056,6 +3089,32 @@ def _rim_axis(
             ends.append(pair)
     if len(ends) < 2:
         return None
+    inliers = clean.compress(cylinder.residuals <= params.solid_threshold_m, axis=0)
+    if len(inliers) < params.min_points_per_line:
+        return None
+    middle = column_sums(inliers) / len(inliers) - center
+    if len(ends) >= 3:
+        ends = _across_band(ends, middle)
+    axis = _across_rims(ends, middle)
+    if axis is None:
+        return None
+    solid = CylinderSolid.estimate(inliers, axis, iterations=0)
+    lo, hi = params.radius_limits_m
+    if not solid or not lo <= solid.radius <= hi:
+        return None
+    if _fraction(solid.residuals(clean), params.solid_threshold_m) < params.min_solid_fraction:
+        # The rims choose among the axes the band allows: one across which the runs are no
+        # solid is no band's (the rotation suite's 40 mm cylinder at SGBM 7, a ball short on
+        # its lines: 0.57 of the runs, against 0.98 on its own axis; the jar cap's 0.64-1.0).
+        return None
+    return solid
+
+
+def _across_rims(ends: list[np.ndarray], middle: np.ndarray) -> np.ndarray | None:
+    """The axis (unit) across the rims that ``ends`` (each line's first and last sample on the
+    band) lie on and across ``middle``, the band's surface normal; None when they are parallel.
+    The ends are split between the rims so that each rim's ends lie on a line: the split whose
+    ends scatter least across their rims' common direction, which runs along the rims."""
     best = None
     for flips in itertools.product((False, True), repeat=len(ends) - 1):
         sides = [ends[0], *(e[::-1] if f else e for e, f in zip(ends[1:], flips, strict=True))]
@@ -3066,25 +3125,46 @@ def _rim_axis(
         if best is None or values[:2].sum() < best[0]:
             best = (float(values[:2].sum()), vectors[:, 2])
     assert best is not None
-    along_rims = best[1]
-    inliers = clean.compress(cylinder.residuals <= params.solid_threshold_m, axis=0)
-    if len(inliers) < params.min_points_per_line:
-        return None
-    middle = column_sums(inliers) / len(inliers) - center
-    axis = np.cross(along_rims, middle)
+    axis = np.cross(best[1], middle)
     norm = float(np.linalg.norm(axis))
-    if norm == 0:
-        return None
-    solid = CylinderSolid.estimate(inliers, axis / norm, iterations=0)
-    lo, hi = params.radius_limits_m
-    if not solid or not lo <= solid.radius <= hi:
-        return None
-    if _fraction(solid.residuals(clean), params.solid_threshold_m) < params.min_solid_fraction:
-        # The rims choose among the axes the band allows: one across which the runs are no
-        # solid is no band's (the rotation suite's 40 mm cylinder at SGBM 7, a ball short on
-        # its lines: 0.57 of the runs, against 0.98 on its own axis; the jar cap's 0.64-1.0).
-        return None
-    return solid
+    return axis / norm if norm > 0 else None
+
+
+def _across_band(ends: list[np.ndarray], middle: np.ndarray) -> list[np.ndarray]:
+    """``ends`` without the lines that run along the band rather than across it: a line that
+    ends on both rims spans the band's height along the axis, one along the band ends on its
+    sides, at one height, and is the longest on it (a band is wider than high). Each line's
+    span is taken along the axis the other lines' rims give (the line itself would turn it);
+    a line spanning less than ``_BAND_SPAN`` of the others' median there runs along the band
+    if it is no shorter than any line kept. All lines are kept when fewer than two would be,
+    or when a line that would go is shorter than one kept: no band's then.
+
+    The facing test (``_RIM_FACING``) lets a line along the band through where the ball is
+    wider than the band, whose sides turn away from the camera less than the band's do (the
+    jar cap from the front under BM 7: 0.63-0.65 on two of ten frames, each 10-11 degrees off
+    the truth's wrist angle with it, within 0.5 without it; it spans 2 mm of the 14-17 mm the
+    lines across the band do, and is 47-49 mm long on the ball against their 14-20 mm). The
+    rotation suite's 40 mm cylinder lying before the camera (SGBM 7, a 90 degree roll,
+    trial 0 frame 4: a ball beats it, and its lines fall short of that ball) shows no band:
+    the lines across it and along it, 34 and 39 mm long on the ball, would go and leave the
+    two diagonal ones, 41 and 53 mm, whose ends are no rims (an axis 11 degrees off, against
+    its own fit's 4).
+    """
+    crossing = []
+    for k in range(len(ends)):
+        axis = _across_rims(ends[:k] + ends[k + 1 :], middle)
+        if axis is None:
+            return ends
+        spans = [abs(float((e[1] - e[0]) @ axis)) for e in ends]
+        crossing.append(spans[k] >= _BAND_SPAN * float(np.median(spans[:k] + spans[k + 1 :])))
+    kept = [e for e, keep in zip(ends, crossing, strict=True) if keep]
+    if len(kept) < 2:
+        return ends
+    longest = max(float(np.linalg.norm(e[1] - e[0])) for e in kept)
+    for e, keep in zip(ends, crossing, strict=True):
+        if not keep and float(np.linalg.norm(e[1] - e[0])) < longest:
+            return ends
+    return kept
 
 
 def _radius_sd(solid: SphereSolid | CylinderSolid, points: np.ndarray) -> float:
