@@ -325,6 +325,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--record", action="store_true", help="with the recorder on (to a temporary file)"
     )
     parser.add_argument(
+        "--keep",
+        metavar="PATH",
+        help="with the recorder on, to PATH (kept): per-frame stage times for lpc info",
+    )
+    parser.add_argument(
         "--devices",
         choices=("outside", "inside"),
         default="outside",
@@ -442,8 +447,8 @@ def _measure_set(
     ]  # fmt: skip
     if args.together:
         argv.append("--together")
-    if args.record:
-        argv += ["--record", str(tmp / "footprint.mcap")]
+    if args.record or getattr(args, "keep", None):
+        argv += ["--record", args.keep or str(tmp / "footprint.mcap")]
     where = f"a quota of {args.cpus:g} CPU (cgroup v{quota.version})" if quota else "no quota"
     note = f"lpc bench footprint: {args.seconds:g} s after {args.warmup:g} s, {where}:"
     print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
@@ -605,7 +610,7 @@ def _result(
         "outside_set": outside,
         "cpus": args.cpus,
         "cgroup": f"v{quota.version}" if quota else None,
-        "record": args.record,
+        "record": args.record or bool(getattr(args, "keep", None)),
         "seconds": round(elapsed, 2),
         "services": rows,
         "totals": {
