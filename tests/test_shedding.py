@@ -209,3 +209,90 @@ def test_shed_params_reject_bad_values() -> None:
         ShedParams(increase_hz_per_s=0.0)
     with pytest.raises(TypeError, match="FrameReady"):
         shed_step(ShedState(), "frame", 0)  # type: ignore[arg-type]
+
+
+def test_shed_step_keeps_the_allowed_rate_between_divisors_of_the_camera_rate() -> None:
+    # The credit a passed frame leaves over is kept: 40 Hz of a 90 Hz camera keeps 40 frames a
+    # second, not the 30 (every third frame) that capping the credit at one frame kept.
+    for rate_hz, expected in ((40.0, 40), (25.0, 25), (18.0, 18), (61.0, 61)):
+        state = ShedState(ShedParams(max_rate_hz=90.0), rate_hz=rate_hz, credit=0.0)
+        state, kept = frames(state, 0, 900)
+        assert abs(sum(kept) - 10 * expected) <= 1, rate_hz
+        # Never two in a row below half the camera's rate: spread evenly.
+        if rate_hz < 45:
+            assert not any(a and b for a, b in itertools.pairwise(kept))
+    # After a pause, one frame passes and no burst follows.
+    state = ShedState(ShedParams(max_rate_hz=90.0), rate_hz=30.0)
+    state, kept = frames(state, 0, 3)
+    state, late = frames(state, 10 * S, 4)
+    assert late == [True, False, True, False]
+
+
+def dropping(service: str, received: int, dropped: int) -> Health:
+    return Health(
+        seq=1,
+        t_ns=0,
+        service=service,
+        pid=1,
+        counters={"received": received, "dropped_frames": dropped},
+    )
+
+
+def test_shed_step_cuts_the_rate_to_the_frames_the_set_got_through() -> None:
+    # The reconstructor received 90 frames in its second and dropped 30: the set got through
+    # 60 a second, and the rate goes there in one window (no halving, no second window).
+    state = ShedState(ShedParams(max_rate_hz=90.0))
+    state, change = shed_step(state, dropping("reconstructor", 500, 0), 0)
+    assert change is None
+    state, change = shed_step(state, dropping("reconstructor", 590, 30), 1 * S)
+    assert change == RateChange(90.0, 60.0, 30 / 90, "reconstructor")
+    assert state.fits_hz == 60.0
+    # Its next window began before the cut: it saw the old rate, and is not acted on.
+    state, change = shed_step(state, dropping("reconstructor", 660, 40), 1 * S + S // 2)
+    assert change is None and state.rate == 60.0
+
+
+def test_shed_step_climbs_past_what_got_through_a_hertz_a_second_and_holds_on_few_drops() -> None:
+    state = ShedState(ShedParams(max_rate_hz=90.0))
+    state, _ = shed_step(state, dropping("reconstructor", 0, 0), 0)
+    state, _ = shed_step(state, dropping("reconstructor", 90, 60), 1 * S)  # 30 Hz got through
+    state, _ = shed_step(state, report("controller", 100, 0), 1 * S)
+    assert state.rate == 30.0
+    state, change = shed_step(state, report("controller", 200, 0), 2 * S)
+    assert change is not None and state.rate == 31.0  # not 10 % (33 Hz): past what fits
+    # A window with a few frames dropped (one of 60): at the edge, the rate holds.
+    state, change = shed_step(state, dropping("reconstructor", 150, 61), 2 * S + S // 2)
+    assert change is None and state.rate == 31.0
+    state, _ = shed_step(state, report("controller", 300, 0), 3 * S)
+    assert state.rate == 31.5  # half a second since the hold
+    # Below what got through, the climb is the usual 10 % of the rate a second.
+    low = ShedState(ShedParams(max_rate_hz=90.0), rate_hz=20.0, fits_hz=30.0)
+    low, _ = shed_step(low, report("controller", 100, 0), 0)
+    low, _ = shed_step(low, report("controller", 200, 0), 1 * S)
+    assert low.rate == 22.0
+
+
+def test_shed_step_settles_at_what_the_reconstructor_gets_through() -> None:
+    # A set whose reconstructor gets through 33 frames a second, its control path on time:
+    # the rate settles within a few hertz of 33, with about 2 % of the frames dropped (the
+    # halving of the late ticks' rule swung from 47 Hz down to 24 Hz here, f675e3e).
+    state = ShedState(ShedParams(max_rate_hz=90.0))
+    state, _ = shed_step(state, report("controller", 0, 0), 0)
+    state, _ = shed_step(state, dropping("reconstructor", 0, 0), S // 2)
+    ticks = received = dropped = 0
+    kept_per_s, dropped_per_s = [], []
+    for second in range(1, 121):
+        state, kept = frames(state, (second - 1) * S, 90)
+        n = sum(kept)
+        ticks += 100
+        received += n
+        dropped += max(0, n - 33)
+        kept_per_s.append(n)
+        dropped_per_s.append(max(0, n - 33))
+        state, _ = shed_step(state, report("controller", ticks, 5 * second), second * S)
+        state, _ = shed_step(
+            state, dropping("reconstructor", received, dropped), second * S + S // 2
+        )
+    settled = kept_per_s[30:]
+    assert min(settled) >= 33 and max(settled) <= 36
+    assert sum(dropped_per_s[30:]) / sum(settled) < 0.03

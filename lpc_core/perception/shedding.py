@@ -19,7 +19,17 @@ AIMD, as TCP's congestion window does:
   ``max_rate_hz`` (1 Hz a second near the 10 Hz a half-core quota leaves here, but 45 Hz back
   to 90 in 7 s after a neighbour's burst of load); in between the rate holds;
 - with no report for ``stale_ns`` (the reporting service stopped), the rate climbs back the
-  same way, so that a control path that went away does not leave the camera throttled.
+  same way, so that a control path that went away does not leave the camera throttled;
+- a service that reports ``dropped_frames`` beside ``received`` (the reconstructor: frames its
+  workers had no time for) says how many frames a second the set got through: a window with
+  more than ``dropped_above`` of its frames dropped cuts the rate to that, ``rate * (1 -
+  dropped share)``, once per report window as above; a window with fewer, but some, holds the
+  rate until the next report. A frame the set cannot reconstruct was read, scanned and
+  recorded for nothing, and the CPU it took made the cue and the control path wait; halving
+  for it instead (the late ticks' rule) left the rate in a saw-tooth well under what fits
+  (``lpc bench footprint --together --record --cpus 0.5``, f675e3e: no drops up to 33-35 Hz,
+  10-34 % from 36-47 Hz, where the controller's late share reached 30 % and halved the rate to
+  20-24 Hz, 26.9 Hz on average).
 
 The thresholds come from measurement (``lpc bench footprint --together --record --cpus 0.5``,
 the device held at a fixed rate, nothing shed): the controller's ticks more than 10 ms late
@@ -29,8 +39,9 @@ CFS quota every burst of perception work freezes the whole set for the rest of a
 some late ticks come with any frame rate; the band of 20-30 % holds the rate where the hand
 commands keep up there, and stays far above what a machine with CPU to spare shows.
 
-At ``max_rate_hz`` every frame passes; below it a credit of ``rate * elapsed`` (at most one
-frame) lets a frame through when it reaches one, so that the frames kept are spread evenly.
+At ``max_rate_hz`` every frame passes; below it a credit of ``rate * elapsed`` (carried over
+from one frame to the next at most one frame's worth) lets a frame through when it reaches one,
+so that the frames kept are spread evenly and come at the allowed rate on average.
 
 ``shed_step(state, message, now_ns)`` is pure: the state is an immutable value, time comes in
 as ``now_ns``, nothing reads a clock or touches the bus.
@@ -61,6 +72,7 @@ class ShedParams:
     increase_hz_per_s: float = 1.0
     increase_share_per_s: float = 0.1
     stale_ns: int = 3_000_000_000
+    dropped_above: float = 0.02
 
     def __post_init__(self) -> None:
         if not 0 < self.min_rate_hz <= self.max_rate_hz:
@@ -81,11 +93,14 @@ class ShedParams:
             raise ValueError(f"increase_share_per_s must be >= 0, got {self.increase_share_per_s}")
         if self.stale_ns <= 0:
             raise ValueError(f"stale_ns must be positive, got {self.stale_ns}")
+        if not 0 <= self.dropped_above < 1:
+            raise ValueError(f"dropped_above must be in [0, 1), got {self.dropped_above}")
 
 
 @dataclass(frozen=True)
 class TickCount:
-    """A reporting service's counters as last seen, and when (``now_ns`` of the report)."""
+    """A reporting service's counters as last seen, and when (``now_ns`` of the report): its
+    ticks and late ticks, or the frames it received and dropped."""
 
     ticks: int
     late_ticks: int
@@ -102,6 +117,7 @@ class ShedState:
     last_decrease_ns: int = -1
     last_increase_ns: int = -1
     last_report_ns: int = -1
+    fits_hz: float = float("inf")  # the frames a second the set got through at the last cut
     reports: Mapping[str, TickCount] = field(default_factory=lambda: MappingProxyType({}))
     shed_frames: int = 0
 
@@ -157,7 +173,10 @@ def _frame(state: ShedState, now_ns: int) -> tuple[ShedState, Gate | RateChange 
     if not state.shedding:
         return replace(state, credit=1.0, last_frame_ns=now_ns), Gate.PUBLISH
     elapsed_ns = 0 if state.last_frame_ns is None else max(0, now_ns - state.last_frame_ns)
-    credit = min(1.0, state.credit + state.rate * elapsed_ns / 1e9)
+    # Capped at one frame and one camera period's share (no burst after a pause): capping at
+    # one frame lost the remainder of every passed frame, which kept 90/k Hz of a 90 Hz camera
+    # (30 Hz for any rate in 28.5-42.7 Hz, 18 Hz in 17.1-21.3 Hz).
+    credit = min(state.credit + state.rate * elapsed_ns / 1e9, 1.0 + state.rate / p.max_rate_hz)
     if credit >= _CREDIT_TO_PASS:
         return replace(state, credit=credit - 1.0, last_frame_ns=now_ns), Gate.PUBLISH
     state = replace(state, credit=credit, last_frame_ns=now_ns, shed_frames=state.shed_frames + 1)
@@ -170,7 +189,11 @@ def _report(
     ticks = health.counters.get("ticks")
     late = health.counters.get("late_ticks")
     if ticks is None or late is None:
-        return state, None  # a service without a control timer
+        received = health.counters.get("received")
+        dropped = health.counters.get("dropped_frames")
+        if received is None or dropped is None:
+            return state, None  # a service without a control timer or frames to drop
+        return _dropped(state, health.service, received, dropped, now_ns)
     p = state.params
     previous = state.reports.get(health.service)
     fresh = previous is None or ticks <= previous.ticks or late < previous.late_ticks
@@ -196,9 +219,50 @@ def _report(
     return state, RateChange(before, state.rate, fraction, health.service)
 
 
+def _dropped(
+    state: ShedState, service: str, received: int, dropped: int, now_ns: int
+) -> tuple[ShedState, Gate | RateChange | None]:
+    p = state.params
+    previous = state.reports.get(service)
+    fresh = previous is None or received <= previous.ticks or dropped < previous.late_ticks
+    fraction = 0.0 if fresh else (dropped - previous.late_ticks) / (received - previous.ticks)
+    reports = dict(state.reports)
+    reports[service] = TickCount(received, dropped, now_ns, fraction > p.dropped_above)
+    state = replace(state, reports=MappingProxyType(reports), last_report_ns=now_ns)
+    if previous is None or fresh:
+        return state, None
+    before = state.rate
+    if fraction > p.dropped_above:
+        if previous.seen_ns < state.last_decrease_ns:
+            return state, None  # its window saw the rate before the last decrease
+        # The frames a second the set got through in the window: where the rate goes, and above
+        # which it climbs only by increase_hz_per_s (TCP's slow-start threshold).
+        done_hz = (received - dropped - previous.ticks + previous.late_ticks) / max(
+            (now_ns - previous.seen_ns) / 1e9, 1e-3
+        )
+        rate = max(p.min_rate_hz, min(before, done_hz))
+        state = replace(
+            state,
+            rate_hz=rate,
+            fits_hz=rate,
+            last_decrease_ns=now_ns,
+            last_increase_ns=now_ns,
+        )
+    elif fraction > 0:
+        return replace(state, last_increase_ns=now_ns), None  # at the edge of what fits: hold
+    if state.rate == before:
+        return state, None
+    return state, RateChange(before, state.rate, fraction, service)
+
+
 def _increase(state: ShedState, since_ns: int, now_ns: int) -> ShedState:
     p = state.params
     seconds = min(max(0, now_ns - since_ns) / 1e9, 2.0)  # no leap after a long silence
     step_hz = max(p.increase_hz_per_s, p.increase_share_per_s * state.rate)
-    rate = min(p.max_rate_hz, state.rate + step_hz * seconds)
+    if state.rate + step_hz * seconds > state.fits_hz:  # slowly past what got through last
+        step_hz = p.increase_hz_per_s
+        seconds = max(seconds - max(0.0, state.fits_hz - state.rate) / step_hz, 0.0)
+        rate = min(p.max_rate_hz, max(state.rate, state.fits_hz) + step_hz * seconds)
+    else:
+        rate = min(p.max_rate_hz, state.rate + step_hz * seconds)
     return replace(state, rate_hz=rate, last_increase_ns=now_ns)
