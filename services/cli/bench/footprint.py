@@ -66,6 +66,8 @@ WEIGHT = 100
 # Frame-derived topics: their frame_seq says which camera frame they came from.
 FRAME_TOPICS = ("lpc/scans", "lpc/reconstruction", "lpc/grasp/target", "lpc/aim/cue")
 CAPTURE_TOPICS = (*FRAME_TOPICS, "lpc/tactors/command")
+# Health counters of a service's own CPU time (in the container, where no process is its own).
+OWN_CPU = ("cpu_ms", "writer_cpu_ms")
 # Health counters shown in a service's drops column, as they grew over the measured window:
 # late_ticks is the control path's lateness, shed_frames the frames the camera shed for it.
 DROP_COUNTERS = (
@@ -552,8 +554,10 @@ def _result(
             rss_max[entry.name] += max(entry.rss)
             rss_last[entry.name] += entry.rss[-1]
     summaries = {n: r.summary(0.0) for n, r in services.items()}
+    # A service's CPU on the container's loop, and on a thread of its own where it has one (the
+    # recorder's writer).
     loop_cpu = {
-        n: (r.samples[-1].counters.get("cpu_ms", 0) - r.samples[0].counters.get("cpu_ms", 0))
+        n: sum(r.samples[-1].counters.get(k, 0) - r.samples[0].counters.get(k, 0) for k in OWN_CPU)
         / 1000.0
         for n, r in services.items()
         if r.samples and "cpu_ms" in r.samples[-1].counters
