@@ -239,29 +239,32 @@ def dropping(service: str, received: int, dropped: int) -> Health:
 
 
 def test_shed_step_cuts_the_rate_to_the_frames_the_set_got_through() -> None:
-    # The reconstructor received 90 frames in its second and dropped 30: the set got through
-    # 60 a second, and the rate goes there in one window (no halving, no second window).
+    # The reconstructor dropped 20 of 90 frames in a second: one window alone is a stall.
     state = ShedState(ShedParams(max_rate_hz=90.0))
     state, change = shed_step(state, dropping("reconstructor", 500, 0), 0)
     assert change is None
-    state, change = shed_step(state, dropping("reconstructor", 590, 30), 1 * S)
+    state, change = shed_step(state, dropping("reconstructor", 590, 20), 1 * S)
+    assert change is None and state.rate == 90.0
+    # Then 30 of 90: the set got through 60 a second, and the rate goes there (no halving).
+    state, change = shed_step(state, dropping("reconstructor", 680, 50), 2 * S)
     assert change == RateChange(90.0, 60.0, 30 / 90, "reconstructor")
     assert state.fits_hz == 60.0
     # Its next window began before the cut: it saw the old rate, and is not acted on.
-    state, change = shed_step(state, dropping("reconstructor", 660, 40), 1 * S + S // 2)
+    state, change = shed_step(state, dropping("reconstructor", 750, 60), 2 * S + S // 2)
     assert change is None and state.rate == 60.0
 
 
 def test_shed_step_climbs_past_what_got_through_a_hertz_a_second_and_holds_on_few_drops() -> None:
     state = ShedState(ShedParams(max_rate_hz=90.0))
-    state, _ = shed_step(state, dropping("reconstructor", 0, 0), 0)
-    state, _ = shed_step(state, dropping("reconstructor", 90, 60), 1 * S)  # 30 Hz got through
+    state, _ = shed_step(state, dropping("reconstructor", 0, 0), -1 * S)
+    state, _ = shed_step(state, dropping("reconstructor", 90, 60), 0)
+    state, _ = shed_step(state, dropping("reconstructor", 180, 120), 1 * S)  # 30 Hz got through
     state, _ = shed_step(state, report("controller", 100, 0), 1 * S)
     assert state.rate == 30.0
     state, change = shed_step(state, report("controller", 200, 0), 2 * S)
     assert change is not None and state.rate == 31.0  # not 10 % (33 Hz): past what fits
     # A window with a few frames dropped (one of 60): at the edge, the rate holds.
-    state, change = shed_step(state, dropping("reconstructor", 150, 61), 2 * S + S // 2)
+    state, change = shed_step(state, dropping("reconstructor", 240, 121), 2 * S + S // 2)
     assert change is None and state.rate == 31.0
     state, _ = shed_step(state, report("controller", 300, 0), 3 * S)
     assert state.rate == 31.5  # half a second since the hold

@@ -21,15 +21,18 @@ AIMD, as TCP's congestion window does:
 - with no report for ``stale_ns`` (the reporting service stopped), the rate climbs back the
   same way, so that a control path that went away does not leave the camera throttled;
 - a service that reports ``dropped_frames`` beside ``received`` (the reconstructor: frames its
-  workers had no time for) says how many frames a second the set got through: a window with
-  more than ``dropped_above`` of its frames dropped cuts the rate to that, ``rate * (1 -
-  dropped share)``, once per report window as above; a window with fewer, but some, holds the
-  rate until the next report. A frame the set cannot reconstruct was read, scanned and
-  recorded for nothing, and the CPU it took made the cue and the control path wait; halving
-  for it instead (the late ticks' rule) left the rate in a saw-tooth well under what fits
-  (``lpc bench footprint --together --record --cpus 0.5``, f675e3e: no drops up to 33-35 Hz,
-  10-34 % from 36-47 Hz, where the controller's late share reached 30 % and halved the rate to
-  20-24 Hz, 26.9 Hz on average).
+  workers had no time for) says how many frames a second the set got through. Two windows in a
+  row with more than ``dropped_above`` of their frames dropped cut the rate to that figure of
+  the second window (once per report window, as above), and above it the rate climbs only
+  ``increase_hz_per_s`` (TCP's slow-start threshold); a window with fewer drops, but some,
+  holds the rate until the next report. One such window alone is taken for a worker's stall,
+  which drops frames at any rate: cutting on it ratcheted the rate down from 88 to 62 Hz at
+  ``--cpus 1.0``, with as many frames dropped at either rate. A frame the set cannot
+  reconstruct was read, scanned and recorded for nothing, and its CPU made the cue and the
+  control path wait; the late ticks' rule alone left the rate in a saw-tooth well under what
+  fits (``lpc bench footprint --together --record --cpus 0.5``, f675e3e: no drops up to
+  33-35 Hz, 10-47 % from 36-60 Hz, where the controller's late share reached 30 % and halved
+  the rate, down to 7-30 Hz; 23-27 Hz on average).
 
 The thresholds come from measurement (``lpc bench footprint --together --record --cpus 0.5``,
 the device held at a fixed rate, nothing shed): the controller's ticks more than 10 ms late
@@ -233,8 +236,10 @@ def _dropped(
         return state, None
     before = state.rate
     if fraction > p.dropped_above:
-        if previous.seen_ns < state.last_decrease_ns:
-            return state, None  # its window saw the rate before the last decrease
+        if not previous.behind or previous.seen_ns < state.last_decrease_ns:
+            # One window alone (a worker's stall drops frames at any rate), or one that saw
+            # the rate before the last decrease.
+            return state, None
         # The frames a second the set got through in the window: where the rate goes, and above
         # which it climbs only by increase_hz_per_s (TCP's slow-start threshold).
         done_hz = (received - dropped - previous.ticks + previous.late_ticks) / max(
