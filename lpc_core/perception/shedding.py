@@ -19,20 +19,7 @@ AIMD, as TCP's congestion window does:
   ``max_rate_hz`` (1 Hz a second near the 10 Hz a half-core quota leaves here, but 45 Hz back
   to 90 in 7 s after a neighbour's burst of load); in between the rate holds;
 - with no report for ``stale_ns`` (the reporting service stopped), the rate climbs back the
-  same way, so that a control path that went away does not leave the camera throttled;
-- a service that reports ``dropped_frames`` beside ``received`` (the reconstructor: frames its
-  workers had no time for) says how many frames a second the set got through. Two windows in a
-  row with more than ``dropped_above`` of their frames dropped cut the rate to that figure of
-  the second window (once per report window, as above), and above it the rate climbs only
-  ``increase_hz_per_s`` (TCP's slow-start threshold); a window with fewer drops, but some,
-  holds the rate until the next report. One such window alone is taken for a worker's stall,
-  which drops frames at any rate: cutting on it ratcheted the rate down from 88 to 62 Hz at
-  ``--cpus 1.0``, with as many frames dropped at either rate. A frame the set cannot
-  reconstruct was read, scanned and recorded for nothing, and its CPU made the cue and the
-  control path wait; the late ticks' rule alone left the rate in a saw-tooth well under what
-  fits (``lpc bench footprint --together --record --cpus 0.5``, f675e3e: no drops up to
-  33-35 Hz, 10-47 % from 36-60 Hz, where the controller's late share reached 30 % and halved
-  the rate, down to 7-30 Hz; 23-27 Hz on average).
+  same way, so that a control path that went away does not leave the camera throttled.
 
 The thresholds come from measurement (``lpc bench footprint --together --record --cpus 0.5``,
 the device held at a fixed rate, nothing shed): the controller's ticks more than 10 ms late
@@ -75,7 +62,6 @@ class ShedParams:
     increase_hz_per_s: float = 1.0
     increase_share_per_s: float = 0.1
     stale_ns: int = 3_000_000_000
-    dropped_above: float = 0.02
 
     def __post_init__(self) -> None:
         if not 0 < self.min_rate_hz <= self.max_rate_hz:
@@ -96,14 +82,11 @@ class ShedParams:
             raise ValueError(f"increase_share_per_s must be >= 0, got {self.increase_share_per_s}")
         if self.stale_ns <= 0:
             raise ValueError(f"stale_ns must be positive, got {self.stale_ns}")
-        if not 0 <= self.dropped_above < 1:
-            raise ValueError(f"dropped_above must be in [0, 1), got {self.dropped_above}")
 
 
 @dataclass(frozen=True)
 class TickCount:
-    """A reporting service's counters as last seen, and when (``now_ns`` of the report): its
-    ticks and late ticks, or the frames it received and dropped."""
+    """A reporting service's counters as last seen, and when (``now_ns`` of the report)."""
 
     ticks: int
     late_ticks: int
@@ -120,7 +103,6 @@ class ShedState:
     last_decrease_ns: int = -1
     last_increase_ns: int = -1
     last_report_ns: int = -1
-    fits_hz: float = float("inf")  # the frames a second the set got through at the last cut
     reports: Mapping[str, TickCount] = field(default_factory=lambda: MappingProxyType({}))
     shed_frames: int = 0
 
@@ -192,11 +174,7 @@ def _report(
     ticks = health.counters.get("ticks")
     late = health.counters.get("late_ticks")
     if ticks is None or late is None:
-        received = health.counters.get("received")
-        dropped = health.counters.get("dropped_frames")
-        if received is None or dropped is None:
-            return state, None  # a service without a control timer or frames to drop
-        return _dropped(state, health.service, received, dropped, now_ns)
+        return state, None  # a service without a control timer
     p = state.params
     previous = state.reports.get(health.service)
     fresh = previous is None or ticks <= previous.ticks or late < previous.late_ticks
@@ -222,52 +200,9 @@ def _report(
     return state, RateChange(before, state.rate, fraction, health.service)
 
 
-def _dropped(
-    state: ShedState, service: str, received: int, dropped: int, now_ns: int
-) -> tuple[ShedState, Gate | RateChange | None]:
-    p = state.params
-    previous = state.reports.get(service)
-    fresh = previous is None or received <= previous.ticks or dropped < previous.late_ticks
-    fraction = 0.0 if fresh else (dropped - previous.late_ticks) / (received - previous.ticks)
-    reports = dict(state.reports)
-    reports[service] = TickCount(received, dropped, now_ns, fraction > p.dropped_above)
-    state = replace(state, reports=MappingProxyType(reports), last_report_ns=now_ns)
-    if previous is None or fresh:
-        return state, None
-    before = state.rate
-    if fraction > p.dropped_above:
-        if not previous.behind or previous.seen_ns < state.last_decrease_ns:
-            # One window alone (a worker's stall drops frames at any rate), or one that saw
-            # the rate before the last decrease.
-            return state, None
-        # The frames a second the set got through in the window: where the rate goes, and above
-        # which it climbs only by increase_hz_per_s (TCP's slow-start threshold).
-        done_hz = (received - dropped - previous.ticks + previous.late_ticks) / max(
-            (now_ns - previous.seen_ns) / 1e9, 1e-3
-        )
-        rate = max(p.min_rate_hz, min(before, done_hz))
-        state = replace(
-            state,
-            rate_hz=rate,
-            fits_hz=rate,
-            last_decrease_ns=now_ns,
-            last_increase_ns=now_ns,
-        )
-    elif fraction > 0:
-        return replace(state, last_increase_ns=now_ns), None  # at the edge of what fits: hold
-    if state.rate == before:
-        return state, None
-    return state, RateChange(before, state.rate, fraction, service)
-
-
 def _increase(state: ShedState, since_ns: int, now_ns: int) -> ShedState:
     p = state.params
     seconds = min(max(0, now_ns - since_ns) / 1e9, 2.0)  # no leap after a long silence
     step_hz = max(p.increase_hz_per_s, p.increase_share_per_s * state.rate)
-    if state.rate + step_hz * seconds > state.fits_hz:  # slowly past what got through last
-        step_hz = p.increase_hz_per_s
-        seconds = max(seconds - max(0.0, state.fits_hz - state.rate) / step_hz, 0.0)
-        rate = min(p.max_rate_hz, max(state.rate, state.fits_hz) + step_hz * seconds)
-    else:
-        rate = min(p.max_rate_hz, state.rate + step_hz * seconds)
+    rate = min(p.max_rate_hz, state.rate + step_hz * seconds)
     return replace(state, rate_hz=rate, last_increase_ns=now_ns)
