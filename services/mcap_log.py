@@ -21,8 +21,10 @@ import heapq
 import io
 import json
 import os
+import queue
 import struct
 import threading
+import time
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -394,6 +396,158 @@ class LogWriter:
         return self._writer is None
 
     def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()
+
+
+class BackgroundLogWriter:
+    """A ``LogWriter`` driven from a thread of its own, for a writer on a busy event loop.
+
+    ``LogWriter`` compresses a full chunk (1 MiB: about five depth frames) and writes it to the
+    file inside the ``write_raw`` call that fills it, which on the container's shared loop held
+    every other task (the camera's read, scans, aim's cue) for the chunk's compression and the
+    write. Here the caller only queues what to write: its messages are handed to the thread in
+    batches (``hand_over``, or every ``BATCH`` messages), which writes them in the order given,
+    so the file is the one ``LogWriter`` writes for the same calls, byte for byte; zstd and the
+    file writes release the GIL while they run. The file's rotation is the ``LogWriter``'s.
+
+    An error of the thread (a full disk) is raised by the caller's next call, as ``LogWriter``
+    would have raised it. ``finish()`` writes what is queued, then the summary and footer, and
+    waits for the thread; it is safe to call twice. What is still queued when the process is
+    killed is lost, as the messages in a subscription's queue were.
+    """
+
+    BATCH = 256
+
+    def __init__(self, path: str | os.PathLike[str], **kwargs: Any) -> None:
+        self._log = LogWriter(path, **kwargs)  # opened here: a bad path fails the caller
+        self.path = self._log.path
+        self.messages = 0
+        self.written = 0  # by the thread
+        self.cpu_ns = 0  # the thread's CPU time, as of its last batch
+        self._batch: list[tuple[str, bytes, int, int, int]] = []
+        self._queue: queue.SimpleQueue[
+            list[tuple[str, bytes, int, int, int]] | threading.Event | None
+        ] = queue.SimpleQueue()
+        self._error: BaseException | None = None
+        self._finished = False
+        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+        self._thread.start()
+
+    @property
+    def paths(self) -> list[Path]:
+        return self._log.paths
+
+    @property
+    def finished(self) -> bool:
+        return self._finished
+
+    def write_raw(
+        self,
+        key: str,
+        payload: bytes,
+        *,
+        log_time: int,
+        publish_time: int,
+        sequence: int = 0,
+    ) -> None:
+        """Queue one payload; written by the thread after those queued before it."""
+        if self._finished:
+            raise ValueError(f"{self.path}: write after finish()")
+        self._raise_error()
+        self._batch.append((key, payload, log_time, publish_time, sequence))
+        self.messages += 1
+        if len(self._batch) >= self.BATCH:
+            self.hand_over()
+
+    def write_received(self, key: str, payload: bytes, received_ns: int) -> tuple[int, int] | None:
+        """``LogWriter.write_received``, queued: the header is read here, for the caller."""
+        header = read_header(payload)
+        if header is None:
+            self.write_raw(
+                REJECTED_PREFIX + key, payload, log_time=received_ns, publish_time=received_ns
+            )
+            return None
+        seq, t_ns = header
+        self.write_raw(key, payload, log_time=received_ns, publish_time=t_ns, sequence=seq)
+        return header
+
+    def write(self, key: str, message: Any, log_time: int) -> None:
+        """Encode a message and queue it, with its own ``t_ns`` and ``seq``."""
+        self.write_raw(
+            key, encode(message), log_time=log_time, publish_time=message.t_ns, sequence=message.seq
+        )
+
+    def hand_over(self) -> None:
+        """Give the thread what was queued since the last hand-over (the caller has no more for
+        now): one wake-up of the thread for a batch instead of one a message."""
+        if self._batch:
+            self._queue.put(self._batch)
+            self._batch = []
+
+    @property
+    def backlog(self) -> int:
+        """Messages queued and not yet written."""
+        return self.messages - self.written
+
+    def drain(self) -> None:
+        """Block until the thread has written everything queued so far (a writer far behind
+        holds its caller back here, as a slow disk held ``LogWriter``'s)."""
+        self.hand_over()
+        if not self._finished:
+            done = threading.Event()
+            self._queue.put(done)
+            done.wait()
+        self._raise_error()
+
+    def finish(self) -> None:
+        """Write everything queued, finish the file and stop the thread (blocks until done)."""
+        if not self._finished:
+            self._finished = True
+            self.hand_over()
+            self._queue.put(None)
+        self._thread.join()
+        self._raise_error()
+
+    def _raise_error(self) -> None:
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def _run(self) -> None:
+        log = self._log
+        failed = False
+        while True:
+            batch = self._queue.get()
+            if batch is None:
+                break
+            if isinstance(batch, threading.Event):
+                batch.set()
+                continue
+            if failed:
+                continue  # the caller hears of the first error; the rest would repeat it
+            try:
+                for key, payload, log_time, publish_time, sequence in batch:
+                    log.write_raw(
+                        key,
+                        payload,
+                        log_time=log_time,
+                        publish_time=publish_time,
+                        sequence=sequence,
+                    )
+                    self.written += 1
+            except BaseException as exc:  # handed to the caller's thread
+                self._error, failed = exc, True
+            self.cpu_ns = time.thread_time_ns()
+        try:
+            log.finish()
+        except BaseException as exc:  # handed to the caller's thread
+            self._error = self._error or exc
+        self.cpu_ns = time.thread_time_ns()
+
+    def __enter__(self) -> BackgroundLogWriter:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -381,6 +381,11 @@ class Subscription:
                 stream.rejected += 1
                 self._bus.reject(key, str(exc))
 
+    @property
+    def queued(self) -> int:
+        """Samples handed to this subscription and not yet received."""
+        return len(self._queue)
+
     def __aiter__(self) -> AsyncIterator[Any]:
         return self._messages()
 

@@ -16,6 +16,7 @@ import services.mcap_log
 from schemas import CameraIntrinsics, DepthFrame, EmgSample, Health, decode, encode, to_wire
 from services.mcap_log import (
     REJECTED_PREFIX,
+    BackgroundLogWriter,
     LogWriter,
     McapLog,
     McapLogError,
@@ -271,3 +272,59 @@ def test_writer_fast_message_path_writes_what_mcaps_add_message_writes(
     assert len(fast.paths) == len(plain.paths) > 1, "rotated"
     for a, b in zip(fast.paths, plain.paths, strict=True):
         assert a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_background_writer_writes_what_log_writer_writes(tmp_path: Path, compression: str) -> None:
+    """The thread writes the calls in the order they were made: the same files, rotated ones and
+    a rejected payload included, byte for byte, whether a batch is handed over after every
+    message, now and then, or only at the end."""
+    items = session(30)
+    items.insert(7, ("lpc/emg", b"\xc1 not msgpack", items[6][2]))
+    plain = write_session(tmp_path / "plain.mcap", items, compression=compression, max_bytes=2**21)
+    assert len(plain.paths) > 1, "rotated"
+    for every in (1, 5, len(items) + 1):
+        path = tmp_path / f"every{every}.mcap"
+        with BackgroundLogWriter(path, compression=compression, max_bytes=2**21) as writer:
+            headers = []
+            for i, (key, payload, t) in enumerate(items):
+                headers.append(writer.write_received(key, payload, t))
+                if i % every == every - 1:
+                    writer.hand_over()
+        assert headers[7] is None and headers[8] == read_header(items[8][1])
+        assert writer.messages == writer.written == len(items) and writer.backlog == 0
+        assert len(writer.paths) == len(plain.paths)
+        for a, b in zip(writer.paths, plain.paths, strict=True):
+            assert a.read_bytes() == b.read_bytes()
+        writer.finish()  # twice is fine
+        with pytest.raises(ValueError, match="after finish"):
+            writer.write("lpc/emg", EmgSample(seq=1, t_ns=T0, channels=[0.0, 0.0]), T0)
+
+
+def test_background_writer_drain_writes_what_is_queued(tmp_path: Path) -> None:
+    items = session(10)
+    with BackgroundLogWriter(tmp_path / "d.mcap") as writer:
+        for key, payload, t in items[:20]:
+            writer.write_received(key, payload, t)
+        assert writer.backlog == 20
+        writer.drain()
+        assert writer.written == 20 and writer.backlog == 0
+
+
+def test_background_writer_error_is_raised_by_the_callers_next_call(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A failed write on the thread (here: a full disk) reaches the caller as LogWriter would
+    have raised it: at the next write, a drain or the finish."""
+
+    def full(self: object, data: bytes) -> int:
+        raise OSError(28, "No space left on device")
+
+    writer = BackgroundLogWriter(tmp_path / "full.mcap", compression="none", chunk_bytes=1024)
+    monkeypatch.setattr(services.mcap_log._FileSink, "write", full)
+    frame = depth_frame(0)  # more than a chunk: written at once
+    writer.write("lpc/camera/depth", frame, frame.t_ns)
+    with pytest.raises(OSError, match="No space"):
+        writer.drain()
+    with pytest.raises(OSError, match="No space"):
+        writer.finish()  # the footer cannot be written either

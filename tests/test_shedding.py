@@ -209,3 +209,20 @@ def test_shed_params_reject_bad_values() -> None:
         ShedParams(increase_hz_per_s=0.0)
     with pytest.raises(TypeError, match="FrameReady"):
         shed_step(ShedState(), "frame", 0)  # type: ignore[arg-type]
+
+
+def test_shed_step_keeps_the_allowed_rate_between_divisors_of_the_camera_rate() -> None:
+    # The credit a passed frame leaves over is kept: 40 Hz of a 90 Hz camera keeps 40 frames a
+    # second, not the 30 (every third frame) that capping the credit at one frame kept.
+    for rate_hz, expected in ((40.0, 40), (25.0, 25), (18.0, 18), (61.0, 61)):
+        state = ShedState(ShedParams(max_rate_hz=90.0), rate_hz=rate_hz, credit=0.0)
+        state, kept = frames(state, 0, 900)
+        assert abs(sum(kept) - 10 * expected) <= 1, rate_hz
+        # Never two in a row below half the camera's rate: spread evenly.
+        if rate_hz < 45:
+            assert not any(a and b for a, b in itertools.pairwise(kept))
+    # After a pause, one frame passes and no burst follows.
+    state = ShedState(ShedParams(max_rate_hz=90.0), rate_hz=30.0)
+    state, kept = frames(state, 0, 3)
+    state, late = frames(state, 10 * S, 4)
+    assert late == [True, False, True, False]

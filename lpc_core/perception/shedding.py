@@ -29,8 +29,9 @@ CFS quota every burst of perception work freezes the whole set for the rest of a
 some late ticks come with any frame rate; the band of 20-30 % holds the rate where the hand
 commands keep up there, and stays far above what a machine with CPU to spare shows.
 
-At ``max_rate_hz`` every frame passes; below it a credit of ``rate * elapsed`` (at most one
-frame) lets a frame through when it reaches one, so that the frames kept are spread evenly.
+At ``max_rate_hz`` every frame passes; below it a credit of ``rate * elapsed`` (carried over
+from one frame to the next at most one frame's worth) lets a frame through when it reaches one,
+so that the frames kept are spread evenly and come at the allowed rate on average.
 
 ``shed_step(state, message, now_ns)`` is pure: the state is an immutable value, time comes in
 as ``now_ns``, nothing reads a clock or touches the bus.
@@ -157,7 +158,10 @@ def _frame(state: ShedState, now_ns: int) -> tuple[ShedState, Gate | RateChange 
     if not state.shedding:
         return replace(state, credit=1.0, last_frame_ns=now_ns), Gate.PUBLISH
     elapsed_ns = 0 if state.last_frame_ns is None else max(0, now_ns - state.last_frame_ns)
-    credit = min(1.0, state.credit + state.rate * elapsed_ns / 1e9)
+    # Capped at one frame and one camera period's share (no burst after a pause): capping at
+    # one frame lost the remainder of every passed frame, which kept 90/k Hz of a 90 Hz camera
+    # (30 Hz for any rate in 28.5-42.7 Hz, 18 Hz in 17.1-21.3 Hz).
+    credit = min(state.credit + state.rate * elapsed_ns / 1e9, 1.0 + state.rate / p.max_rate_hz)
     if credit >= _CREDIT_TO_PASS:
         return replace(state, credit=credit - 1.0, last_frame_ns=now_ns), Gate.PUBLISH
     state = replace(state, credit=credit, last_frame_ns=now_ns, shed_frames=state.shed_frames + 1)

@@ -66,6 +66,8 @@ WEIGHT = 100
 # Frame-derived topics: their frame_seq says which camera frame they came from.
 FRAME_TOPICS = ("lpc/scans", "lpc/reconstruction", "lpc/grasp/target", "lpc/aim/cue")
 CAPTURE_TOPICS = (*FRAME_TOPICS, "lpc/tactors/command")
+# Health counters of a service's own CPU time (in the container, where no process is its own).
+OWN_CPU = ("cpu_ms", "writer_cpu_ms")
 # Health counters shown in a service's drops column, as they grew over the measured window:
 # late_ticks is the control path's lateness, shed_frames the frames the camera shed for it.
 DROP_COUNTERS = (
@@ -325,6 +327,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--record", action="store_true", help="with the recorder on (to a temporary file)"
     )
     parser.add_argument(
+        "--keep",
+        metavar="PATH",
+        help="with the recorder on, to PATH (kept): per-frame stage times for lpc info",
+    )
+    parser.add_argument(
         "--devices",
         choices=("outside", "inside"),
         default="outside",
@@ -442,8 +449,8 @@ def _measure_set(
     ]  # fmt: skip
     if args.together:
         argv.append("--together")
-    if args.record:
-        argv += ["--record", str(tmp / "footprint.mcap")]
+    if args.record or getattr(args, "keep", None):
+        argv += ["--record", args.keep or str(tmp / "footprint.mcap")]
     where = f"a quota of {args.cpus:g} CPU (cgroup v{quota.version})" if quota else "no quota"
     note = f"lpc bench footprint: {args.seconds:g} s after {args.warmup:g} s, {where}:"
     print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
@@ -547,8 +554,10 @@ def _result(
             rss_max[entry.name] += max(entry.rss)
             rss_last[entry.name] += entry.rss[-1]
     summaries = {n: r.summary(0.0) for n, r in services.items()}
+    # A service's CPU on the container's loop, and on a thread of its own where it has one (the
+    # recorder's writer).
     loop_cpu = {
-        n: (r.samples[-1].counters.get("cpu_ms", 0) - r.samples[0].counters.get("cpu_ms", 0))
+        n: sum(r.samples[-1].counters.get(k, 0) - r.samples[0].counters.get(k, 0) for k in OWN_CPU)
         / 1000.0
         for n, r in services.items()
         if r.samples and "cpu_ms" in r.samples[-1].counters
@@ -605,7 +614,7 @@ def _result(
         "outside_set": outside,
         "cpus": args.cpus,
         "cgroup": f"v{quota.version}" if quota else None,
-        "record": args.record,
+        "record": args.record or bool(getattr(args, "keep", None)),
         "seconds": round(elapsed, 2),
         "services": rows,
         "totals": {
