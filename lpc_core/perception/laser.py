@@ -1497,6 +1497,86 @@ def _face_geometry(
     return _Face(width, axis / math.sqrt(axis @ axis), centre, residual, disc)
 
 
+# Where the scan lines run on past a face's crease (no occluding edge) onto the next face,
+# the two faces' planes meet along the box's edge: fitted to each face's interior, they put
+# the edge where no matcher's fattening moves it (the seeds at the sides scatter by 0-14 px
+# along their lines at SGBM 7). The next face's samples: past each crease seed, those more
+# than _CREASE_OFF_M behind the face's plane (or in front of it: the table), up to
+# _CREASE_REACH_M from the seed along the line, past at least _CREASE_MIN_LINES seeds (two
+# let one noisy piece tilt the plane: an upright box with the table in view, its crease
+# 0.2-4.3 degrees off square on lpc's noise model); their plane within _CREASE_RMS_M (one
+# face, not two), spread _CREASE_SPREAD_M across, at least _CREASE_MIN_DEG to the face.
+_CREASE_OFF_M = 0.003
+_CREASE_REACH_M = 0.03
+_CREASE_MIN_SAMPLES = 4
+_CREASE_MIN_LINES = 3
+_CREASE_RMS_M = 0.001
+_CREASE_SPREAD_M = 0.003
+_CREASE_MIN_DEG = 30.0
+# The crease turns the face's direction by at most this: further, it is not the edge the
+# rectangle's sides follow (a bevel, or the seeds' rectangle is another face's).
+_CREASE_TURN_DEG = 10.0
+
+
+def _crease_direction(
+    lines: list[LineModels], plane: PlaneSolid, seeds: _Seeds
+) -> np.ndarray | None:
+    """The direction (3-D, unit) where the face ``plane`` meets the next face, fitted to the
+    samples the face's ``lines`` have past their crease seeds (not cut, not occluding): those
+    behind the face's plane (the box's next face), else those in front of it (the table the
+    face stands on); None when fewer than three line ends see a single such plane."""
+    if seeds.occluding is None:
+        return None
+    behind: list[np.ndarray] = []
+    before: list[np.ndarray] = []
+    for i, line in enumerate(lines):
+        run = line.run
+        for k in (0, 1):
+            j = 2 * i + k
+            if j >= len(seeds.points) or seeds.cropped[j] or seeds.occluding[j] > 0:
+                continue
+            past = line.points[: run[0]][::-1] if k == 0 else line.points[run[-1] + 1 :]
+            if len(past) == 0:
+                continue
+            start = line.points[run[0] if k == 0 else run[-1]]
+            reach = np.sqrt(((past - start) ** 2).sum(axis=1)) <= _CREASE_REACH_M
+            height = (past - plane.point) @ plane.normal
+            for pieces, off in (
+                (behind, height < -_CREASE_OFF_M),
+                (before, height > _CREASE_OFF_M),
+            ):
+                piece = past[reach & off]
+                if len(piece) >= _CREASE_MIN_SAMPLES:
+                    pieces.append(piece)
+    for pieces in (behind, before):
+        if len(pieces) < _CREASE_MIN_LINES:
+            continue
+        pts = np.concatenate(pieces)
+        _, sv, vt = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)
+        n = math.sqrt(len(pts))
+        if sv[2] / n > _CREASE_RMS_M or sv[1] / n < _CREASE_SPREAD_M:
+            continue
+        normal = vt[2]
+        if abs(float(normal @ plane.normal)) > math.cos(math.radians(_CREASE_MIN_DEG)):
+            continue
+        edge = np.cross(plane.normal, normal)
+        return edge / math.sqrt(edge @ edge)
+    return None
+
+
+def _along_crease(axis: np.ndarray, crease: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """The face's principal ``axis`` turned within its plane (``normal``) onto the crease or
+    the direction across it, whichever it lies nearer, unless that turns it by more than
+    _CREASE_TURN_DEG."""
+    across = np.cross(normal, crease)
+    target = crease if abs(axis @ crease) >= abs(axis @ across) else across
+    if target @ axis < 0:
+        target = -target
+    if target @ axis < math.cos(math.radians(_CREASE_TURN_DEG)):
+        return axis
+    return target
+
+
 def _consistent_sides(
     seeds: list[list[float]],
     cropped: list[bool],
@@ -2274,6 +2354,9 @@ def _decide(
     )  # fmt: skip
     if isinstance(face, str):
         return _none(face, summaries, total, extra)
+    crease = _crease_direction(on_face, solid, seeds)
+    if crease is not None:
+        face = replace(face, axis=_along_crease(face.axis, crease, solid.normal))
     if face.disc is not None:
         extra["disc_rms_mm"] = 1000 * face.disc[2]
         extra["rectangle_residual_mm"] = 1000 * face.rectangle_residual
