@@ -239,7 +239,37 @@ class _FastMessages:
             self._finalize()
 
 
-class LogWriter:
+class _Payloads:
+    """How a payload off the bus, or a message, becomes a ``write_raw`` call: shared by the
+    writer that writes in place and the one that queues for its thread."""
+
+    def write_raw(
+        self, key: str, payload: bytes, *, log_time: int, publish_time: int, sequence: int = 0
+    ) -> None:
+        raise NotImplementedError
+
+    def write_received(self, key: str, payload: bytes, received_ns: int) -> tuple[int, int] | None:
+        """Log a payload as received off the bus. Returns its header ``(seq, t_ns)``, or ``None``
+        if that did not decode, in which case it went raw to ``lpc/_rejected/<key>`` with the
+        receive time."""
+        header = read_header(payload)
+        if header is None:
+            self.write_raw(
+                REJECTED_PREFIX + key, payload, log_time=received_ns, publish_time=received_ns
+            )
+            return None
+        seq, t_ns = header
+        self.write_raw(key, payload, log_time=received_ns, publish_time=t_ns, sequence=seq)
+        return header
+
+    def write(self, key: str, message: Any, log_time: int) -> None:
+        """Encode a message and log it, with its own ``t_ns`` and ``seq``."""
+        self.write_raw(
+            key, encode(message), log_time=log_time, publish_time=message.t_ns, sequence=message.seq
+        )
+
+
+class LogWriter(_Payloads):
     """Write bus messages to MCAP, one channel per key, rotating to a new file past ``max_bytes``.
 
     ``write_raw`` takes a payload as it came off the bus; ``write`` encodes a message first.
@@ -356,26 +386,6 @@ class LogWriter:
             self._close_file()
             self._open()
 
-    def write_received(self, key: str, payload: bytes, received_ns: int) -> tuple[int, int] | None:
-        """Log a payload as received off the bus. Returns its header ``(seq, t_ns)``, or ``None``
-        if that did not decode, in which case it went raw to ``lpc/_rejected/<key>`` with the
-        receive time."""
-        header = read_header(payload)
-        if header is None:
-            self.write_raw(
-                REJECTED_PREFIX + key, payload, log_time=received_ns, publish_time=received_ns
-            )
-            return None
-        seq, t_ns = header
-        self.write_raw(key, payload, log_time=received_ns, publish_time=t_ns, sequence=seq)
-        return header
-
-    def write(self, key: str, message: Any, log_time: int) -> None:
-        """Encode a message and append it, with its own ``t_ns`` and ``seq``."""
-        self.write_raw(
-            key, encode(message), log_time=log_time, publish_time=message.t_ns, sequence=message.seq
-        )
-
     def _close_file(self) -> None:
         if self._writer is not None:
             _CHUNK_ZSTD.level = self.zstd_level
@@ -402,7 +412,7 @@ class LogWriter:
         self.finish()
 
 
-class BackgroundLogWriter:
+class BackgroundLogWriter(_Payloads):
     """A ``LogWriter`` driven from a thread of its own, for a writer on a busy event loop.
 
     ``LogWriter`` compresses a full chunk (1 MiB: about five depth frames) and writes it to the
@@ -461,24 +471,6 @@ class BackgroundLogWriter:
         self.messages += 1
         if len(self._batch) >= self.BATCH:
             self.hand_over()
-
-    def write_received(self, key: str, payload: bytes, received_ns: int) -> tuple[int, int] | None:
-        """``LogWriter.write_received``, queued: the header is read here, for the caller."""
-        header = read_header(payload)
-        if header is None:
-            self.write_raw(
-                REJECTED_PREFIX + key, payload, log_time=received_ns, publish_time=received_ns
-            )
-            return None
-        seq, t_ns = header
-        self.write_raw(key, payload, log_time=received_ns, publish_time=t_ns, sequence=seq)
-        return header
-
-    def write(self, key: str, message: Any, log_time: int) -> None:
-        """Encode a message and queue it, with its own ``t_ns`` and ``seq``."""
-        self.write_raw(
-            key, encode(message), log_time=log_time, publish_time=message.t_ns, sequence=message.seq
-        )
 
     def hand_over(self) -> None:
         """Give the thread what was queued since the last hand-over (the caller has no more for
