@@ -1441,6 +1441,18 @@ def _face_geometry(
     b = [y * ux - x * uy for x, y in pts_all]
     alo, ahi, blo, bhi = min(a), max(a), min(b), max(b)
     if not paper and trim_px > 0 and pixel_rad > 0 and seeds.occluding is not None:
+        settled = [False] * 4
+        z_face = float(plane.point[2])
+        trims = tuple(
+            fattening_trim_m(
+                plane.normal[2],
+                n2[0] * e1 + n2[1] * e2,
+                z_face,
+                trim_px * pixel_rad,
+                params.solid_threshold_m,
+            )
+            for n2 in ((ux, uy), (-uy, ux))
+        )
         alo, ahi, blo, bhi = _trimmed_sides(
             plane, (e1, e2), (ux, uy), uv, cropped, seeds.occluding[order],
             _consistent_sides(
@@ -1452,8 +1464,9 @@ def _face_geometry(
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2])
                 if len(pts_all) == len(pts) and not smeared else math.inf,
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2]),
+                seeds.occluding[order].tolist(), trims, settled,  # type: ignore[arg-type]
             ),
-            trim_px * pixel_rad, params,
+            trim_px * pixel_rad, params, settled,
         )  # fmt: skip
     elif (
         not paper
@@ -1586,6 +1599,9 @@ def _consistent_sides(
     b: list[float],
     apart_m: float,
     cut_apart_m: float,
+    shares: list[float] | None = None,
+    trims: tuple[float, float] = (0.0, 0.0),
+    settled: list[bool] | None = None,
 ) -> tuple[float, float, float, float]:
     """The rectangle's sides ``(alo, ahi, blo, bhi)`` along the unit direction ``u`` where a
     matcher fattened the edges: each side through the farthest uncut seed nearest it once the
@@ -1595,7 +1611,16 @@ def _consistent_sides(
     capture volume bound only the sides with fewer than two uncut seeds, and a side with one
     at an ``occluding`` edge only where none of them lies more than ``cut_apart_m`` beyond it
     (a fattened run may reach the capture volume past the edge: the tilted box at SGBM 9 was
-    21 mm wide so).
+    21 mm wide so). Seeds at a corner count on both its sides (``_corner_seeds``).
+
+    With ``settled`` (four flags, set here for the sides placed so), ``shares`` (each seed's
+    share of the window's trim, 0 at no occluding edge) and ``trims`` (a whole window's trim
+    across the sides along ``u``, then across ``u``): a side of two uncut seeds or more whose
+    occluding seeds each take a whole window or more (the background lies far behind every
+    edge) goes through the median of its seeds' edges, each seed's own trim taken off, its
+    outliers beyond dropped as above and a seed at no occluding edge lying more than
+    ``_HOLE_APART`` times ``apart_m`` inside the farthest left out (a hole's border, inside
+    the face). Those sides are trimmed already: ``_trimmed_sides`` leaves them.
 
     A window matcher fattens an occluding edge by an amount that varies along it: at SGBM 7
     the cuboids' seeds lay 0.95 mm past the true side on the nearest, 3.1 on the median and
@@ -1605,22 +1630,40 @@ def _consistent_sides(
     window explains. The median of each side would have gone further (cuboid widths 4.0 ->
     3.4 mm over the eight matcher settings, against 3.6 here), but where the fattening is
     smaller than the trim, as on the 40 mm bar lying on the table (its background is near),
-    every side moved in cost width: the bar lost 1.6 mm (36.9 -> 35.3 at SGBM 7)."""
+    every side moved in cost width: the bar lost 1.6 mm (36.9 -> 35.3 at SGBM 7). Where the
+    background lies far behind, the trim sizes the fattening of the median seed, not the
+    farthest: the upright box at SGBM 7 (the room behind its sides, one and a half windows
+    a side) had its sides' seeds 3.5-5 px past the true side, their farthest up to 7 px,
+    and the side through the farthest kept 1-4 px of it (width MAE 3.5 mm over 10 frames,
+    2.3 through the median). Where it lies near (the bar, the table 0.15-0.26 of its depth
+    behind, 0.5-0.7 of a window a side) its median seed lies on the true side: the share
+    over-trims it (the bar 2.2 mm too narrow at SGBM 7 through the median, 0.7 so)."""
     n = len(seeds)
     out = [min(a), max(a), min(b), max(b)]
-    # Coordinates across each side, positive outward: sides 0 and 2 face the negative way.
-    groups: list[list[float]] = [[], [], [], []]
+    # Per side: each seed's coordinate across it, positive outward (sides 0 and 2 face the
+    # negative way), its edge there once its own share of the trim is taken off, its share.
+    groups: list[list[tuple[float, float, float]]] = [[], [], [], []]
     cut_groups: list[list[float]] = [[], [], [], []]
     edge = [False] * 4  # the side's uncut seeds include one at an occluding edge
-    for k, (d, cut, occludes) in enumerate(
-        zip(_side_distances(seeds, u), cropped, occluding, strict=True)
-    ):
+    dists = _side_distances(seeds, u)
+    share = shares if shares is not None else [0.0] * n
+
+    def across(k: int, side: int) -> tuple[float, float, float]:
+        c = (-1.0 if side % 2 == 0 else 1.0) * (a[k] if side < 2 else b[k])
+        return c, c - share[k] * trims[side // 2], share[k]
+
+    for k, (d, cut, occludes) in enumerate(zip(dists, cropped, occluding, strict=True)):
         side = d.index(min(d))
-        sign = -1.0 if side % 2 == 0 else 1.0
-        (cut_groups if cut else groups)[side].append(sign * (a[k] if side < 2 else b[k]))
+        if cut:
+            cut_groups[side].append(across(k, side)[0])
+        else:
+            groups[side].append(across(k, side))
         edge[side] |= occludes and not cut
+    for k, side in _corner_seeds(dists, cropped, a, b):
+        groups[side].append(across(k, side))
     for side, outward in enumerate(groups):
         cut = cut_groups[side]
+        with_cut = False
         if len(outward) == 1 and cut and edge[side]:
             # One uncut seed, at an occluding edge: the side's cut seeds bound it too, unless
             # one lies more than cut_apart_m beyond it, a run fattened past the edge to the
@@ -1630,18 +1673,33 @@ def _consistent_sides(
             # a run: it keeps the face's plane, and they leave it. A run ending elsewhere (a
             # hole, a bump) is no edge and bounds nothing: the box tilted right at BM 5,
             # trial 0 frame 2, had its one uncut seed 35 mm inside the side so.
-            near = [c for c in cut if c - outward[0] <= cut_apart_m]
+            near = [c for c in cut if c - outward[0][0] <= cut_apart_m]
             if len(near) == len(cut):
                 continue
-            outward = outward + near
+            outward = outward + [(c, c, 1.0) for c in near]
+            with_cut = True
         elif len(outward) < 2:
             continue
+        # Each edge takes a whole window or more: the background lies far behind it.
+        far = not with_cut and all(w >= 1.0 for _, _, w in outward if w > 0)
         outward.sort(reverse=True)
-        while len(outward) > 1 and outward[0] - outward[1] > apart_m:
+        while len(outward) > 1 and outward[0][0] - outward[1][0] > apart_m:
             outward.pop(0)
         sign = -1.0 if side % 2 == 0 else 1.0
         beyond = [sign * c for c in (a[n:] if side < 2 else b[n:])]
-        out[side] = sign * max([outward[0], *beyond])
+        if settled is not None and far:
+            # The side through the median of its seeds' edges, each seed's own trim taken
+            # off; a hole's seed (at no occluding edge) far inside the others is no edge.
+            inside = outward[0][0] - _HOLE_APART * apart_m
+            ed = sorted(e for c, e, w in outward if w > 0 or c >= inside)
+            m = len(ed)
+            if m >= _SIDE_MEDIAN_SEEDS:
+                mid = ed[m // 2] if m % 2 else 0.5 * (ed[m // 2 - 1] + ed[m // 2])
+                if not beyond or mid >= max(beyond):
+                    out[side] = sign * mid
+                    settled[side] = True
+                    continue
+        out[side] = sign * max([outward[0][0], *beyond])
     return out[0], out[1], out[2], out[3]
 
 
@@ -1673,14 +1731,18 @@ def _straight_sides(
     may be a hole's, eaten into the face (BM 5, the box tilted right: seeds 1.5-3.5 mm
     inside its side)."""
     groups: list[list[tuple[float, int]]] = [[], [], [], []]
-    for k, (d, cut) in enumerate(zip(_side_distances(seeds, u), cropped, strict=True)):
+    dists = _side_distances(seeds, u)
+    for k, (d, cut) in enumerate(zip(dists, cropped, strict=True)):
         if cut:
             continue
         side = d.index(min(d))
         sign = -1.0 if side % 2 == 0 else 1.0
         groups[side].append((sign * (a[k] if side < 2 else b[k]), k))
-    dropped: set[int] = set()
-    for outward in groups:
+    for k, side in _corner_seeds(dists, cropped, a, b):
+        sign = -1.0 if side % 2 == 0 else 1.0
+        groups[side].append((sign * (a[k] if side < 2 else b[k]), k))
+    dropped: list[set[int]] = [set(), set(), set(), set()]
+    for side, outward in enumerate(groups):
         if len(outward) < _STRAIGHT_SIDE_SEEDS:
             continue
         outward.sort(reverse=True)
@@ -1689,12 +1751,54 @@ def _straight_sides(
             and occluding[outward[0][1]]
             and outward[0][0] - outward[1][0] > apart_m
         ):
-            dropped.add(outward.pop(0)[1])
-    if not dropped:
+            dropped[side].add(outward.pop(0)[1])
+    if not any(dropped):
         return sides
-    ka = [x for k, x in enumerate(a) if k not in dropped]
-    kb = [x for k, x in enumerate(b) if k not in dropped]
-    return min(ka), max(ka), min(kb), max(kb)
+    # A seed dropped from one side still bounds the others (a corner seed, see _corner_seeds).
+    out = list(sides)
+    for side, gone in enumerate(dropped):
+        if gone:
+            coords = [x for k, x in enumerate(a if side < 2 else b) if k not in gone]
+            out[side] = min(coords) if side % 2 == 0 else max(coords)
+    return out[0], out[1], out[2], out[3]
+
+
+def _corner_seeds(
+    dists: list[tuple[float, float, float, float]],
+    cropped: list[bool],
+    a: list[float],
+    b: list[float],
+) -> list[tuple[int, int]]:
+    """The seeds that also stand on a side next to their own, as ``(seed, side)``: an uncut
+    seed alone on its side (the nearest of the four, ``dists`` as ``_side_distances`` gives
+    them), where the nearer of the two sides across it holds two uncut seeds or more and the
+    seed lies beyond one of them at least.
+
+    Such a seed lies at a corner: its line left the face near where two sides meet, and only
+    fattening along the line (which moves it out across both) tells which side it crossed. The
+    upright box shows no top side (its tall face runs past the capture volume), so a diagonal
+    line's seed near the top of a side was the top side's one seed and counted for no side of
+    the width: at SGBM 7 (trial 1 frame 0) its side was drawn through a seed 1.1 mm past the
+    true side once one 14.6 mm past was dropped, and trimmed to 3.6 mm inside, the corner seed
+    4.6 mm past left out; at BM 9 (trial 1 frame 2) the corner seed 5.7 mm past bounded the
+    side alone, its side's two others 0.8 mm inside and 1.0 past."""
+    nearest = [d.index(min(d)) for d in dists]
+    uncut = [k for k, cut in enumerate(cropped) if not cut]
+    count = [sum(1 for k in uncut if nearest[k] == side) for side in range(4)]
+    out = []
+    for k in uncut:
+        side = nearest[k]
+        if count[side] != 1:
+            continue
+        lo, hi = (2, 3) if side < 2 else (0, 1)
+        other = lo if dists[k][lo] <= dists[k][hi] else hi
+        if count[other] < 2:
+            continue
+        coords = b if other >= 2 else a
+        sign = -1.0 if other % 2 == 0 else 1.0
+        if any(sign * coords[k] > sign * coords[j] for j in uncut if nearest[j] == other):
+            out.append((k, other))
+    return out
 
 
 def _trimmed_sides(
@@ -1707,6 +1811,7 @@ def _trimmed_sides(
     sides: tuple[float, float, float, float],
     trim_rad: float,
     params: LaserParams,
+    settled: list[bool] | None = None,
 ) -> tuple[float, float, float, float]:
     """The rectangle's sides ``(alo, ahi, blo, bhi)`` (along ``u`` and across it), each side
     that an occluding seed lies on moved in by the fattening ``trim_rad`` (an angle): a
@@ -1714,7 +1819,7 @@ def _trimmed_sides(
     seed along its own line (which would turn the rectangle). On the face the angle spans its
     depth times it over the in-image part of the side's normal; and the fattened pixels keep
     the edge's depth, so on a face turned away only those within ``solid_threshold_m`` of it
-    (the run's inliers) widened it."""
+    (the run's inliers) widened it. Sides ``settled`` (``_consistent_sides``) stay."""
     ux, uy = u
     e1, e2 = basis
     z = float(plane.point[2])
@@ -1728,9 +1833,9 @@ def _trimmed_sides(
         lo, hi = out[2 * k], out[2 * k + 1]
         on_lo = (coords - lo <= tol) & ~cropped
         on_hi = (hi - coords <= tol) & ~cropped
-        if on_lo.any():
+        if on_lo.any() and not (settled and settled[2 * k]):
             lo += trim * float(occluding[on_lo].max())
-        if on_hi.any():
+        if on_hi.any() and not (settled and settled[2 * k + 1]):
             hi -= trim * float(occluding[on_hi].max())
         if hi < lo:
             lo = hi = (lo + hi) / 2
@@ -3449,6 +3554,13 @@ _INSIDE_SIDES = 0.25
 # A side's seed lying this many fattening trims beyond every other seed of the side is taken
 # as an outlier of the matcher's fattening, not as the side: see _consistent_sides.
 _OUTLYING_TRIMS = 2.0
+# A side of this many uncut seeds or more, its background far behind, goes through the median
+# of its seeds' edges; a seed at no occluding edge lying more than _HOLE_APART times the
+# outlier distance inside the side's farthest seed is left out: see _consistent_sides. Without
+# that, BM 5's box tilted right (trial 0 frame 2) kept a hole's seed 41 mm inside a side of
+# two edges, and came out 12 mm narrow.
+_SIDE_MEDIAN_SEEDS = 2
+_HOLE_APART = 2.0
 # Where no fattening was measured, a side's seed lying this many samples (pixels at the
 # face's depth) beyond every other seed of the side, of this many seeds at least, is taken as
 # the matcher's fattening, not as the side: see _straight_sides.
