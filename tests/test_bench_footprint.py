@@ -10,7 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from services.cli.bench.footprint import CpuQuota, QuotaUnavailable
+from schemas import AimCue, EmgSample
+from services.cli.bench.footprint import Captures, CpuQuota, QuotaUnavailable, _read_recording
+from services.cli.bench.soak import Watcher
+from services.mcap_log import LogWriter
 from tests.conftest import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -80,3 +83,40 @@ def test_footprint_smoke_together_under_a_quota() -> None:
     assert report["totals"]["processes"] >= 3  # supervisor, container, bridge (+ workers)
     assert report["topics"]["lpc/emg"]["rate_hz"] > 0
     assert report["frames"]["frames"] > 0
+
+
+def test_footprint_recording_gives_rates_gaps_and_capture_latencies(tmp_path: Path) -> None:
+    # With the recorder on, the bench reads the small topics back from the set's recording
+    # instead of subscribing to them: a message counts when it reached the recorder inside the
+    # window, and its capture latency is that arrival less its capture time.
+    path = tmp_path / "set.mcap"
+    t0 = 10_000_000_000
+    with LogWriter(path) as log:
+        for seq in range(20):
+            t = t0 + seq * 10_000_000
+            if seq % 2 == 0:  # frames captured every 20 ms, each cue out 3 ms later
+                cue = AimCue(seq=seq // 2, t_ns=t, frame_seq=seq // 2, state="guiding")
+                log.write("lpc/aim/cue", cue, t + 3_000_000)
+            if seq != 12:  # EMG sample 12 lost on the way: a gap of one
+                emg = EmgSample(seq=seq, t_ns=t, channels=[0.1, 0.2])
+                log.write("lpc/emg", emg, t + 1_000_000)
+    watcher, captures = Watcher(), Captures()
+    # The window: arrivals from the 5th EMG sample (seq 4) to the 15th (seq 14).
+    captures.t_from_ns = t0 + 4 * 10_000_000
+    captures.t_to_ns = t0 + 14 * 10_000_000 + 1_000_000
+    _read_recording(path, watcher, captures)
+    assert watcher.seen["lpc/emg"] == 10  # seq 4..14 without 12
+    assert watcher.lost["lpc/emg"] == 1
+    assert watcher.seen["lpc/aim/cue"] == 5  # frames 2..6 (captured 40..120 ms, out +3 ms)
+    # Capture latencies: frames captured inside the window, whenever they arrived.
+    assert captures.frames["lpc/aim/cue"] == {2, 3, 4, 5, 6, 7}
+    assert captures.latencies_ms["lpc/aim/cue"] == pytest.approx([3.0] * 6)
+    assert "lpc/emg" not in captures.latencies_ms  # not a capture-derived topic
+
+
+def test_footprint_unreadable_recording_leaves_the_counts_empty(tmp_path: Path) -> None:
+    path = tmp_path / "broken.mcap"
+    path.write_bytes(b"not an mcap file")
+    watcher, captures = Watcher(), Captures()
+    _read_recording(path, watcher, captures)
+    assert not watcher.seen and not captures.latencies_ms
