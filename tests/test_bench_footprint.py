@@ -4,16 +4,26 @@ behind (the figures themselves come from runs of the command, not from tests).""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
 
 from schemas import AimCue, EmgSample
-from services.cli.bench.footprint import Captures, CpuQuota, QuotaUnavailable, _read_recording
+from services.cli.bench.footprint import (
+    Captures,
+    CpuQuota,
+    QuotaUnavailable,
+    _read_recording,
+    thread_shares,
+    thread_times,
+)
 from services.cli.bench.soak import Watcher
 from services.mcap_log import LogWriter
+from services.thread_names import CONTROL_LOOP, name_native_thread
 from tests.conftest import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -81,7 +91,11 @@ def test_footprint_smoke_together_under_a_quota() -> None:
     assert services["prosthesis_bridge"]["cpu_from"] == "process"
     assert services["container"]["rss_mb"] > 10
     assert report["totals"]["processes"] >= 3  # supervisor, container, bridge (+ workers)
-    assert report["topics"]["lpc/emg"]["rate_hz"] > 0
+    assert report["topics"]["lpc/emg"]["rate_hz"] > 0  # read back from the recording
+    # The container's CPU by thread: its loops and the recorder's writer by their names.
+    threads = report["container_threads"]
+    assert {"main loop", "control loop", "recorder writer", "Zenoh"} <= threads.keys()
+    assert threads["main loop"] > 0 and threads["control loop"] > 0
     assert report["frames"]["frames"] > 0
 
 
@@ -120,3 +134,56 @@ def test_footprint_unreadable_recording_leaves_the_counts_empty(tmp_path: Path) 
     watcher, captures = Watcher(), Captures()
     _read_recording(path, watcher, captures)
     assert not watcher.seen and not captures.latencies_ms
+
+
+def _fake_task(proc: Path, pid: int, tid: int, name: str, utime: int, stime: int) -> None:
+    task = proc / str(pid) / "task" / str(tid)
+    task.mkdir(parents=True, exist_ok=True)
+    # /proc/PID/task/TID/stat: utime and stime are the 14th and 15th fields, in clock ticks.
+    rest = ["S", "1", "1", "1", "0", "-1", "0", "0", "0", "0", "0", str(utime), str(stime)]
+    (task / "stat").write_text(f"{tid} ({name}) " + " ".join(rest + ["0"] * 30) + "\n")
+
+
+def test_footprint_thread_shares_split_the_container_by_thread(tmp_path: Path) -> None:
+    ticks = os.sysconf("SC_CLK_TCK")
+    pid = 100
+    threads = [
+        (100, "python", 3 * ticks, ticks),  # the main loop: the process's own thread
+        (101, CONTROL_LOOP, ticks, 0),
+        (102, "mcap-writer", ticks, 0),
+        (103, "tx-0", 0, ticks),
+        (104, "rx-1", ticks, 0),
+        (105, "python", ticks, 0),  # a Zenoh callback thread
+        (106, "a (b) c", ticks, 0),  # a name with spaces and parentheses
+    ]
+    for tid, name, utime, stime in threads:
+        _fake_task(tmp_path, pid, tid, name, utime, stime)
+    start = thread_times(pid, tmp_path)
+    assert start[106] == ("a (b) c", 1.0)
+    assert start[100] == ("python", 4.0)
+    _fake_task(tmp_path, pid, 100, "python", 5 * ticks, 2 * ticks)  # +3 s
+    _fake_task(tmp_path, pid, 101, CONTROL_LOOP, 2 * ticks, 0)  # +1 s
+    _fake_task(tmp_path, pid, 103, "tx-0", 0, 3 * ticks)  # +2 s
+    _fake_task(tmp_path, pid, 107, "acc-0", ticks, 0)  # new since the start: all of it
+    shares = thread_shares(pid, start, thread_times(pid, tmp_path))
+    assert shares == {
+        "main loop": 3.0,
+        "control loop": 1.0,
+        "recorder writer": 0.0,
+        "Zenoh": 3.0,
+        "other": 0.0,
+    }
+
+
+def test_footprint_sees_the_name_a_thread_gives_itself() -> None:
+    seen: list[str] = []
+
+    def run() -> None:
+        if name_native_thread(CONTROL_LOOP):
+            seen.append(thread_times(os.getpid())[threading.get_native_id()][0])
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+    if sys.platform.startswith("linux"):
+        assert seen == [CONTROL_LOOP]

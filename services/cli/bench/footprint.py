@@ -33,6 +33,7 @@ import argparse
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -55,6 +56,7 @@ from services.cli.bench.soak import ProcessReport, Watcher, lpc_up
 from services.cli.up import SERVICES
 from services.mcap_log import McapLogError, free_path, read_messages
 from services.runtime import zenoh_config
+from services.thread_names import CONTROL_LOOP, RECORDER_WRITER
 
 START_TIMEOUT_S = 90.0
 # The CFS period. At the kernel's default of 100 ms, a set held to 0.5 CPU runs 50 ms, then is
@@ -225,6 +227,48 @@ class Captures:
                 self.frame_times.setdefault(stamp.frame_seq, stamp.t_ns)
 
 
+# Zenoh's own threads (its runtimes: receive, transmit, network, accept, application).
+_ZENOH_THREADS = re.compile(r"(rx|tx|net|acc|app)-\d+")
+
+
+def _thread_group(name: str, tid: int, pid: int) -> str:
+    """Which part of the container a thread is, by its kernel name (``services.thread_names``)."""
+    if tid == pid:
+        return "main loop"
+    if name == CONTROL_LOOP:
+        return "control loop"
+    if name == RECORDER_WRITER:
+        return "recorder writer"
+    if _ZENOH_THREADS.fullmatch(name):
+        return "Zenoh"
+    return "other"  # Zenoh's callbacks into Python, drivers' threads
+
+
+def thread_times(pid: int, proc: Path = Path("/proc")) -> dict[int, tuple[str, float]]:
+    """CPU seconds (user + system) and kernel name of each live thread of ``pid``."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    times: dict[int, tuple[str, float]] = {}
+    with contextlib.suppress(OSError):
+        for task in (proc / str(pid) / "task").iterdir():
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                stat = (task / "stat").read_text()
+                # The name sits in parentheses and may hold spaces: fields follow the last ')'.
+                name = stat[stat.index("(") + 1 : stat.rindex(")")]
+                fields = stat[stat.rindex(")") + 2 :].split()
+                times[int(task.name)] = (name, (int(fields[11]) + int(fields[12])) / ticks)
+    return times
+
+
+def thread_shares(
+    pid: int, start: dict[int, tuple[str, float]], end: dict[int, tuple[str, float]]
+) -> dict[str, float]:
+    """CPU seconds per part of the process (``_thread_group``) between two ``thread_times``."""
+    shares: dict[str, float] = defaultdict(float)
+    for tid, (name, cpu) in end.items():
+        shares[_thread_group(name, tid, pid)] += cpu - start.get(tid, (name, 0.0))[1]
+    return dict(shares)
+
+
 @dataclass
 class Proc:
     """One process of the set, named after its service (workers after their parent's)."""
@@ -264,6 +308,10 @@ class Sampler:
         self.procs: dict[int, Proc] = {}
         self.names: dict[int, str] = {}
         self.totals: list[int] = []
+        # The container's threads at the window's start and at the latest sample.
+        self.threads_start: dict[int, tuple[str, float]] = {}
+        self.threads_last: dict[int, tuple[str, float]] = {}
+        self.container_pid: int | None = None
 
     def sample(self) -> None:
         psutil = self._psutil
@@ -285,6 +333,10 @@ class Sampler:
                 self.procs[proc.pid] = Proc(self.names[proc.pid], cpu, cpu)
             entry = self.procs[proc.pid]
             entry.cpu_last = cpu
+            if entry.name == "container":
+                if proc.pid != self.container_pid:  # a restarted container starts afresh
+                    self.container_pid, self.threads_start = proc.pid, {}
+                self.threads_last = thread_times(proc.pid)
             entry.rss.append(rss)
             total += rss
         self.totals.append(total)
@@ -294,6 +346,7 @@ class Sampler:
             entry.cpu_start = entry.cpu_last
             entry.rss.clear()
         self.totals.clear()
+        self.threads_start = self.threads_last
 
     def memory_detail(self) -> dict[str, int]:
         """USS and PSS of the whole set now (shared library pages counted once)."""
@@ -651,6 +704,16 @@ def _result(
             for k in sorted(watcher.seen)
         }
     total_cpu = sum(cpu.values())
+    threads: dict[str, float] = {}
+    unattributed = None
+    if sampler.container_pid is not None and sampler.threads_last:
+        shares = thread_shares(sampler.container_pid, sampler.threads_start, sampler.threads_last)
+        order = ("main loop", "control loop", "recorder writer", "Zenoh", "other")
+        threads = {k: round(shares[k] / window, 4) for k in order if k in shares}
+        # What the loops and the writer spent outside every service's own time: the loops'
+        # passes, hand-overs from Zenoh's threads, health, the timing itself.
+        on_loops = sum(shares.get(k, 0.0) for k in order[:3])
+        unattributed = round((on_loops - sum(loop_cpu.values())) / window, 4)
     outside: dict[str, dict[str, float]] = {}
     if extra.get("devices") is not None:
         device: Sampler = extra["devices"]
@@ -676,6 +739,8 @@ def _result(
             "processes": len({p for p, e in sampler.procs.items() if e.rss}),
             "throttled": extra["cgroup"],
         },
+        "container_threads": threads,
+        "container_loops_unattributed": unattributed,
         "frames": {
             "camera_hz": camera_hz,
             "frames": span,
@@ -731,6 +796,12 @@ def _print(r: dict[str, Any]) -> None:
         print(
             f"{name + ' (device)':<22}{100 * device['cpu']:>7.1f}{device['rss_mb']:>8.0f}"
             "   outside the set and its quota, not in the total"
+        )
+    if r.get("container_threads"):
+        parts = ", ".join(f"{k} {100 * v:.1f}" for k, v in r["container_threads"].items())
+        print(
+            f"container by thread (% of a core): {parts}; on the loops and the writer but in "
+            f"no service's own time: {100 * r['container_loops_unattributed']:.1f}"
         )
     if throttled:
         periods = throttled.get("nr_periods", 0)
