@@ -712,8 +712,10 @@ def _result(
         threads = {k: round(shares[k] / window, 4) for k in order if k in shares}
         # What the loops and the writer spent outside every service's own time: the loops'
         # passes, hand-overs from Zenoh's threads, health, the timing itself.
+        # (The container's own health reports the whole process's CPU: not a service's.)
         on_loops = sum(shares.get(k, 0.0) for k in order[:3])
-        unattributed = round((on_loops - sum(loop_cpu.values())) / window, 4)
+        own = sum(v for n, v in loop_cpu.items() if n != "container")
+        unattributed = round((on_loops - own) / window, 4)
     outside: dict[str, dict[str, float]] = {}
     if extra.get("devices") is not None:
         device: Sampler = extra["devices"]
