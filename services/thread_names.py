@@ -9,7 +9,6 @@ these names to split the container's CPU by thread.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
 
 _PR_SET_NAME = 15
@@ -25,7 +24,9 @@ def name_native_thread(name: str) -> bool:
     if not sys.platform.startswith("linux"):
         return False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        # The process's own symbols hold libc's: no search for the library (find_library would
+        # run ldconfig in a subprocess).
+        libc = ctypes.CDLL(None, use_errno=True)
         return libc.prctl(_PR_SET_NAME, name.encode()[:_MAX_BYTES], 0, 0, 0) == 0
     except (OSError, AttributeError):
         return False
