@@ -43,6 +43,7 @@ from mcap.writer import CompressionType, Writer
 
 from schemas import BadMessage, encode, json_schema, topic_for_key
 from schemas import decode as decode_message
+from services.thread_names import RECORDER_WRITER, name_native_thread
 
 Compression = Literal["none", "lz4", "zstd"]
 COMPRESSIONS: dict[str, CompressionType] = {
@@ -443,7 +444,7 @@ class BackgroundLogWriter(_Payloads):
         ] = queue.SimpleQueue()
         self._error: BaseException | None = None
         self._finished = False
-        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=RECORDER_WRITER, daemon=True)
         self._thread.start()
 
     @property
@@ -509,6 +510,7 @@ class BackgroundLogWriter(_Payloads):
             raise error
 
     def _run(self) -> None:
+        name_native_thread(RECORDER_WRITER)  # its CPU apart in lpc bench footprint
         log = self._log
         failed = False
         while True:

@@ -20,9 +20,11 @@ CPU and memory come from the processes themselves (psutil: user + system time ov
 measured window, and resident set size); with ``--together`` the per-service CPU is what
 each service's tasks took on the shared event loop (its health's ``cpu_ms``), and the rest of
 the process (Zenoh's threads, the loop itself) is shown apart. Rates and latencies come from
-each service's ``lpc/health``; the bench also listens to every small topic (not depth: pulling
-18 MB/s out of the set would load what it measures) for sequence gaps, the share of frames
-scanned and reconstructed, and the capture -> tactor command latency end to end.
+each service's ``lpc/health``. Sequence gaps, the share of frames scanned and reconstructed, and
+the capture -> tactor command latency end to end come from every small topic (not depth): with
+the recorder on, read from its recording after the run, since a subscriber in the bench loads
+what it measures (every message it takes is one more the set sends: 10-16 % of a core for the
+container at 90 Hz); without it, or with ``--live-topics``, from the bench's subscribers.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import argparse
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -51,7 +54,9 @@ from schemas import TOPICS
 from services.children import stop
 from services.cli.bench.soak import ProcessReport, Watcher, lpc_up
 from services.cli.up import SERVICES
+from services.mcap_log import McapLogError, free_path, read_messages
 from services.runtime import zenoh_config
+from services.thread_names import CONTROL_LOOP, RECORDER_WRITER
 
 START_TIMEOUT_S = 90.0
 # The CFS period. At the kernel's default of 100 ms, a set held to 0.5 CPU runs 50 ms, then is
@@ -205,10 +210,12 @@ class Captures:
     frame_times: dict[int, int] = field(default_factory=dict)
 
     def on_sample(self, sample: zenoh.Sample) -> None:
-        received = time.time_ns()
-        key = str(sample.key_expr)
+        self.add(str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())
+
+    def add(self, key: str, payload: bytes, received: int) -> None:
+        """One message on ``key`` that arrived at ``received`` (ns), live or recorded."""
         try:
-            stamp = _STAMP.decode(sample.payload.to_bytes())
+            stamp = _STAMP.decode(payload)
         except (msgspec.DecodeError, ValueError):
             return
         if not self.t_from_ns <= stamp.t_ns <= self.t_to_ns:
@@ -218,6 +225,48 @@ class Captures:
             if stamp.frame_seq >= 0:
                 self.frames[key].add(stamp.frame_seq)
                 self.frame_times.setdefault(stamp.frame_seq, stamp.t_ns)
+
+
+# Zenoh's own threads (its runtimes: receive, transmit, network, accept, application).
+_ZENOH_THREADS = re.compile(r"(rx|tx|net|acc|app)-\d+")
+
+
+def _thread_group(name: str, tid: int, pid: int) -> str:
+    """Which part of the container a thread is, by its kernel name (``services.thread_names``)."""
+    if tid == pid:
+        return "main loop"
+    if name == CONTROL_LOOP:
+        return "control loop"
+    if name == RECORDER_WRITER:
+        return "recorder writer"
+    if _ZENOH_THREADS.fullmatch(name):
+        return "Zenoh"
+    return "other"  # Zenoh's callbacks into Python, drivers' threads
+
+
+def thread_times(pid: int, proc: Path = Path("/proc")) -> dict[int, tuple[str, float]]:
+    """CPU seconds (user + system) and kernel name of each live thread of ``pid``."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    times: dict[int, tuple[str, float]] = {}
+    with contextlib.suppress(OSError):
+        for task in (proc / str(pid) / "task").iterdir():
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                stat = (task / "stat").read_text()
+                # The name sits in parentheses and may hold spaces: fields follow the last ')'.
+                name = stat[stat.index("(") + 1 : stat.rindex(")")]
+                fields = stat[stat.rindex(")") + 2 :].split()
+                times[int(task.name)] = (name, (int(fields[11]) + int(fields[12])) / ticks)
+    return times
+
+
+def thread_shares(
+    pid: int, start: dict[int, tuple[str, float]], end: dict[int, tuple[str, float]]
+) -> dict[str, float]:
+    """CPU seconds per part of the process (``_thread_group``) between two ``thread_times``."""
+    shares: dict[str, float] = defaultdict(float)
+    for tid, (name, cpu) in end.items():
+        shares[_thread_group(name, tid, pid)] += cpu - start.get(tid, (name, 0.0))[1]
+    return dict(shares)
 
 
 @dataclass
@@ -259,6 +308,10 @@ class Sampler:
         self.procs: dict[int, Proc] = {}
         self.names: dict[int, str] = {}
         self.totals: list[int] = []
+        # The container's threads at the window's start and at the latest sample.
+        self.threads_start: dict[int, tuple[str, float]] = {}
+        self.threads_last: dict[int, tuple[str, float]] = {}
+        self.container_pid: int | None = None
 
     def sample(self) -> None:
         psutil = self._psutil
@@ -280,6 +333,10 @@ class Sampler:
                 self.procs[proc.pid] = Proc(self.names[proc.pid], cpu, cpu)
             entry = self.procs[proc.pid]
             entry.cpu_last = cpu
+            if entry.name == "container":
+                if proc.pid != self.container_pid:  # a restarted container starts afresh
+                    self.container_pid, self.threads_start = proc.pid, {}
+                self.threads_last = thread_times(proc.pid)
             entry.rss.append(rss)
             total += rss
         self.totals.append(total)
@@ -289,6 +346,7 @@ class Sampler:
             entry.cpu_start = entry.cpu_last
             entry.rss.clear()
         self.totals.clear()
+        self.threads_start = self.threads_last
 
     def memory_detail(self) -> dict[str, int]:
         """USS and PSS of the whole set now (shared library pages counted once)."""
@@ -342,6 +400,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument("--port", type=int, default=7467, help="rendezvous port (loopback)")
     parser.add_argument("--rate", type=float, default=90.0, help="camera rate (default 90 Hz)")
+    parser.add_argument(
+        "--live-topics",
+        action="store_true",
+        help="with the recorder on, still listen to every small topic over Zenoh for the topic "
+        "rates, gaps and capture latencies (as without it), instead of reading them from the "
+        "recording afterwards; the set then sends each of those messages to the bench too",
+    )
 
 
 def _validate(args: argparse.Namespace) -> str | None:
@@ -449,19 +514,26 @@ def _measure_set(
     ]  # fmt: skip
     if args.together:
         argv.append("--together")
+    recording = None
     if args.record or getattr(args, "keep", None):
         argv += ["--record", args.keep or str(tmp / "footprint.mcap")]
+        # Where the recorder will write (it does not overwrite a kept file: free_path).
+        recording = free_path(Path(args.keep)) if args.keep else tmp / "footprint.mcap"
+    live = recording is None or getattr(args, "live_topics", False)
     where = f"a quota of {args.cpus:g} CPU (cgroup v{quota.version})" if quota else "no quota"
     note = f"lpc bench footprint: {args.seconds:g} s after {args.warmup:g} s, {where}:"
     print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
     with lpc_up(argv, quota.enter if quota else None) as (up, started, log):
         try:
-            observed = _observe(args, up, started, quota, device)
+            observed = _observe(args, up, started, quota, device, live)
         except KeyboardInterrupt:
             observed = None
     if observed is None:
         print("lpc bench footprint: error: lpc up did not start:\n" + "\n".join(log[-20:]))
         return None
+    if not live:
+        assert recording is not None
+        _read_recording(recording, observed[0], observed[1])
     return _result(args, quota, *observed, up.returncode, log)
 
 
@@ -471,6 +543,7 @@ def _observe(
     started: threading.Event,
     quota: CpuQuota | None,
     device: subprocess.Popen[bytes] | None = None,
+    live: bool = True,
 ) -> tuple[Watcher, Captures, Sampler, dict[str, ProcessReport], dict, float] | None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while not started.wait(0.1):
@@ -484,9 +557,13 @@ def _observe(
     conf = zenoh_config(connect=[f"tcp/127.0.0.1:{args.port}"])
     with zenoh.open(conf) as session:
         session.declare_subscriber("lpc/health/*", watcher.on_health)
-        for key in keys:
+        # Every subscriber here is one more destination for each message the set publishes: a
+        # put to a remote subscriber costs the publisher more, and each message wakes Zenoh's
+        # transmit thread. Listening to the small topics cost the container 10-16 % of a core
+        # at 90 Hz (see _read_recording); with the recorder on, they are read from its file.
+        for key in keys if live else ():
             session.declare_subscriber(key, watcher.on_message)
-        for key in CAPTURE_TOPICS:
+        for key in CAPTURE_TOPICS if live else ():
             session.declare_subscriber(key, captures.on_sample)
         t0 = time.monotonic()
         window_start = t0 + args.warmup
@@ -516,12 +593,38 @@ def _observe(
             next_sample += 1.0
             time.sleep(max(0.0, next_sample - time.monotonic()))
         elapsed = time.monotonic() - window_start
+        if not live:  # the recording holds what arrived after the window too
+            captures.t_to_ns = captures.t_from_ns + round(elapsed * 1e9)
         time.sleep(0.3)  # the last frames of the window arrive
         memory = sampler.memory_detail()
         stat_end = quota.stat() if quota else {}
     throttle = {k: stat_end[k] - stat_start.get(k, 0) for k in stat_end}
     extra = {"memory": memory, "cgroup": throttle, "devices": devices}
     return watcher, captures, sampler, services, extra, elapsed
+
+
+def _read_recording(path: Path, watcher: Watcher, captures: Captures) -> None:
+    """The topic counts, sequence gaps and capture latencies of the measured window, from the
+    set's own recording instead of a subscriber in the bench.
+
+    A subscriber in the bench made the set send it every small message: alternating runs of
+    the set at 90 Hz (recorder on, no quota, load 6-8), with and without a process holding the
+    bench's subscriptions, gave the container 46.1 / 43.0 % of a core without and 56.4 / 59.4 %
+    with it (its loop threads and Zenoh's transmit thread; context switches doubled). The
+    recorder sees every message anyway. A message's arrival is its ``log_time``: when it reached
+    the recorder (in the container, when its publisher handed it over), where the bench's
+    subscriber saw it a hop later. Messages count when they arrived inside the window, as the
+    bench's subscriber counted them; capture latencies of the frames captured inside it."""
+    keys = [t.key for t in TOPICS if t.key != "lpc/camera/depth" and "*" not in t.key]
+    capture = set(CAPTURE_TOPICS)
+    try:
+        for message in read_messages(path, keys, decode=False):
+            if captures.t_from_ns <= message.log_time <= captures.t_to_ns:
+                watcher.count(message.key, message.payload)
+            if message.key in capture:
+                captures.add(message.key, message.payload, message.log_time)
+    except McapLogError as exc:
+        print(f"lpc bench footprint: warning: cannot read the recording: {exc}", file=sys.stderr)
 
 
 def _percentiles(values: list[float]) -> dict[str, float | None]:
@@ -601,6 +704,18 @@ def _result(
             for k in sorted(watcher.seen)
         }
     total_cpu = sum(cpu.values())
+    threads: dict[str, float] = {}
+    unattributed = None
+    if sampler.container_pid is not None and sampler.threads_last:
+        shares = thread_shares(sampler.container_pid, sampler.threads_start, sampler.threads_last)
+        order = ("main loop", "control loop", "recorder writer", "Zenoh", "other")
+        threads = {k: round(shares[k] / window, 4) for k in order if k in shares}
+        # What the loops and the writer spent outside every service's own time: the loops'
+        # passes, hand-overs from Zenoh's threads, health, the timing itself.
+        # (The container's own health reports the whole process's CPU: not a service's.)
+        on_loops = sum(shares.get(k, 0.0) for k in order[:3])
+        own = sum(v for n, v in loop_cpu.items() if n != "container")
+        unattributed = round((on_loops - own) / window, 4)
     outside: dict[str, dict[str, float]] = {}
     if extra.get("devices") is not None:
         device: Sampler = extra["devices"]
@@ -626,6 +741,8 @@ def _result(
             "processes": len({p for p, e in sampler.procs.items() if e.rss}),
             "throttled": extra["cgroup"],
         },
+        "container_threads": threads,
+        "container_loops_unattributed": unattributed,
         "frames": {
             "camera_hz": camera_hz,
             "frames": span,
@@ -681,6 +798,12 @@ def _print(r: dict[str, Any]) -> None:
         print(
             f"{name + ' (device)':<22}{100 * device['cpu']:>7.1f}{device['rss_mb']:>8.0f}"
             "   outside the set and its quota, not in the total"
+        )
+    if r.get("container_threads"):
+        parts = ", ".join(f"{k} {100 * v:.1f}" for k, v in r["container_threads"].items())
+        print(
+            f"container by thread (% of a core): {parts}; on the loops and the writer but in "
+            f"no service's own time: {100 * r['container_loops_unattributed']:.1f}"
         )
     if throttled:
         periods = throttled.get("nr_periods", 0)

@@ -128,11 +128,14 @@ class Watcher:
             self.latest[health.service] = health
 
     def on_message(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
+        self.count(str(sample.key_expr), sample.payload.to_bytes())
+
+    def count(self, key: str, payload: bytes) -> None:
+        """One message on ``key``, seen live or read back from a recording."""
         if key.startswith(("lpc/health/", "lpc/log/")):
             return  # per-service counters restart with the service
         try:
-            seq = _SEQ.decode(sample.payload.to_bytes()).seq
+            seq = _SEQ.decode(payload).seq
         except (msgspec.DecodeError, ValueError):
             with self.lock:
                 self.undecodable += 1
