@@ -3069,6 +3069,7 @@ def _plateau_free(
 _BALL_SPAN = 0.57
 # Samples along each line's chord of the ball (the chord's angle in the scan plane).
 _CHORD_SAMPLES = 48
+_CHORD_STEPS = _read_only(np.linspace(-1.0, 1.0, _CHORD_SAMPLES))
 
 
 def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserParams) -> bool:
@@ -3100,9 +3101,9 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
         return False
     # Every line's chord at once (numpy's per-call cost, not the arithmetic, is what a line
     # alone pays: this runs on every round a ball would win).
-    _, c, s, along, r, rho, mid, half = (np.array(v) for v in zip(*chords, strict=True))
-    c, s, along, r, rho = c[:, None], s[:, None], along[:, None], r[:, None], rho[:, None]
-    theta = mid[:, None] + half[:, None] * np.linspace(-1.0, 1.0, _CHORD_SAMPLES)
+    table = np.array([chord[1:] for chord in chords])
+    c, s, along, r, rho, mid, half = table.T[:, :, None]  # (L, 1) columns
+    theta = mid + half * _CHORD_STEPS
     # The front surface on each ray of the chord: the nearer root of |k d - c'| = r.
     ray_s, ray_z = np.sin(theta), np.cos(theta)
     b = ray_s * along + ray_z * cz
@@ -3111,20 +3112,25 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
     zlo, zhi = params.capture_z_m
     z = k * ray_z
     inside = (z >= zlo) & (z <= zhi) & (np.abs(k * ray_s * c) <= hw) & (np.abs(k * ray_s * s) <= hw)
-    tol = 3 * params.solid_threshold_m
+    wide = np.count_nonzero(inside, axis=1)
+    # Each line's samples within three inlier bands of the ball, as angles in its scan plane,
+    # for all lines in one pass: the angles' extremes on each line (+inf/-inf where none lies
+    # on the ball, so that no ray falls between them).
+    points = [ln.points for ln, *_ in chords]
+    p = np.concatenate(points)
+    counts = [len(q) for q in points]
+    on = ball.residuals(p) <= 3 * params.solid_threshold_m
+    along_line = p[:, 0] * np.repeat(c[:, 0], counts) + p[:, 1] * np.repeat(s[:, 0], counts)
+    angles = np.arctan2(along_line, p[:, 2])
+    starts = np.cumsum([0, *counts[:-1]])
+    lo = np.minimum.reduceat(np.where(on, angles, np.inf), starts)
+    hi = np.maximum.reduceat(np.where(on, angles, -np.inf), starts)
+    seen = np.count_nonzero((theta >= lo[:, None]) & (theta <= hi[:, None]) & inside, axis=1)
     short = 0
-    for i, (ln, ci, si, *_) in enumerate(chords):
-        wide = np.count_nonzero(inside[i])
-        if wide < 2:
+    for w, n_seen in zip(wide.tolist(), seen.tolist(), strict=True):
+        if w < 2:
             continue
-        p = ln.points
-        on = p.compress(ball.residuals(p) <= tol, axis=0)
-        seen = 0
-        if len(on):
-            angles = np.arctan2(on[:, 0] * ci + on[:, 1] * si, on[:, 2])
-            lo, hi = angles.min(), angles.max()
-            seen = np.count_nonzero((theta[i] >= lo) & (theta[i] <= hi) & inside[i])
-        short += seen < _BALL_SPAN * wide
+        short += n_seen < _BALL_SPAN * w
         if short >= 2:
             return True
     return False
