@@ -2972,12 +2972,19 @@ def _without_end_plateaus(
     refit = _plateau_free(lines, full, params)
     if refit is None:
         return solid
+    narrower = 2 * (solid.radius - refit.radius)
     tolerance = params.silhouette_tolerance_m
-    if isinstance(full, SphereSolid) and _ends_facing(lines, full) < _RIM_FACING:
+    # The ball's SD can only lower the tolerance to zero or more: it decides only a refit
+    # narrower by at most silhouette_tolerance_m, and it is worked out only for those.
+    if (
+        0 < narrower <= tolerance
+        and isinstance(full, SphereSolid)
+        and _ends_facing(lines, full) < _RIM_FACING
+    ):
         inliers = clean.compress(full.residuals(clean) <= params.solid_threshold_m, axis=0)
         if len(inliers) > 4:
             tolerance = min(tolerance, 2 * _radius_sd(full, inliers))
-    if 2 * (solid.radius - refit.radius) <= tolerance:
+    if narrower <= tolerance:
         return solid
     if isinstance(solid, CylinderSolid):
         # As in _camera_facing: the rims shift the radius, hardly the axis.
@@ -3112,7 +3119,8 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
     zlo, zhi = params.capture_z_m
     z = k * ray_z
     inside = (z >= zlo) & (z <= zhi) & (np.abs(k * ray_s * c) <= hw) & (np.abs(k * ray_s * s) <= hw)
-    wide = np.count_nonzero(inside, axis=1)
+    # Counted by add.reduce: count_nonzero along an axis goes through dtype checks in Python.
+    wide = np.add.reduce(inside, axis=1)
     # Each line's samples within three inlier bands of the ball, as angles in its scan plane,
     # for all lines in one pass: the angles' extremes on each line (+inf/-inf where none lies
     # on the ball, so that no ray falls between them).
@@ -3120,12 +3128,12 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
     p = np.concatenate(points)
     counts = [len(q) for q in points]
     on = ball.residuals(p) <= 3 * params.solid_threshold_m
-    along_line = p[:, 0] * np.repeat(c[:, 0], counts) + p[:, 1] * np.repeat(s[:, 0], counts)
+    along_line = p[:, 0] * c[:, 0].repeat(counts) + p[:, 1] * s[:, 0].repeat(counts)
     angles = np.arctan2(along_line, p[:, 2])
-    starts = np.cumsum([0, *counts[:-1]])
+    starts = list(itertools.accumulate(counts[:-1], initial=0))
     lo = np.minimum.reduceat(np.where(on, angles, np.inf), starts)
     hi = np.maximum.reduceat(np.where(on, angles, -np.inf), starts)
-    seen = np.count_nonzero((theta >= lo[:, None]) & (theta <= hi[:, None]) & inside, axis=1)
+    seen = np.add.reduce((theta >= lo[:, None]) & (theta <= hi[:, None]) & inside, axis=1)
     short = 0
     for w, n_seen in zip(wide.tolist(), seen.tolist(), strict=True):
         if w < 2:
