@@ -275,7 +275,7 @@ class SphereSolid:
             # costs more than its arithmetic.
             np.subtract(rows, np.array([[c[0]], [c[1]], [c[2]]]), out=w)
             rho = np.sqrt(np.add.reduce(np.multiply(w, w, out=squares), axis=0))
-            if not rho.min() > 0:
+            if not np.minimum.reduce(rho) > 0:  # rho.min() without its Python wrapper
                 return FailedSolid("a point sits on the centre")
             np.divide(w, -rho, out=jacobian)
             np.subtract(radius, rho, out=residual)
