@@ -635,8 +635,8 @@ def _prepare_lines(
         return lines
     counts = [line.total for line in ok]
     points = np.concatenate([raw[line.index] for line in ok])
-    c = np.repeat([math.cos(line.angle) for line in ok], counts)
-    s_ = np.repeat([math.sin(line.angle) for line in ok], counts)
+    c = np.array([math.cos(line.angle) for line in ok]).repeat(counts)
+    s_ = np.array([math.sin(line.angle) for line in ok]).repeat(counts)
     s = points[:, 0] * c + points[:, 1] * s_
     # Scan lines usually arrive sorted along themselves (``scans`` cuts them so): then the sort
     # is a check. Descending steps at the joins between lines do not count.
@@ -836,7 +836,8 @@ def _straight(sz: np.ndarray, threshold: float) -> bool:
     d = sz - column_sums(sz) / m
     (sxx, sxy), (_, syy) = (d.T @ d).tolist()
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-    return bool(np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() <= threshold)
+    off = np.abs(d @ np.array([-math.sin(phi), math.cos(phi)]))
+    return bool(np.maximum.reduce(off) <= threshold)  # off.max() without its Python wrapper
 
 
 _CONCAVE_SIN = math.sin(math.radians(15.0))
@@ -1954,8 +1955,10 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
             points.append([(p0[k] + p1[k] + (q0[k] + q1[k])) / 4 for k in range(3)])
     offsets = [n[0] * q[0] + n[1] * q[1] + n[2] * q[2]
                for n, q in zip(normals, points, strict=True)]  # fmt: skip
-    counts = (np.abs(clean @ np.array(normals).T - offsets) <= thr).sum(axis=0)
-    best = int(np.argmax(counts))
+    # The ufunc's reduce and the method: ndarray.sum's and np.argmax's Python wrappers cost
+    # more than these few columns.
+    counts = np.add.reduce(np.abs(clean @ np.array(normals).T - offsets) <= thr, axis=0)
+    best = int(counts.argmax())
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
