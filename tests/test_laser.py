@@ -16,6 +16,8 @@ import pytest
 
 from lpc_core.perception.laser import (
     LaserParams,
+    LineModels,
+    _short_of_ball,
     analyse_lines,
     principal_direction,
     reconstruct_laser,
@@ -23,6 +25,7 @@ from lpc_core.perception.laser import (
     sphere_from_circles,
 )
 from lpc_core.perception.reconstruction import wrap_half_turn
+from lpc_core.perception.solids import SphereSolid
 
 Hit = Callable[[np.ndarray], np.ndarray]  # (n, 3) ray directions with z = 1 -> (n,) depth
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -551,3 +554,36 @@ def test_a_fattened_ball_whose_plateau_free_refit_fails_is_refitted_once(
     assert facing.shape == "sphere"
     assert result.grasp_width_m == facing.grasp_width_m
     assert result.center_m == facing.center_m
+
+
+def _ball_lines(halves: list[float]) -> tuple[list[LineModels], SphereSolid]:
+    """Four scan lines across a 40 mm ball 200 mm before the camera, each with samples on
+    its front surface out to ``halves[k]`` mm either side of the optical axis."""
+    radius, depth = 0.02, 0.2
+    lines = []
+    for k, (angle, half) in enumerate(zip(np.radians([0, 45, 90, 135]), halves, strict=True)):
+        t = np.linspace(-half, half, 60) / 1000
+        z = depth - np.sqrt(radius * radius - t * t)
+        points = np.column_stack([t * math.cos(angle), t * math.sin(angle), z])
+        lines.append(LineModels(index=k, angle=float(angle), total=60, points=points))
+    return lines, SphereSolid(center=np.array([0.0, 0.0, depth]), radius=radius)
+
+
+def test_short_of_ball_needs_two_lines_short_of_the_balls_chord() -> None:
+    """A ball's lines cross its chord whole; a band (the jar cap from the front) covers less
+    than _BALL_SPAN of it on two lines or more; one short line is not enough."""
+    params = LaserParams()
+    whole, ball = _ball_lines([19.9] * 4)
+    assert not _short_of_ball(whole, ball, params)
+    one, ball = _ball_lines([19.9, 5.0, 19.9, 19.9])
+    assert not _short_of_ball(one, ball, params)
+    two, ball = _ball_lines([19.9, 5.0, 19.9, 6.0])
+    assert _short_of_ball(two, ball, params)
+    # Samples off the ball (a wall 50 mm behind its centre) do not lengthen a line's cover.
+    wall, ball = _ball_lines([19.9, 5.0, 19.9, 6.0])
+    for ln in wall[1::2]:
+        t = np.linspace(-0.04, 0.04, 30)
+        c, s = math.cos(ln.angle), math.sin(ln.angle)
+        behind = np.column_stack([t * c, t * s, np.full(30, 0.25)])
+        ln.points = np.concatenate([ln.points, behind])
+    assert _short_of_ball(wall, ball, params)

@@ -179,3 +179,27 @@ def test_silhouette_distance_matches_cross_product_form() -> None:
     cross = np.cross(points, centre)
     off = np.arctan2(np.sqrt(np.einsum("ij,ij->i", cross, cross)), points @ centre)
     assert np.array_equal(got, math.asin(0.02 / math.sqrt(centre @ centre)) - off)
+
+
+def test_solve_gives_numpys_bits_and_raises_on_a_singular_system() -> None:
+    """The sphere's and cylinder's steps solve through LAPACK's dgesv directly: the same
+    floats numpy.linalg.solve gives, on the normal equations of random Jacobians."""
+    from lpc_core.perception.solids import _solve
+
+    rng = np.random.default_rng(3)
+    for size in (4, 5):
+        for _ in range(200):
+            jacobian = rng.normal(size=(40, size)) * rng.uniform(1e-3, 1e3, size)
+            a, b = jacobian.T @ jacobian, rng.normal(size=size)
+            assert _solve(a, b) == np.linalg.solve(a, b).tolist()
+    # A normal matrix's strided corner, as the sphere's step takes it.
+    aug = rng.normal(size=(5, 30))
+    normal = aug @ aug.T
+    assert (
+        _solve(normal[:4, :4], normal[:4, 4])
+        == np.linalg.solve(normal[:4, :4], normal[:4, 4]).tolist()
+    )
+    with pytest.raises(np.linalg.LinAlgError):
+        _solve(np.zeros((4, 4)), np.ones(4))
+    with pytest.raises(np.linalg.LinAlgError):
+        _solve(np.ones((5, 5)), np.ones(5))

@@ -635,8 +635,8 @@ def _prepare_lines(
         return lines
     counts = [line.total for line in ok]
     points = np.concatenate([raw[line.index] for line in ok])
-    c = np.repeat([math.cos(line.angle) for line in ok], counts)
-    s_ = np.repeat([math.sin(line.angle) for line in ok], counts)
+    c = np.array([math.cos(line.angle) for line in ok]).repeat(counts)
+    s_ = np.array([math.sin(line.angle) for line in ok]).repeat(counts)
     s = points[:, 0] * c + points[:, 1] * s_
     # Scan lines usually arrive sorted along themselves (``scans`` cuts them so): then the sort
     # is a check. Descending steps at the joins between lines do not count.
@@ -836,7 +836,8 @@ def _straight(sz: np.ndarray, threshold: float) -> bool:
     d = sz - column_sums(sz) / m
     (sxx, sxy), (_, syy) = (d.T @ d).tolist()
     phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-    return bool(np.abs(d @ np.array([-math.sin(phi), math.cos(phi)])).max() <= threshold)
+    off = np.abs(d @ np.array([-math.sin(phi), math.cos(phi)]))
+    return bool(np.maximum.reduce(off) <= threshold)  # off.max() without its Python wrapper
 
 
 _CONCAVE_SIN = math.sin(math.radians(15.0))
@@ -2059,8 +2060,10 @@ def _plane_candidate(lines: list[LineModels], clean: np.ndarray, params: LaserPa
             points.append([(p0[k] + p1[k] + (q0[k] + q1[k])) / 4 for k in range(3)])
     offsets = [n[0] * q[0] + n[1] * q[1] + n[2] * q[2]
                for n, q in zip(normals, points, strict=True)]  # fmt: skip
-    counts = (np.abs(clean @ np.array(normals).T - offsets) <= thr).sum(axis=0)
-    best = int(np.argmax(counts))
+    # The ufunc's reduce and the method: ndarray.sum's and np.argmax's Python wrappers cost
+    # more than these few columns.
+    counts = np.add.reduce(np.abs(clean @ np.array(normals).T - offsets) <= thr, axis=0)
+    best = int(counts.argmax())
     solid = first
     if best != 0:
         solid = PlaneSolid(point=np.array(points[best]), normal=np.array(normals[best]))
@@ -3077,12 +3080,19 @@ def _without_end_plateaus(
     refit = _plateau_free(lines, full, params)
     if refit is None:
         return solid
+    narrower = 2 * (solid.radius - refit.radius)
     tolerance = params.silhouette_tolerance_m
-    if isinstance(full, SphereSolid) and _ends_facing(lines, full) < _RIM_FACING:
+    # The ball's SD can only lower the tolerance to zero or more: it decides only a refit
+    # narrower by at most silhouette_tolerance_m, and it is worked out only for those.
+    if (
+        0 < narrower <= tolerance
+        and isinstance(full, SphereSolid)
+        and _ends_facing(lines, full) < _RIM_FACING
+    ):
         inliers = clean.compress(full.residuals(clean) <= params.solid_threshold_m, axis=0)
         if len(inliers) > 4:
             tolerance = min(tolerance, 2 * _radius_sd(full, inliers))
-    if 2 * (solid.radius - refit.radius) <= tolerance:
+    if narrower <= tolerance:
         return solid
     if isinstance(solid, CylinderSolid):
         # As in _camera_facing: the rims shift the radius, hardly the axis.
@@ -3174,6 +3184,7 @@ def _plateau_free(
 _BALL_SPAN = 0.57
 # Samples along each line's chord of the ball (the chord's angle in the scan plane).
 _CHORD_SAMPLES = 48
+_CHORD_STEPS = _read_only(np.linspace(-1.0, 1.0, _CHORD_SAMPLES))
 
 
 def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserParams) -> bool:
@@ -3205,9 +3216,9 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
         return False
     # Every line's chord at once (numpy's per-call cost, not the arithmetic, is what a line
     # alone pays: this runs on every round a ball would win).
-    _, c, s, along, r, rho, mid, half = (np.array(v) for v in zip(*chords, strict=True))
-    c, s, along, r, rho = c[:, None], s[:, None], along[:, None], r[:, None], rho[:, None]
-    theta = mid[:, None] + half[:, None] * np.linspace(-1.0, 1.0, _CHORD_SAMPLES)
+    table = np.array([chord[1:] for chord in chords])
+    c, s, along, r, rho, mid, half = table.T[:, :, None]  # (L, 1) columns
+    theta = mid + half * _CHORD_STEPS
     # The front surface on each ray of the chord: the nearer root of |k d - c'| = r.
     ray_s, ray_z = np.sin(theta), np.cos(theta)
     b = ray_s * along + ray_z * cz
@@ -3216,20 +3227,26 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
     zlo, zhi = params.capture_z_m
     z = k * ray_z
     inside = (z >= zlo) & (z <= zhi) & (np.abs(k * ray_s * c) <= hw) & (np.abs(k * ray_s * s) <= hw)
-    tol = 3 * params.solid_threshold_m
+    # Counted by add.reduce: count_nonzero along an axis goes through dtype checks in Python.
+    wide = np.add.reduce(inside, axis=1)
+    # Each line's samples within three inlier bands of the ball, as angles in its scan plane,
+    # for all lines in one pass: the angles' extremes on each line (+inf/-inf where none lies
+    # on the ball, so that no ray falls between them).
+    points = [ln.points for ln, *_ in chords]
+    p = np.concatenate(points)
+    counts = [len(q) for q in points]
+    on = ball.residuals(p) <= 3 * params.solid_threshold_m
+    along_line = p[:, 0] * c[:, 0].repeat(counts) + p[:, 1] * s[:, 0].repeat(counts)
+    angles = np.arctan2(along_line, p[:, 2])
+    starts = list(itertools.accumulate(counts[:-1], initial=0))
+    lo = np.minimum.reduceat(np.where(on, angles, np.inf), starts)
+    hi = np.maximum.reduceat(np.where(on, angles, -np.inf), starts)
+    seen = np.add.reduce((theta >= lo[:, None]) & (theta <= hi[:, None]) & inside, axis=1)
     short = 0
-    for i, (ln, ci, si, *_) in enumerate(chords):
-        wide = np.count_nonzero(inside[i])
-        if wide < 2:
+    for w, n_seen in zip(wide.tolist(), seen.tolist(), strict=True):
+        if w < 2:
             continue
-        p = ln.points
-        on = p.compress(ball.residuals(p) <= tol, axis=0)
-        seen = 0
-        if len(on):
-            angles = np.arctan2(on[:, 0] * ci + on[:, 1] * si, on[:, 2])
-            lo, hi = angles.min(), angles.max()
-            seen = np.count_nonzero((theta[i] >= lo) & (theta[i] <= hi) & inside[i])
-        short += seen < _BALL_SPAN * wide
+        short += n_seen < _BALL_SPAN * w
         if short >= 2:
             return True
     return False
