@@ -502,7 +502,8 @@ def test_a_line_along_the_jar_caps_band_gives_no_rim() -> None:
     ball, wider than the band, faces the camera there at 0.63-0.65, so the rim test took its
     ends for rims too and turned the axis 10-11 degrees off the truth's wrist angle. Along
     the axis the other lines give it spans 2 mm of the band's 14-17 mm (laser._across_band):
-    without it the angle is within a degree."""
+    without it the angle is within a degree, or two on frame 2 since its horizontal line
+    takes the band's arc (laser._flattened_crests: 1.9 degrees, and 54 mm wide, not 38)."""
     from lpc_core.perception.reconstruction import wrap_half_turn
 
     for frame in (2, 4):
@@ -513,7 +514,7 @@ def test_a_line_along_the_jar_caps_band_gives_no_rim() -> None:
         assert "rim_axis" in result.extra
         assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
         error = wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad)
-        assert abs(np.degrees(error)) < 1.0, (frame, np.degrees(error))
+        assert abs(np.degrees(error)) < 2.0, (frame, np.degrees(error))
 
 
 def test_a_lying_cylinder_short_of_a_ball_keeps_its_own_axis() -> None:
@@ -557,3 +558,32 @@ def test_a_round_whose_whole_arc_fit_lies_beyond_its_rims_is_fitted_inside_them(
     assert result.shape == "cylinder"
     error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
     assert abs(error_mm) < 3.0, (error_mm, before_mm)
+
+
+# A crest the matcher flattened (laser._flattened_crests): where every line chose its straight
+# run, a line that one convex circle holds, flanks and all, better than the run is an arc.
+
+
+def test_a_can_whose_crest_block_matching_flattened_is_a_cylinder() -> None:
+    """Block matching (block 9), the 60 mm can, trial 1 frame 1: the horizontal line's crest
+    comes out a 201-202 mm tread about 14 samples wide, 1-1.5 mm behind the arc through its
+    flanks. The tread ended the circle's run (23 samples of 49) and the straight run over
+    tread and flank won the line (26); with every line straight the runs lay on one plane and
+    the can came out a 37 mm box. One circle holds 41 of the line's 49 samples: an arc."""
+    _, result = _bench_frame("cylinder_upright", 1, 1, kind="bm", block_size=9)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert result.lines[0].model == "circle"
+    assert result.extra["f_cuboid"] < 0.9  # the circle's run leaves the tread's plane
+
+
+def test_a_jar_cap_whose_band_block_matching_flattened_keeps_its_arc() -> None:
+    """Block matching (block 9), the jar cap from the front, trial 0 frame 2: the horizontal
+    line across its 60 mm band is a crest flattened into a tread, whose circle and straight run
+    both reach 25 samples of 48 through the axis, and the line won: every line straight, and
+    the cylinder fitted on the straight runs came out 37 mm wide. One circle holds 37 of the
+    48 samples: the line is the band's arc, and the cap is about its width."""
+    view, result = _bench_frame("jar_cap", 0, 2, suite="irregular", detail="front", kind="bm",
+                                block_size=9)  # fmt: skip
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert result.lines[0].model == "circle"
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.006
