@@ -249,3 +249,24 @@ def test_a_lying_box_gets_its_axis_from_the_crease_to_its_next_face(
     assert _angle_off(before, view) > 2.0
     assert _angle_off(after, view) < 0.5
     assert after.grasp_width_m == before.grasp_width_m
+
+
+def test_a_run_ending_on_the_fattening_ramp_is_trimmed_as_an_occluding_edge(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SGBM 7, the box tilted right, trial 1 frame 0: a face run stops a sample or two short
+    of its segment's end, those samples 0.3-3 mm behind the face (the matcher's fattening
+    ramping down to the far background before the segment ends). Not counted as occluding,
+    its side kept the fattening and the box was 3.1 mm wide; counted, with the rest of the
+    frame's trim the ramp's samples left, within 0.1 mm."""
+    from services.cli import _laser_views as lv
+
+    view = _stereo_view("cuboid_tilt_right", 1, 0)
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    after = reconstruct_laser(lines, seed=view.seq)
+    monkeypatch.setattr(laser, "_ramp_ends", lambda ln, *_: [0] * (2 * len(ln)))
+    before = reconstruct_laser(lines, seed=view.seq)
+    assert before.shape == after.shape == "cuboid"
+    width = view.truth.grasp_width_m
+    assert before.grasp_width_m - width > 0.0025
+    assert abs(after.grasp_width_m - width) < 0.001

@@ -946,6 +946,52 @@ class _Seeds:
     occluding: np.ndarray | None = None  # (K,) bool: its run ends where its segment does
 
 
+# A face's run that stops at most _RAMP_SAMPLES samples short of its segment's end, those
+# samples all behind the face by more than _RAMP_BEHIND_M and within _CREASE_OFF_M of it (no
+# next face), ends at an occluding edge as one reaching its segment's end does: a matcher's
+# fattening ramps down from the face's depth to the background's over the last pixels, and
+# the segment ends where the drop passes the segment's threshold. Such seeds lay 4-14 mm past
+# the true side on the box tilted left (SGBM 7 dots 0.04), and not being occluding, their
+# side kept its fattening. The ramp's samples, left out of the run, took their part of the
+# fattening with them: the seed takes the rest of the frame's trim (BM 7 and 9 put such
+# seeds on the lying box's true sides, and the whole trim made it 3 mm narrow). A background
+# less than far_background_ratio of the edge's depth behind it fattens it little: those
+# ends stay.
+_RAMP_SAMPLES = 2
+_RAMP_BEHIND_M = 0.0003
+
+
+def _ramp_ends(
+    lines: list[LineModels], face: PlaneSolid, past: list[list[float]], params: LaserParams
+) -> list[int]:
+    """Per face run end (two a line, as ``_collect_seeds`` orders the seeds): how many samples
+    short of its segment's end its run stops on a fattening ramp down to a far background
+    (the line's samples ``beyond`` its segment, else the scans' depth ``past`` its end; none:
+    far), 0 where it does not."""
+    toward = -1.0 if float(face.point @ face.normal) > 0 else 1.0  # the camera's side
+    out = []
+    for line in lines:
+        run = line.run
+        for k in (0, 1):
+            ramp = line.points[: run[0]] if k == 0 else line.points[run[-1] + 1 :]
+            if not 0 < len(ramp) <= _RAMP_SAMPLES:
+                out.append(0)
+                continue
+            off = ((ramp - face.point) @ face.normal * toward).tolist()
+            if min(off) < -_CREASE_OFF_M or max(off) >= -_RAMP_BEHIND_M:
+                out.append(0)
+                continue
+            z = float(line.points[run[0] if k == 0 else run[-1], 2])
+            beyond = line.beyond[k] if line.beyond else _NO_POINTS
+            if len(beyond):
+                behind = float(np.median((beyond[-4:] if k == 0 else beyond[:4])[:, 2]))
+            else:
+                behind = past[line.index][k] if line.index < len(past) else 0.0
+            far = behind == 0.0 or behind - z > params.far_background_ratio * z
+            out.append(len(ramp) if far else 0)
+    return out
+
+
 def _collect_seeds(
     lines: list[LineModels],
     params: LaserParams,
@@ -2486,9 +2532,18 @@ def _decide(
         pixel_rad=_pixel_rad(lines, params),
     )  # fmt: skip
     seeds = replace(seeds, points=solid.project(seeds.points))
+    if seeds.occluding is not None:
+        # A run ended on the fattening's ramp: the ramp's samples, left out of the run, took
+        # that much of the fattening with them. Without the scans' depth past the lines' ends
+        # (recorded before it was), a ramp with no samples beyond its segment counts as far.
+        behind = np.asarray(past).tolist() if past is not None else []
+        ramp = np.array(_ramp_ends(on_face, solid, behind, params), dtype=float)
+        rest = np.maximum(0.0, 1.0 - ramp / measured) if measured > 0 else np.ones_like(ramp)
+        ramped = np.where((ramp > 0) & ~seeds.cropped, rest, 0.0)
+        seeds = replace(seeds, occluding=np.where(seeds.occluding > 0, 1.0, ramped))
     if window and past is not None and seeds.occluding is not None:
         share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), params))
-        extra["near_ends"] = float(np.count_nonzero(seeds.occluding & (share < 1.0)))
+        extra["near_ends"] = float(np.count_nonzero((seeds.occluding > 0) & (share < 1.0)))
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
     walk = replace(params, edge_fattening_px=measured) if measured else params
