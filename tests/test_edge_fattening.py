@@ -282,7 +282,8 @@ def test_a_box_side_with_the_room_behind_it_goes_through_its_seeds_median(
     1-4 px of that (width MAE 3.5 mm); through the median of its seeds' edges, each seed's
     own trim taken off, with a diagonal line's seed near the top of a side counted on that
     side (``laser._corner_seeds``; the box's top lies past the capture volume, and that
-    seed was the top side's only one), it comes out 2.3 mm, the axes as they were."""
+    seed was the top side's only one), it comes out 2.3 mm, the axes as they were (2.2 mm
+    with the tapering ends counted as edges, against 3.1 without the median)."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.perception import laser
     from lpc_core.sim.stereo import StereoSensor
@@ -303,7 +304,8 @@ def test_a_box_side_with_the_room_behind_it_goes_through_its_seeds_median(
         truth = view.truth.grasp_width_m
         errors.append(result.grasp_width_m - truth)
         before.append(old.grasp_width_m - truth)
-    # Trial 0 frame 1 and trial 1 frames 0, 2 and 4: +4.8, -3.4, -4.3, -4.1 mm before.
-    assert sum(abs(e) < 0.002 < abs(b) for e, b in zip(errors, before, strict=True)) >= 4
-    assert np.mean(np.abs(before)) > 0.0033, before
+    # Trial 1 frames 0, 2 and 4: -3.4, -4.3, -4.1 mm before. (Trial 0 frame 1, +4.8 mm with
+    # neither rule, is mended before the median by the tapering ends, ``laser._ramp_ends``.)
+    assert sum(abs(e) < 0.002 < abs(b) for e, b in zip(errors, before, strict=True)) >= 3
+    assert np.mean(np.abs(before)) > 0.003, before
     assert np.mean(np.abs(errors)) < 0.0025, errors
