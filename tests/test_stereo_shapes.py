@@ -587,3 +587,26 @@ def test_a_jar_cap_whose_band_block_matching_flattened_keeps_its_arc() -> None:
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert result.lines[0].model == "circle"
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.006
+
+
+# h24b: a whole-arc fit flattened by an SGBM window, whose fattened rims lie on it.
+@pytest.mark.parametrize(
+    ("name", "trial", "frame", "before_mm"),
+    [
+        ("cylinder_upright", 1, 3, 7.6),
+        ("cylinder_tilt_right", 1, 3, 6.4),
+    ],
+)
+def test_a_round_under_a_correlated_window_is_fitted_inside_its_rims_without_a_bow(
+    name: str, trial: int, frame: int, before_mm: float
+) -> None:
+    """SGBM (block 9): the window pulls both flanks toward the camera and fattens the rims
+    past the silhouette along with them, so the rims lie on the too-flat whole-arc fit (no
+    bow: _rim_free's first test) while their background is too near, or a hole too close,
+    for the occluding-rim test. The scan lines' residuals are correlated like a window's, and
+    that alone says the fit is flattened: refitted inside the rims, within 3 mm; it was
+    ``before_mm`` wide."""
+    view, result = _bench_frame(name, trial, frame, kind="sgbm", block_size=9)
+    assert result.shape == "cylinder"
+    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    assert abs(error_mm) < 3.0, (error_mm, before_mm)
