@@ -518,7 +518,8 @@ def find_support_plane(
     ok = valid & (behind <= params.support_max_behind_fraction * len(sub))
     if not ok.any():
         return None
-    best = int(np.argmax(np.where(ok, inliers, -1)))
+    # The method, not np.argmax's Python wrapper: the search runs on every resting round.
+    best = int(np.where(ok, inliers, -1).argmax())
     signed_all = points @ normals[:, best] + offsets[best]
     mask = np.abs(signed_all) <= threshold
     refit = _support_refit(points[mask])
