@@ -1733,7 +1733,7 @@ def _consistent_sides(
     share = shares if shares is not None else [0.0] * n
 
     def across(k: int, side: int) -> tuple[float, float, float]:
-        c = (-1.0 if side % 2 == 0 else 1.0) * (a[k] if side < 2 else b[k])
+        c = _outward(a, b, k, side)
         return c, c - share[k] * trims[side // 2], share[k]
 
     for k, (d, cut, occludes) in enumerate(zip(dists, cropped, occluding, strict=True)):
@@ -1820,11 +1820,9 @@ def _straight_sides(
         if cut:
             continue
         side = d.index(min(d))
-        sign = -1.0 if side % 2 == 0 else 1.0
-        groups[side].append((sign * (a[k] if side < 2 else b[k]), k))
+        groups[side].append((_outward(a, b, k, side), k))
     for k, side in _corner_seeds(dists, cropped, a, b):
-        sign = -1.0 if side % 2 == 0 else 1.0
-        groups[side].append((sign * (a[k] if side < 2 else b[k]), k))
+        groups[side].append((_outward(a, b, k, side), k))
     dropped: list[set[int]] = [set(), set(), set(), set()]
     for side, outward in enumerate(groups):
         if len(outward) < _STRAIGHT_SIDE_SEEDS:
@@ -1878,9 +1876,8 @@ def _corner_seeds(
         other = lo if dists[k][lo] <= dists[k][hi] else hi
         if count[other] < 2:
             continue
-        coords = b if other >= 2 else a
-        sign = -1.0 if other % 2 == 0 else 1.0
-        if any(sign * coords[k] > sign * coords[j] for j in uncut if nearest[j] == other):
+        mine = _outward(a, b, k, other)
+        if any(mine > _outward(a, b, j, other) for j in uncut if nearest[j] == other):
             out.append((k, other))
     return out
 
@@ -1993,6 +1990,12 @@ def _unless_rounded(uv: np.ndarray, uncut: list[list[float]], direction: np.ndar
         return direction
     mx, my = m.tolist()
     return m if _rectangle_residual(uncut, (mx, my)) < residual else direction
+
+
+def _outward(a: list[float], b: list[float], k: int, side: int) -> float:
+    """Seed ``k``'s coordinate across the rectangle's ``side`` (0, 1 along ``a``; 2, 3 along
+    ``b``), positive outward: sides 0 and 2 face the negative way."""
+    return (-1.0 if side % 2 == 0 else 1.0) * (a[k] if side < 2 else b[k])
 
 
 def _side_distances(
