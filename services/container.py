@@ -261,7 +261,7 @@ class _ControlLoop:
         # No subscriber of its own: the main loop's router, on the same session, copies out the
         # remote samples this loop wants and queues them here (it wants a few small topics).
         self.router = Router(session, self.loop, wildcard=False)
-        self._thread = threading.Thread(target=self._run, name="control", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=CONTROL_LOOP, daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
