@@ -2422,6 +2422,16 @@ def _decide(
                 candidates["cylinder"] = replace(
                     candidates["cylinder"], solid=banded, residuals=banded.residuals(clean)
                 )
+    support: PlaneSolid | None = None
+    supported = False
+    if shape == "cylinder" and "rim_axis" not in extra:
+        support, supported = _support_plane(lines, params), True
+        disc = _lying_disc(clean, support, params) if support is not None else None
+        if disc is not None:
+            extra["disc_axis"] = 1.0
+            candidates["cylinder"] = replace(
+                candidates["cylinder"], solid=disc, residuals=disc.residuals(clean)
+            )
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -2461,7 +2471,8 @@ def _decide(
                 # A fattened ball's plateau-free refit was tried above and came out None: the
                 # same call again would too.
                 solid = _without_end_plateaus(lines, full, solid, params, clean)
-    support = _support_plane(lines, params) if shape in ("sphere", "cylinder") else None
+    if not supported and shape in ("sphere", "cylinder"):
+        support = _support_plane(lines, params)
     resting = _resting_width(lines, clean, solid, params, support)
     if shape == "cylinder" and resting is None and solid is not full:
         # The trims may have lifted the round off the support its whole arc's fit lies on, or
@@ -3429,6 +3440,88 @@ def _rim_axis(
         # The rims choose among the axes the band allows: one across which the runs are no
         # solid is no band's (the rotation suite's 40 mm cylinder at SGBM 7, a ball short on
         # its lines: 0.57 of the runs, against 0.98 on its own axis; the jar cap's 0.64-1.0).
+        return None
+    return solid
+
+
+# Circles drawn through three of a disc's samples, across the support's normal (_lying_disc).
+_DISC_DRAWS = 128
+
+
+def _lying_disc(
+    clean: np.ndarray, support: PlaneSolid, params: LaserParams
+) -> CylinderSolid | None:
+    """The cylinder along ``support``'s normal whose runs ``clean`` stand lower above the
+    support than its radius: a disc lying flat on it (a jar cap seen from the front), or
+    ``None``.
+
+    Such a band shows 15-20 mm of a round 60 mm across: a cylinder fitted to it with a free
+    axis finds one as well across it (the jar cap under SGBM 5-7: 26-31 mm wide cylinders
+    lying along the band, 53-86 degrees off its axis, 0.70-0.89 of the runs). A disc stands
+    on its flat face, so its axis is the support's normal; the circle across it is drawn
+    through three samples at a time (the runs hold samples of the top face and the table
+    in front, which pull a least-squares circle to 13 mm on the cap's 30 mm arc), and must
+    explain ``min_solid_fraction`` of the runs, within the radius limits, with the camera
+    outside it. A round lying on its side stands its diameter high, a ball too: neither is
+    a disc."""
+    normal = support.normal
+    e1, e2 = orthonormal_basis(normal)
+    d = clean - support.point
+    height = d @ normal
+    uv = d @ np.column_stack([e1, e2])
+    n = len(uv)
+    if n < 3:
+        return None
+    rng = _support_rng()
+    picks = np.sort(rng.random((_DISC_DRAWS, n)).argsort(axis=1)[:, :3], axis=1)
+    a, b, c = uv[picks[:, 0]], uv[picks[:, 1]], uv[picks[:, 2]]
+    # The circumcentre of each triple (perpendicular bisectors' crossing).
+    ab, ac = b - a, c - a
+    det = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    ok = np.abs(det) > 1e-12
+    if not ok.any():
+        return None
+    ab2, ac2 = (ab * ab).sum(axis=1), (ac * ac).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cx = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / det
+        cy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
+    centres = a + np.column_stack([cx, cy])
+    radii = np.hypot(cx, cy)
+    lo, hi = params.radius_limits_m
+    ok &= (radii >= lo) & (radii <= hi)
+    if not ok.any():
+        return None
+    centres, radii = centres[ok], radii[ok]
+    thr = params.solid_threshold_m
+    off = np.abs(
+        np.hypot(uv[None, :, 0] - centres[:, :1], uv[None, :, 1] - centres[:, 1:]) - radii[:, None]
+    )
+    counts = np.add.reduce(off <= thr, axis=1)
+    best = int(np.argmax(counts))
+    on = off[best] <= thr
+    circle = fit_circle_2d(uv[on]) if np.count_nonzero(on) >= 3 else None
+    centre, radius = (centres[best], float(radii[best])) if circle is None else circle
+    low = float(height.min())
+    if not lo <= radius <= hi or height.max() >= radius or abs(low) > 3 * thr:
+        # Too tall for a disc, or not on the support: a disc's band reaches down to the
+        # support it lies on (the cap's lowest samples 0.4 mm below the table to 0.9 mm
+        # above it, 3.2 under a matcher's smear), and nothing lies below it.
+        return None
+    # The camera (the origin) sees the outside of the disc.
+    camera = -support.point @ np.column_stack([e1, e2])
+    if float(np.hypot(*(camera - centre))) <= radius:
+        return None
+    point = support.point + centre[0] * e1 + centre[1] * e2 + float(height.mean()) * normal
+    solid = CylinderSolid(point=point, axis=normal.copy(), radius=float(radius))
+    explained = solid.residuals(clean) <= thr
+    # The disc's flat top holds the samples inside its circle at one height: the lines run
+    # onto it past the band's upper rim (the cap from 20-25 degrees above: 0.2-0.4 of the
+    # runs).
+    inside = np.hypot(*(uv - centre).T) < radius - thr
+    if np.count_nonzero(inside) >= 3:
+        top = float(np.median(height[inside]))
+        explained |= inside & (np.abs(height - top) <= thr)
+    if np.count_nonzero(explained) < params.min_solid_fraction * n:
         return None
     return solid
 
