@@ -2424,14 +2424,24 @@ def _decide(
                 )
     support: PlaneSolid | None = None
     supported = False
-    if shape == "cylinder" and "rim_axis" not in extra:
+    # A cylinder, or a frame no solid explains where a cylinder was fitted (the jar cap's
+    # free cylinder put its axis in front of the band: SGBM 5 trial 0 frames 1 and 4).
+    lost = shape != "cylinder" and candidates[shape].score < params.min_solid_fraction
+    if (shape == "cylinder" and "rim_axis" not in extra) or (lost and "cylinder" in candidates):
         support, supported = _support_plane(lines, params), True
         disc = _lying_disc(clean, support, params) if support is not None else None
         if disc is not None:
             extra["disc_axis"] = 1.0
+            solid, fraction = disc
+            # The disc's own share, its flat top with it, where no other solid holds the
+            # runs; a cylinder keeps the share it won with.
             candidates["cylinder"] = replace(
-                candidates["cylinder"], solid=disc, residuals=disc.residuals(clean)
+                candidates["cylinder"],
+                solid=solid,
+                residuals=solid.residuals(clean),
+                **({"fraction": fraction, "reason": ""} if lost else {}),
             )
+            shape = "cylinder"
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -3450,10 +3460,10 @@ _DISC_DRAWS = 128
 
 def _lying_disc(
     clean: np.ndarray, support: PlaneSolid, params: LaserParams
-) -> CylinderSolid | None:
+) -> tuple[CylinderSolid, float] | None:
     """The cylinder along ``support``'s normal whose runs ``clean`` stand lower above the
-    support than its radius: a disc lying flat on it (a jar cap seen from the front), or
-    ``None``.
+    support than its radius: a disc lying flat on it (a jar cap seen from the front), and the
+    share of the runs it explains; or ``None``.
 
     Such a band shows 15-20 mm of a round 60 mm across: a cylinder fitted to it with a free
     axis finds one as well across it (the jar cap under SGBM 5-7: 26-31 mm wide cylinders
@@ -3521,9 +3531,10 @@ def _lying_disc(
     if np.count_nonzero(inside) >= 3:
         top = float(np.median(height[inside]))
         explained |= inside & (np.abs(height - top) <= thr)
-    if np.count_nonzero(explained) < params.min_solid_fraction * n:
+    fraction = np.count_nonzero(explained) / n
+    if fraction < params.min_solid_fraction:
         return None
-    return solid
+    return solid, fraction
 
 
 def _across_rims(ends: list[np.ndarray], middle: np.ndarray) -> np.ndarray | None:
