@@ -3455,7 +3455,8 @@ def _rim_axis(
 
 
 # Circles drawn through three of a disc's samples, across the support's normal (_lying_disc).
-_DISC_DRAWS = 128
+_DISC_DRAWS = 64
+_DISC_SAMPLES = 64
 
 
 def _lying_disc(
@@ -3475,15 +3476,21 @@ def _lying_disc(
     outside it. A round lying on its side stands its diameter high, a ball too: neither is
     a disc."""
     normal = support.normal
-    e1, e2 = orthonormal_basis(normal)
     d = clean - support.point
     height = d @ normal
-    uv = d @ np.column_stack([e1, e2])
-    n = len(uv)
-    if n < 3:
+    n = len(height)
+    lo, hi = params.radius_limits_m
+    thr = params.solid_threshold_m
+    if n < 3 or abs(float(height.min())) > 3 * thr or float(height.max()) >= hi:
+        # Not on the support, or taller than any disc's radius: a disc's band reaches down
+        # to the support it lies on (the cap's lowest samples 0.4 mm below the table to 0.9
+        # mm above it, 3.2 under a matcher's smear), and nothing lies below it. Most rounds
+        # end here, before the circles are drawn.
         return None
-    rng = _support_rng()
-    picks = np.sort(rng.random((_DISC_DRAWS, n)).argsort(axis=1)[:, :3], axis=1)
+    e1, e2 = orthonormal_basis(normal)
+    uv = d @ np.column_stack([e1, e2])
+    # Three samples per draw (a repeated one leaves no circle: its determinant is 0).
+    picks = _support_rng().integers(0, n, size=(_DISC_DRAWS, 3))
     a, b, c = uv[picks[:, 0]], uv[picks[:, 1]], uv[picks[:, 2]]
     # The circumcentre of each triple (perpendicular bisectors' crossing).
     ab, ac = b - a, c - a
@@ -3497,25 +3504,21 @@ def _lying_disc(
         cy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
     centres = a + np.column_stack([cx, cy])
     radii = np.hypot(cx, cy)
-    lo, hi = params.radius_limits_m
     ok &= (radii >= lo) & (radii <= hi)
     if not ok.any():
         return None
     centres, radii = centres[ok], radii[ok]
-    thr = params.solid_threshold_m
+    # Each circle counted on a sample of the runs (as the cylinder's axis search is).
+    sample = uv[:: max(1, n // _DISC_SAMPLES)]
     off = np.abs(
-        np.hypot(uv[None, :, 0] - centres[:, :1], uv[None, :, 1] - centres[:, 1:]) - radii[:, None]
+        np.hypot(sample[:, 0] - centres[:, :1], sample[:, 1] - centres[:, 1:]) - radii[:, None]
     )
-    counts = np.add.reduce(off <= thr, axis=1)
-    best = int(np.argmax(counts))
-    on = off[best] <= thr
+    best = int(np.argmax(np.add.reduce(off <= thr, axis=1)))
+    on = np.abs(np.hypot(*(uv - centres[best]).T) - radii[best]) <= thr
     circle = fit_circle_2d(uv[on]) if np.count_nonzero(on) >= 3 else None
     centre, radius = (centres[best], float(radii[best])) if circle is None else circle
-    low = float(height.min())
-    if not lo <= radius <= hi or height.max() >= radius or abs(low) > 3 * thr:
-        # Too tall for a disc, or not on the support: a disc's band reaches down to the
-        # support it lies on (the cap's lowest samples 0.4 mm below the table to 0.9 mm
-        # above it, 3.2 under a matcher's smear), and nothing lies below it.
+    if not lo <= radius <= hi or height.max() >= radius:
+        # Too tall for this disc: a round lying on its side stands its diameter high.
         return None
     # The camera (the origin) sees the outside of the disc.
     camera = -support.point @ np.column_stack([e1, e2])
