@@ -2422,6 +2422,26 @@ def _decide(
                 candidates["cylinder"] = replace(
                     candidates["cylinder"], solid=banded, residuals=banded.residuals(clean)
                 )
+    support: PlaneSolid | None = None
+    supported = False
+    # A cylinder, or a frame no solid explains where a cylinder was fitted (the jar cap's
+    # free cylinder put its axis in front of the band: SGBM 5 trial 0 frames 1 and 4).
+    lost = shape != "cylinder" and candidates[shape].score < params.min_solid_fraction
+    if (shape == "cylinder" and "rim_axis" not in extra) or (lost and "cylinder" in candidates):
+        support, supported = _support_plane(lines, params), True
+        disc = _lying_disc(clean, support, params) if support is not None else None
+        if disc is not None:
+            extra["disc_axis"] = 1.0
+            solid, fraction = disc
+            # The disc's own share, its flat top with it, where no other solid holds the
+            # runs; a cylinder keeps the share it won with.
+            candidates["cylinder"] = replace(
+                candidates["cylinder"],
+                solid=solid,
+                residuals=solid.residuals(clean),
+                **({"fraction": fraction, "reason": ""} if lost else {}),
+            )
+            shape = "cylinder"
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -2461,7 +2481,8 @@ def _decide(
                 # A fattened ball's plateau-free refit was tried above and came out None: the
                 # same call again would too.
                 solid = _without_end_plateaus(lines, full, solid, params, clean)
-    support = _support_plane(lines, params) if shape in ("sphere", "cylinder") else None
+    if not supported and shape in ("sphere", "cylinder"):
+        support = _support_plane(lines, params)
     resting = _resting_width(lines, clean, solid, params, support)
     if shape == "cylinder" and resting is None and solid is not full:
         # The trims may have lifted the round off the support its whole arc's fit lies on, or
@@ -3431,6 +3452,92 @@ def _rim_axis(
         # its lines: 0.57 of the runs, against 0.98 on its own axis; the jar cap's 0.64-1.0).
         return None
     return solid
+
+
+# Circles drawn through three of a disc's samples, across the support's normal (_lying_disc).
+_DISC_DRAWS = 64
+_DISC_SAMPLES = 64
+
+
+def _lying_disc(
+    clean: np.ndarray, support: PlaneSolid, params: LaserParams
+) -> tuple[CylinderSolid, float] | None:
+    """The cylinder along ``support``'s normal whose runs ``clean`` stand lower above the
+    support than its radius: a disc lying flat on it (a jar cap seen from the front), and the
+    share of the runs it explains; or ``None``.
+
+    Such a band shows 15-20 mm of a round 60 mm across: a cylinder fitted to it with a free
+    axis finds one as well across it (the jar cap under SGBM 5-7: 26-31 mm wide cylinders
+    lying along the band, 53-86 degrees off its axis, 0.70-0.89 of the runs). A disc stands
+    on its flat face, so its axis is the support's normal; the circle across it is drawn
+    through three samples at a time (the runs hold samples of the top face and the table
+    in front, which pull a least-squares circle to 13 mm on the cap's 30 mm arc), and must
+    explain ``min_solid_fraction`` of the runs, within the radius limits, with the camera
+    outside it. A round lying on its side stands its diameter high, a ball too: neither is
+    a disc."""
+    normal = support.normal
+    d = clean - support.point
+    height = d @ normal
+    n = len(height)
+    lo, hi = params.radius_limits_m
+    thr = params.solid_threshold_m
+    if n < 3 or abs(float(height.min())) > 3 * thr or float(height.max()) >= hi:
+        # Not on the support, or taller than any disc's radius: a disc's band reaches down
+        # to the support it lies on (the cap's lowest samples 0.4 mm below the table to 0.9
+        # mm above it, 3.2 under a matcher's smear), and nothing lies below it. Most rounds
+        # end here, before the circles are drawn.
+        return None
+    e1, e2 = orthonormal_basis(normal)
+    uv = d @ np.column_stack([e1, e2])
+    # Three samples per draw (a repeated one leaves no circle: its determinant is 0).
+    picks = _support_rng().integers(0, n, size=(_DISC_DRAWS, 3))
+    a, b, c = uv[picks[:, 0]], uv[picks[:, 1]], uv[picks[:, 2]]
+    # The circumcentre of each triple (perpendicular bisectors' crossing).
+    ab, ac = b - a, c - a
+    det = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    ok = np.abs(det) > 1e-12
+    if not ok.any():
+        return None
+    ab2, ac2 = (ab * ab).sum(axis=1), (ac * ac).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cx = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / det
+        cy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
+    centres = a + np.column_stack([cx, cy])
+    radii = np.hypot(cx, cy)
+    ok &= (radii >= lo) & (radii <= hi)
+    if not ok.any():
+        return None
+    centres, radii = centres[ok], radii[ok]
+    # Each circle counted on a sample of the runs (as the cylinder's axis search is).
+    sample = uv[:: max(1, n // _DISC_SAMPLES)]
+    off = np.abs(
+        np.hypot(sample[:, 0] - centres[:, :1], sample[:, 1] - centres[:, 1:]) - radii[:, None]
+    )
+    best = int(np.argmax(np.add.reduce(off <= thr, axis=1)))
+    on = np.abs(np.hypot(*(uv - centres[best]).T) - radii[best]) <= thr
+    circle = fit_circle_2d(uv[on]) if np.count_nonzero(on) >= 3 else None
+    centre, radius = (centres[best], float(radii[best])) if circle is None else circle
+    if not lo <= radius <= hi or height.max() >= radius:
+        # Too tall for this disc: a round lying on its side stands its diameter high.
+        return None
+    # The camera (the origin) sees the outside of the disc.
+    camera = -support.point @ np.column_stack([e1, e2])
+    if float(np.hypot(*(camera - centre))) <= radius:
+        return None
+    point = support.point + centre[0] * e1 + centre[1] * e2 + float(height.mean()) * normal
+    solid = CylinderSolid(point=point, axis=normal.copy(), radius=float(radius))
+    explained = solid.residuals(clean) <= thr
+    # The disc's flat top holds the samples inside its circle at one height: the lines run
+    # onto it past the band's upper rim (the cap from 20-25 degrees above: 0.2-0.4 of the
+    # runs).
+    inside = np.hypot(*(uv - centre).T) < radius - thr
+    if np.count_nonzero(inside) >= 3:
+        top = float(np.median(height[inside]))
+        explained |= inside & (np.abs(height - top) <= thr)
+    fraction = np.count_nonzero(explained) / n
+    if fraction < params.min_solid_fraction:
+        return None
+    return solid, fraction
 
 
 def _across_rims(ends: list[np.ndarray], middle: np.ndarray) -> np.ndarray | None:
