@@ -2982,9 +2982,16 @@ def _rim_free(
                 # model's, uncorrelated; nor a round lying along a support the lines show,
                 # right behind its rims, where the samples stop short of them (the rotation
                 # suite's 40 mm cylinder refitted without the bow: width MAE 1.0-1.5 -> 1.3-2.3
-                # mm on SGBM 5-9). The 75 mm one, whose support the lines do not see, still
-                # is: 1.9-3.1 -> 2.2-3.3 mm.
-                and (_lying_along(full, support, params) or _matched(scan_lines, params) is None)
+                # mm on SGBM 5-9), nor one whose rims stand on a surface behind them
+                # (_rests_behind_rims: the 75 mm one, whose support the lines do not fit as a
+                # plane, refitted went 1.9-3.1 -> 2.2-3.3 mm).
+                and (
+                    _lying_along(full, support, params)
+                    or _matched(scan_lines, params) is None
+                    or _rests_behind_rims(
+                        lines, full, angle, residuals, params, pixel_rad, scan_lines
+                    )
+                )
             ):
                 return None
         # Twice the inlier band: the whole arc's fit, too flat, may miss the inner arc by more.
@@ -3009,6 +3016,84 @@ def _rim_free(
     if _narrower_than_runs(solid, clean, pixel_rad):
         return None
     return solid
+
+
+# How far from the axis, in radii, the plane behind a round's two rims may lie for the round
+# to rest on it: the table behind the rotation suite's lying cylinders lay 0.74-1.10 radii
+# from their whole-arc fits' axes on SGBM 5-9 (the fit's own radius error moves it).
+_REST_BEHIND_RADII = (0.7, 1.35)
+# How far behind each rim, in diameters, a support the round rests on may show: a rim stands
+# at most a diameter above it, and a slanting view adds (0.5-1.10 on the rotation suite's
+# cylinders). Where the plane through both rims' depths happened to pass a radius from the
+# axis of a round not lying down, the room lay further behind one rim: 6.3 diameters behind
+# the 60 mm can's at SGBM 9, 84 behind the tilted 50 mm bottle's at SGBM 5.
+_REST_BEHIND_DIAMETERS = 1.25
+
+
+def _rests_behind_rims(
+    lines: list[LineModels],
+    full: CylinderSolid,
+    angle: np.ndarray,
+    residuals: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
+    scan_lines: ScanLinesLike | None,
+) -> bool:
+    """Whether the round rests on a surface seen right behind both its outermost samples (by
+    ``angle``, among those within four inlier bands): the plane through the depth behind each
+    (the line's own samples past the segment within ``background_reach_px``, else the scans'
+    ``past_ends_m``, taken along the outermost sample's ray), each within
+    ``_REST_BEHIND_DIAMETERS`` of ``full``'s diameter, and along ``full``'s axis lies
+    ``_REST_BEHIND_RADII`` of its radius from the axis.
+
+    A round lying on the table seen from above has the table a radius below its axis behind
+    both rims, whether or not enough of it shows beside the round for ``_support_plane`` to
+    fit it (the rotation suite's 75 mm cylinder fills most of the lines). A matcher's samples
+    stop short of such rims (see ``_occluding_rims``) rather than fattening past them with
+    the whole arc's fit, and a refit inside them trades the radius against the centre's depth
+    on what is left (the 75 mm cylinder at SGBM 7: 66 mm on two frames). A round not lying
+    down has the room or the table further behind at least one rim on most frames; the 60 mm
+    can at SGBM 9 had both about a diameter behind on two, where the silhouette's bound
+    (``_silhouette_bound``) gives its width either way."""
+    past = getattr(scan_lines, "past_ends_m", None)
+    if past is None:
+        return False
+    reach = params.background_reach_px * pixel_rad
+    sizes = [len(ln.points) for ln in lines]
+    owner = np.repeat(np.arange(len(lines)), sizes)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
+    if len(on) == 0:
+        return False
+    behind = []
+    for i in (int(on[np.argmin(angle[on])]), int(on[np.argmax(angle[on])])):
+        ln = lines[int(owner[i])]
+        k = i - int(offsets[owner[i]])
+        last = len(ln.points) - 1
+        if k not in (0, last):
+            return False  # the segment goes on past the round: no rim there
+        rim = ln.points[k]
+        side = 0 if k == 0 else 1
+        c, s_ = math.cos(ln.angle), math.sin(ln.angle)
+        beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
+        depth = 0.0
+        if len(beyond):
+            b = (beyond[:, 0] * c + beyond[:, 1] * s_) / beyond[:, 2]
+            near = np.abs(b - (rim[0] * c + rim[1] * s_) / rim[2]) <= reach
+            if near.any():
+                depth = float(np.median(beyond[near, 2]))
+        elif ln.index < len(past):
+            depth = float(past[ln.index][side])
+        if not 0.0 < depth - rim[2] <= _REST_BEHIND_DIAMETERS * 2 * full.radius:
+            return False  # nothing seen behind this rim, or the room far behind it
+        behind.append(rim * (depth / rim[2]))
+    normal = np.cross(full.axis, behind[0] - behind[1])
+    norm = float(np.linalg.norm(normal))
+    if norm < 1e-9:
+        return False
+    distance = abs(float((full.point - behind[0]) @ normal)) / norm
+    lo, hi = _REST_BEHIND_RADII
+    return lo * full.radius <= distance <= hi * full.radius
 
 
 # How far (pixels) the fit on every inlier's silhouette must lie beyond the samples on both
