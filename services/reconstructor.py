@@ -2,8 +2,10 @@
 (``--method cloud``) in; ``lpc/reconstruction`` and ``lpc/grasp/target`` out.
 
 Frames are reconstructed in worker processes fed through pipes (``services.pipe_pool``), one
-frame per job, and published in ``seq`` order. At most ``--max-pending`` frames
-wait for a worker; when another arrives the oldest waiting frame is dropped and counted
+frame per job, and published in ``seq`` order. ``--ahead`` frames (default 1) are handed to a
+busy worker behind the one it runs, so that it starts the next the moment it is done, without
+waiting for this service's loop to take the result; at most ``--max-pending`` more frames wait
+here for a worker; when another arrives the oldest waiting frame is dropped and counted
 (``dropped_frames``). The ordering is ``lpc_core.perception.reconstructor``'s pure bookkeeping. Each
 worker reconstructs one synthetic frame before the service subscribes, so start-up costs
 (imports, first calls) never count as drops. Depth is a sensor topic: when even the pump falls
@@ -40,7 +42,12 @@ from services.runtime import Bus, service_main, service_parser
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
-    state = PoolState(params=PoolParams(workers=args.workers, max_pending=args.max_pending))
+    # A depth frame (about 600 kB) does not fit the pipe's socket buffer (208 kB): handed to a
+    # busy worker, its write would hold the loop until that worker is done. Scans are 4-5 kB.
+    ahead = args.ahead if args.method == "laser" else 0
+    state = PoolState(
+        params=PoolParams(workers=args.workers, max_pending=args.max_pending, ahead=ahead)
+    )
     window = WindowState()
     reconstructions = bus.publisher("lpc/reconstruction")
     targets = bus.publisher("lpc/grasp/target")
@@ -105,6 +112,13 @@ def parser() -> argparse.ArgumentParser:
     parser = service_parser("reconstructor", __doc__ or "")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument(
+        "--ahead",
+        type=int,
+        default=1,
+        help="scans handed to each worker behind the one it runs, so that it starts the next "
+        "without waiting for the service (default 1; --method cloud hands none ahead)",
+    )
+    parser.add_argument(
         "--max-pending", type=int, default=2, help="frames that may wait for a worker (default 2)"
     )
     parser.add_argument(
@@ -127,7 +141,7 @@ def initial_state(args: argparse.Namespace) -> ReconstructState:
 
 def main(argv: list[str] | None = None) -> int:
     def check(args: argparse.Namespace) -> None:
-        PoolParams(workers=args.workers, max_pending=args.max_pending)
+        PoolParams(workers=args.workers, max_pending=args.max_pending, ahead=args.ahead)
 
     return service_main("reconstructor", parser(), check, serve, argv)
 
