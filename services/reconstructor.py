@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import os
 import sys
 import time
 
@@ -38,6 +40,19 @@ from services.mcap_log import read_header
 from services.pipe_pool import PipePool
 from services.reconstructor_worker import init_worker
 from services.runtime import Bus, service_main, service_parser
+
+# The workers' least niceness. When a worker and the set's control path (EMG, controller, hand
+# commands) are ready to run at once, the control path goes first: under a CPU quota each
+# frame the worker starts otherwise holds the controller's loop for the rest of a period. With
+# a process per service, lpc up already runs this service, and so its workers, at nice 5.
+WORKER_NICE = 5
+
+
+def _yield_to_control(pids: list[int]) -> None:
+    for pid in pids:
+        with contextlib.suppress(OSError):  # a worker that has just exited
+            niceness = os.getpriority(os.PRIO_PROCESS, pid)
+            os.setpriority(os.PRIO_PROCESS, pid, max(niceness, WORKER_NICE))
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
@@ -75,6 +90,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     try:
         # Subscribing only once every worker is warm keeps the start-up out of the drop count.
         await pool.ready()
+        _yield_to_control(pool.pids)
+        niced = pool.restarts
         ready_s = time.monotonic() - started
         bus.log("info", f"{args.workers} {args.method} worker(s) ready in {ready_s:.1f} s")
         reader = asyncio.create_task(pump())
@@ -85,6 +102,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             else:
                 state, outputs = frame_done(state, seq, item)
             bus.health.counters["worker_restarts"] = pool.restarts
+            if pool.restarts != niced:  # a restarted worker starts at the service's niceness
+                _yield_to_control(pool.pids)
+                niced = pool.restarts
             for out in outputs:
                 if isinstance(out, Submit):
                     pool.submit(out.seq, out.job)
