@@ -2,8 +2,10 @@
 (``--method cloud``) in; ``lpc/reconstruction`` and ``lpc/grasp/target`` out.
 
 Frames are reconstructed in worker processes fed through pipes (``services.pipe_pool``), one
-frame per job, and published in ``seq`` order. At most ``--max-pending`` frames
-wait for a worker; when another arrives the oldest waiting frame is dropped and counted
+frame per job, and published in ``seq`` order. ``--ahead`` frames (default 1) are handed to a
+busy worker behind the one it runs, so that it starts the next the moment it is done, without
+waiting for this service's loop to take the result; at most ``--max-pending`` more frames wait
+here for a worker; when another arrives the oldest waiting frame is dropped and counted
 (``dropped_frames``). The ordering is ``lpc_core.perception.reconstructor``'s pure bookkeeping. Each
 worker reconstructs one synthetic frame before the service subscribes, so start-up costs
 (imports, first calls) never count as drops. Depth is a sensor topic: when even the pump falls
@@ -14,6 +16,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import os
 import sys
 import time
 
@@ -37,10 +41,28 @@ from services.pipe_pool import PipePool
 from services.reconstructor_worker import init_worker
 from services.runtime import Bus, service_main, service_parser
 
+# The workers' least niceness. When a worker and the set's control path (EMG, controller, hand
+# commands) are ready to run at once, the control path goes first: under a CPU quota each
+# frame the worker starts otherwise holds the controller's loop for the rest of a period. With
+# a process per service, lpc up already runs this service, and so its workers, at nice 5.
+WORKER_NICE = 5
+
+
+def _yield_to_control(pids: list[int]) -> None:
+    for pid in pids:
+        with contextlib.suppress(OSError):  # a worker that has just exited
+            niceness = os.getpriority(os.PRIO_PROCESS, pid)
+            os.setpriority(os.PRIO_PROCESS, pid, max(niceness, WORKER_NICE))
+
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
     inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
-    state = PoolState(params=PoolParams(workers=args.workers, max_pending=args.max_pending))
+    # A depth frame (about 600 kB) does not fit the pipe's socket buffer (208 kB): handed to a
+    # busy worker, its write would hold the loop until that worker is done. Scans are 4-5 kB.
+    ahead = args.ahead if args.method == "laser" else 0
+    state = PoolState(
+        params=PoolParams(workers=args.workers, max_pending=args.max_pending, ahead=ahead)
+    )
     window = WindowState()
     reconstructions = bus.publisher("lpc/reconstruction")
     targets = bus.publisher("lpc/grasp/target")
@@ -68,6 +90,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     try:
         # Subscribing only once every worker is warm keeps the start-up out of the drop count.
         await pool.ready()
+        _yield_to_control(pool.pids)
+        niced = pool.restarts
         ready_s = time.monotonic() - started
         bus.log("info", f"{args.workers} {args.method} worker(s) ready in {ready_s:.1f} s")
         reader = asyncio.create_task(pump())
@@ -78,6 +102,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             else:
                 state, outputs = frame_done(state, seq, item)
             bus.health.counters["worker_restarts"] = pool.restarts
+            if pool.restarts != niced:  # a restarted worker starts at the service's niceness
+                _yield_to_control(pool.pids)
+                niced = pool.restarts
             for out in outputs:
                 if isinstance(out, Submit):
                     pool.submit(out.seq, out.job)
@@ -105,6 +132,13 @@ def parser() -> argparse.ArgumentParser:
     parser = service_parser("reconstructor", __doc__ or "")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument(
+        "--ahead",
+        type=int,
+        default=1,
+        help="scans handed to each worker behind the one it runs, so that it starts the next "
+        "without waiting for the service (default 1; --method cloud hands none ahead)",
+    )
+    parser.add_argument(
         "--max-pending", type=int, default=2, help="frames that may wait for a worker (default 2)"
     )
     parser.add_argument(
@@ -127,7 +161,7 @@ def initial_state(args: argparse.Namespace) -> ReconstructState:
 
 def main(argv: list[str] | None = None) -> int:
     def check(args: argparse.Namespace) -> None:
-        PoolParams(workers=args.workers, max_pending=args.max_pending)
+        PoolParams(workers=args.workers, max_pending=args.max_pending, ahead=args.ahead)
 
     return service_main("reconstructor", parser(), check, serve, argv)
 

@@ -141,6 +141,34 @@ def test_pool_drop_unblocks_later_results() -> None:
     assert out == [Release(3, "r3")]
 
 
+def test_pool_hands_a_frame_ahead_to_a_busy_worker_before_queueing() -> None:
+    # One worker, one frame ahead: the second frame goes to the worker's pipe at once (it
+    # starts there when the first is done, without waiting for the service), the third waits
+    # in the service, where the fourth replaces it.
+    state = PoolState(params=PoolParams(workers=1, max_pending=1, ahead=1))
+    state, out = frame_arrived(state, 1, "a")
+    assert out == [Submit(1, "a")]
+    state, out = frame_arrived(state, 2, "b")
+    assert out == [Submit(2, "b")]
+    state, out = frame_arrived(state, 3, "c")
+    assert out == []
+    state, out = frame_arrived(state, 4, "d")
+    assert out == [Dropped(3, "the pool fell behind")]
+    # The first result hands the waiting frame on behind the second, and is released.
+    state, out = frame_done(state, 1, "r1")
+    assert out == [Submit(4, "d"), Release(1, "r1")]
+    assert state.running == frozenset({2, 4}) and state.pending == ()
+    state, out = frame_done(state, 2, "r2")
+    assert out == [Release(2, "r2")]
+    state, out = frame_done(state, 4, "r4")
+    assert out == [Release(4, "r4")] and state.dropped == 1
+
+
+def test_pool_without_ahead_keeps_one_frame_per_worker() -> None:
+    assert PoolParams(workers=3).in_flight == 3
+    assert PoolParams(workers=2, ahead=1).in_flight == 4
+
+
 def test_pool_ignores_out_of_order_and_unknown_frames() -> None:
     state = PoolState()
     state, _ = frame_arrived(state, 5, "a")
@@ -155,6 +183,8 @@ def test_pool_params_reject_bad_values() -> None:
         PoolParams(workers=0)
     with pytest.raises(ValueError, match="max_pending"):
         PoolParams(max_pending=-1)
+    with pytest.raises(ValueError, match="ahead"):
+        PoolParams(ahead=-1)
 
 
 # --------------------------------------------------------------------------- in-process
