@@ -1699,12 +1699,13 @@ def _consistent_sides(
 
     With ``settled`` (four flags, set here for the sides placed so), ``shares`` (each seed's
     share of the window's trim, 0 at no occluding edge) and ``trims`` (a whole window's trim
-    across the sides along ``u``, then across ``u``): a side of two uncut seeds or more whose
-    occluding seeds each take a whole window or more (the background lies far behind every
-    edge) goes through the median of its seeds' edges, each seed's own trim taken off, its
-    outliers beyond dropped as above and a seed at no occluding edge lying more than
-    ``_HOLE_APART`` times ``apart_m`` inside the farthest left out (a hole's border, inside
-    the face). Those sides are trimmed already: ``_trimmed_sides`` leaves them.
+    across the sides along ``u``, then across ``u``): a side of two uncut seeds or more half
+    of whose occluding seeds or more take a whole window or more (``_FAR_EDGES``: the
+    background lies far behind the side) goes through the median of its seeds' edges, each
+    seed's own trim taken off, its outliers beyond dropped as above and a seed at no
+    occluding edge lying more than ``_HOLE_APART`` times ``apart_m`` inside the farthest
+    left out (a hole's border, inside the face). Those sides are trimmed already:
+    ``_trimmed_sides`` leaves them.
 
     A window matcher fattens an occluding edge by an amount that varies along it: at SGBM 7
     the cuboids' seeds lay 0.95 mm past the true side on the nearest, 3.1 on the median and
@@ -1764,8 +1765,11 @@ def _consistent_sides(
             with_cut = True
         elif len(outward) < 2:
             continue
-        # Each edge takes a whole window or more: the background lies far behind it.
-        far = not with_cut and all(w >= 1.0 for _, _, w in outward if w > 0)
+        # Half its edges or more take a whole window or more: the background lies far behind
+        # the side, and one end with something nearer behind it (the table under a tilted
+        # box) fattens no less (see _FAR_EDGES).
+        edges = [w for _, _, w in outward if w > 0]
+        far = not with_cut and sum(w >= 1.0 for w in edges) >= _FAR_EDGES * len(edges)
         outward.sort(reverse=True)
         while len(outward) > 1 and outward[0][0] - outward[1][0] > apart_m:
             outward.pop(0)
@@ -3888,6 +3892,14 @@ _OUTLYING_TRIMS = 2.0
 # two edges, and came out 12 mm narrow.
 _SIDE_MEDIAN_SEEDS = 2
 _HOLE_APART = 2.0
+# The share of a side's occluding seeds that must take a whole window or more for the side to
+# go through its seeds' median (see _consistent_sides). SGBM 9, the box tilted left, trial 0
+# frames 1-3: a side's farthest seed 8.8-9.5 mm past the true side at an end with the table
+# 0.07-0.13 of its depth behind (0.21-0.24 of a window), its others 3.3-6.2 mm past; with
+# every edge required far, the side went through the farthest (7.9-8.5 mm out, widths 6.6-12.7
+# mm too wide). Where a side has no edge far behind (the 40 mm bar on the table), the farthest
+# seed still rules.
+_FAR_EDGES = 0.5
 # Where no fattening was measured, a side's seed lying this many samples (pixels at the
 # face's depth) beyond every other seed of the side, of this many seeds at least, is taken as
 # the matcher's fattening, not as the side: see _straight_sides.
