@@ -368,11 +368,18 @@ def _hull_distance(hull: list[Point]) -> tuple[float, Point]:
     return (-float(dist[i]) if inside else float(dist[i])), (near_x[i], near_y[i])
 
 
+def _unit_clip(x: np.ndarray) -> np.ndarray:
+    """``np.clip(x, 0.0, 1.0)`` for arrays without NaN, without clip's Python wrappers. The
+    bound comes first: ``np.maximum(0.0, x)`` keeps a -0.0 as clip does, where
+    ``np.maximum(x, 0.0)`` gives +0.0 and would change the encoded bytes."""
+    return np.minimum(1.0, np.maximum(0.0, x))
+
+
 def tactor_shares(theta: float, angles: tuple[float, ...]) -> np.ndarray:
     """Linear shares (n,) of direction ``theta`` between the two tactors around it; sum 1."""
     phi = np.asarray(angles, dtype=float)
     delta = np.angle(np.exp(1j * (theta - phi)))  # wrapped to (-pi, pi]
-    return np.clip(1.0 - np.abs(delta) / (2 * np.pi / len(phi)), 0.0, 1.0)
+    return _unit_clip(1.0 - np.abs(delta) / (2 * np.pi / len(phi)))
 
 
 # --------------------------------------------------------------------------- step
@@ -503,7 +510,7 @@ def _cue(
     theta = float(math.atan2(nearest[pick, 1], nearest[pick, 0]))
     angles = params.tactor_angles_rad if tactor_angles_rad is None else tactor_angles_rad
     shares = (1.0 - rho) * tactor_shares(theta, angles)
-    amplitudes = tuple(float(a) for a in np.clip(shares, 0.0, 1.0))
+    amplitudes = tuple(float(a) for a in _unit_clip(shares))
     return Guidance("guiding", rho, theta, amplitudes, len(signed), s, centroid)
 
 
