@@ -15,6 +15,7 @@ from lpc_core.control.aim import (
     AimState,
     aim_step,
     capture_points,
+    cluster_points,
     convex_hull,
     guide,
     hull_distance,
@@ -469,3 +470,40 @@ def test_aim_service_publishes_command_and_cue_per_frame(
         proc.wait(timeout=10)
         for sub in subs:
             sub.undeclare()
+
+
+def _cube_linkage(points: np.ndarray, gap_m: float) -> np.ndarray:
+    """cluster_points' definition, written plainly: the first point of each cube of side
+    gap / 4 (cubes in (x, y, z) cell order) stands for its cube, two of them closer than the
+    gap are linked, and each point takes its cube's component, labelled by its first cube."""
+    cells = [tuple(c) for c in np.floor(points / (gap_m / 4.0)).astype(np.int64).tolist()]
+    cubes = sorted(set(cells))
+    index = {c: k for k, c in enumerate(cubes)}
+    first = {}
+    for i, c in enumerate(cells):
+        first.setdefault(index[c], i)
+    reps = points[[first[k] for k in range(len(cubes))]]
+    label = list(range(len(cubes)))
+
+    def root(k: int) -> int:
+        while label[k] != k:
+            k = label[k]
+        return k
+
+    for a in range(len(cubes)):
+        for b in range(a + 1, len(cubes)):
+            if float(np.sum((reps[a] - reps[b]) ** 2)) <= gap_m * gap_m:
+                ra, rb = root(a), root(b)
+                label[max(ra, rb)] = min(ra, rb)
+    return np.array([root(index[c]) for c in cells])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_cluster_points_is_single_linkage_of_the_cubes_first_points(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    # Two to four blobs of scattered points in the capture volume, some closer than the gap.
+    centres = rng.uniform([-0.04, -0.04, 0.16], [0.04, 0.04, 0.24], (int(rng.integers(2, 5)), 3))
+    points = np.concatenate([c + rng.normal(0.0, 0.006, (60, 3)) for c in centres])
+    points = points[rng.permutation(len(points))]
+    labels = cluster_points(points, 0.010)
+    assert labels.tolist() == _cube_linkage(points, 0.010).tolist()

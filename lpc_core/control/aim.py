@@ -171,20 +171,21 @@ def cluster_points(points: np.ndarray, gap_m: float) -> np.ndarray:
         return np.empty(0, dtype=np.intp)
     # Row-wise on the transpose (C order): reductions along contiguous rows cost less.
     cells = np.floor(np.divide(points.T, gap_m / 4.0, order="C")).astype(np.int64)
-    cells -= cells.min(axis=1)[:, None]
-    span = cells.max(axis=1) + 1
+    # The ufuncs' reductions, not the methods: those go through numpy's Python wrappers.
+    cells -= np.minimum.reduce(cells, axis=1)[:, None]
+    span = np.maximum.reduce(cells, axis=1) + 1
     keys = (cells[0] * span[1] + cells[1]) * span[2] + cells[2]
     # np.unique(keys, return_index=True, return_inverse=True) spelled out, without the
     # argument handling that cost as much as the sort: each cube's first point, cubes in key
     # order, and each point's cube.
-    order = np.argsort(keys, kind="stable")
+    order = keys.argsort(kind="stable")
     ordered = keys[order]
     starts = np.empty(n, dtype=bool)
     starts[0] = True
     np.not_equal(ordered[1:], ordered[:-1], out=starts[1:])
     first = order[starts]
     cube = np.empty(n, dtype=np.intp)
-    cube[order] = np.cumsum(starts) - 1
+    cube[order] = starts.cumsum() - 1
     # Midpoint splits (balanced_tree=False) instead of medians: a tree of a hundred-odd cube
     # points builds and searches in fewer instructions. The search is exact either way, so the
     # pairs, and the components, are the same.
@@ -234,7 +235,12 @@ def without_support(points: np.ndarray, params: AimParams, seed: int = 0) -> np.
     rng = np.random.Generator(np.random.PCG64(seed))
     support = find_support_plane(points, SCAN_LINE_SUPPORT, rng)
     # A table spans the capture volume; a small flat object behind another does not.
-    if support is None or np.ptp(points[support, :2], axis=0).max() < params.width_m / 2:
+    if support is None:
+        return points
+    # np.ptp(axis=0).max() without its Python wrappers: the same differences.
+    plane_xy = points[support, :2]
+    spans = np.maximum.reduce(plane_xy) - np.minimum.reduce(plane_xy)
+    if max(spans.tolist()) < params.width_m / 2:
         return points
     rest = points[~support]
     return rest if len(rest) >= params.min_cluster_points else points
@@ -260,7 +266,7 @@ def convex_hull(points: np.ndarray) -> np.ndarray:
 def _hull(points: np.ndarray) -> list[Point]:
     """``convex_hull`` of valid (N, 2) float points, as a list: the vertices are few, and
     plain floats cost less than small arrays in the steps that follow."""
-    extremes = np.argmax(points @ _OCTANTS, axis=0).tolist()
+    extremes = (points @ _OCTANTS).argmax(axis=0).tolist()
     # Consecutive directions often share their extreme point: keep each once, in order.
     ring: list[list[float]] = points[
         [e for k, e in enumerate(extremes) if k == 0 or e != extremes[k - 1]]
@@ -280,7 +286,7 @@ def _hull(points: np.ndarray) -> list[Point]:
         )[:, :, None]
         # cross(edge, p - start) < 0: p lies right of (outside) that counter-clockwise edge.
         cross = ex * (points[:, 1] - sy) - ey * (points[:, 0] - sx)
-        candidates = ring + points[(cross < 0.0).any(axis=0)].tolist()
+        candidates = ring + points[np.logical_or.reduce(cross < 0.0, axis=0)].tolist()
     else:
         candidates = points.tolist()
     hull = _monotone_chain(candidates)
@@ -358,15 +364,22 @@ def _hull_distance(hull: list[Point]) -> tuple[float, Point]:
     # numpy's hypot, not math's: they differ in the last bit now and then, and the cue's
     # recorded replays hold numpy's.
     dist = np.hypot(near_x, near_y)
-    i = int(np.argmin(dist))
+    i = int(dist.argmin())
     return (-float(dist[i]) if inside else float(dist[i])), (near_x[i], near_y[i])
+
+
+def _unit_clip(x: np.ndarray) -> np.ndarray:
+    """``np.clip(x, 0.0, 1.0)`` for arrays without NaN, without clip's Python wrappers. The
+    bound comes first: ``np.maximum(0.0, x)`` keeps a -0.0 as clip does, where
+    ``np.maximum(x, 0.0)`` gives +0.0 and would change the encoded bytes."""
+    return np.minimum(1.0, np.maximum(0.0, x))
 
 
 def tactor_shares(theta: float, angles: tuple[float, ...]) -> np.ndarray:
     """Linear shares (n,) of direction ``theta`` between the two tactors around it; sum 1."""
     phi = np.asarray(angles, dtype=float)
     delta = np.angle(np.exp(1j * (theta - phi)))  # wrapped to (-pi, pi]
-    return np.clip(1.0 - np.abs(delta) / (2 * np.pi / len(phi)), 0.0, 1.0)
+    return _unit_clip(1.0 - np.abs(delta) / (2 * np.pi / len(phi)))
 
 
 # --------------------------------------------------------------------------- step
@@ -431,7 +444,7 @@ def objects_in_view(points: np.ndarray, params: AimParams) -> InView | None:
     ``None`` when there is none."""
     labels = cluster_points(points, params.cluster_gap_m)
     counts = np.bincount(labels)
-    kept = np.flatnonzero(counts >= params.min_cluster_points)
+    kept = (counts >= params.min_cluster_points).nonzero()[0]
     if len(kept) == 0:
         return None
     xy = points[:, :2]
@@ -439,8 +452,8 @@ def objects_in_view(points: np.ndarray, params: AimParams) -> InView | None:
         groups = [np.ascontiguousarray(xy)]  # the common frame: one object and nothing else
     else:
         # One stable sort gives every object's points, in their order, as a slice.
-        grouped = xy[np.argsort(labels, kind="stable")]
-        ends = np.cumsum(counts).tolist()
+        grouped = xy[labels.argsort(kind="stable")]
+        ends = counts.cumsum().tolist()
         groups = [grouped[ends[k] - counts[k] : ends[k]] for k in kept.tolist()]
     found = [_hull_distance(_hull(members)) for members in groups]
     # members.mean(axis=0) without its argument handling: the same sum over the same array,
@@ -479,10 +492,10 @@ def _cue(
     if view is None:
         return Guidance("nothing")
     signed, nearest, centroids = view.signed_m, view.nearest_xy, view.centroids_xy
-    pick = int(np.argmin(signed))
+    pick = int(signed.argmin())
     if chosen_xy is not None:
         offsets = np.hypot(*(centroids - np.asarray(chosen_xy)).T)
-        same = int(np.argmin(offsets))
+        same = int(offsets.argmin())
         if offsets[same] <= params.track_radius_m and (
             signed[same] <= signed[pick] + params.switch_margin_m
         ):
@@ -497,7 +510,7 @@ def _cue(
     theta = float(math.atan2(nearest[pick, 1], nearest[pick, 0]))
     angles = params.tactor_angles_rad if tactor_angles_rad is None else tactor_angles_rad
     shares = (1.0 - rho) * tactor_shares(theta, angles)
-    amplitudes = tuple(float(a) for a in np.clip(shares, 0.0, 1.0))
+    amplitudes = tuple(float(a) for a in _unit_clip(shares))
     return Guidance("guiding", rho, theta, amplitudes, len(signed), s, centroid)
 
 

@@ -516,7 +516,7 @@ def find_support_plane(
     front = np.add.reduce((signed >= -threshold).view(np.uint8), axis=0, dtype=np.int32)
     inliers = front - behind
     ok = valid & (behind <= params.support_max_behind_fraction * len(sub))
-    if not ok.any():
+    if not np.logical_or.reduce(ok):
         return None
     # The method, not np.argmax's Python wrapper: the search runs on every resting round.
     best = int(np.where(ok, inliers, -1).argmax())
