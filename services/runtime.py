@@ -87,6 +87,15 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+# Zenoh's receive runtime with one worker thread instead of two (unless ZENOH_RUNTIME is set):
+# at 100 Hz each message from another process woke both (one reads the socket, the other
+# takes the task over), a thread wake-up that costs tens of µs of CPU on a virtual machine.
+# The control path alone (lpc up --together, no camera): about 1,700 -> 1,500 wake-ups and
+# 20.8 -> 18.5 % of a core (medians). Only the receive runtime: with every runtime folded into
+# one thread the network-cut tests of tests/test_multihost.py failed (README, issue 17 stop 25).
+ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+
+
 def zenoh_config(
     *,
     mode: str = "peer",
@@ -98,6 +107,8 @@ def zenoh_config(
 
     Gossip stays on so that peers which reach one rendezvous peer form a full mesh.
     """
+    # Read by Zenoh when its runtimes start, at the process's first session.
+    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
     if config_file:
         try:
             conf = zenoh.Config.from_file(config_file)

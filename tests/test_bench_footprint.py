@@ -20,6 +20,8 @@ from services.cli.bench.footprint import (
     _read_recording,
     thread_shares,
     thread_times,
+    thread_wakeups,
+    wakeup_counts,
 )
 from services.cli.bench.soak import Watcher
 from services.mcap_log import LogWriter
@@ -173,6 +175,39 @@ def test_footprint_thread_shares_split_the_container_by_thread(tmp_path: Path) -
         "Zenoh": 3.0,
         "other": 0.0,
     }
+
+
+def _fake_wakeups(proc: Path, pid: int, tid: int, name: str, voluntary: int) -> None:
+    _fake_task(proc, pid, tid, name, 0, 0)
+    (proc / str(pid) / "task" / str(tid) / "status").write_text(
+        f"Name:\t{name}\nvoluntary_ctxt_switches:\t{voluntary}\nnonvoluntary_ctxt_switches:\t7\n"
+    )
+
+
+def test_footprint_counts_wake_ups_per_part_of_the_container(tmp_path: Path) -> None:
+    pid = 100
+    for tid, name, voluntary in [
+        (100, "python", 50),  # the main loop
+        (101, CONTROL_LOOP, 1000),
+        (103, "tx-0", 400),
+        (104, "rx-1", 300),
+        (105, "python", 20),  # zenoh-python's callback thread
+    ]:
+        _fake_wakeups(tmp_path, pid, tid, name, voluntary)
+    start = thread_wakeups(pid, tmp_path)
+    assert start[101] == (CONTROL_LOOP, 1000)
+    _fake_wakeups(tmp_path, pid, 101, CONTROL_LOOP, 3000)  # 200 a second over 10 s
+    _fake_wakeups(tmp_path, pid, 103, "tx-0", 1400)
+    _fake_wakeups(tmp_path, pid, 105, "python", 1020)
+    _fake_wakeups(tmp_path, pid, 106, "rx-0", 90)  # new since the start: all of it
+    end = thread_wakeups(pid, tmp_path)
+    assert wakeup_counts(pid, start, end, by_thread=True) == {
+        "main loop": 0,
+        "control loop": 2000,
+        "Zenoh": 1090,
+        "other": 1000,
+    }
+    assert wakeup_counts(pid, start, end, by_thread=False) == {"all": 4090}
 
 
 def test_footprint_sees_the_name_a_thread_gives_itself() -> None:

@@ -269,6 +269,38 @@ def thread_shares(
     return dict(shares)
 
 
+def thread_wakeups(pid: int, proc: Path = Path("/proc")) -> dict[int, tuple[str, int]]:
+    """Voluntary context switches (the times it slept and was woken) and kernel name of each
+    live thread of ``pid``. On a virtual machine each wake-up costs tens of µs of CPU whatever
+    the thread then does, so a 100 Hz path is as dear as the hand-overs it makes per message."""
+    counts: dict[int, tuple[str, int]] = {}
+    with contextlib.suppress(OSError):
+        for task in (proc / str(pid) / "task").iterdir():
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                stat = (task / "stat").read_text()
+                name = stat[stat.index("(") + 1 : stat.rindex(")")]
+                for line in (task / "status").read_text().splitlines():
+                    if line.startswith("voluntary_ctxt_switches:"):
+                        counts[int(task.name)] = (name, int(line.split()[1]))
+    return counts
+
+
+def wakeup_counts(
+    pid: int,
+    start: dict[int, tuple[str, int]],
+    end: dict[int, tuple[str, int]],
+    *,
+    by_thread: bool,
+) -> dict[str, int]:
+    """Wake-ups between two ``thread_wakeups`` of one process: per part of the container
+    (``_thread_group``) with ``by_thread``, else all of the process's threads as ``"all"``."""
+    counts: dict[str, int] = defaultdict(int)
+    for tid, (name, n) in end.items():
+        group = _thread_group(name, tid, pid) if by_thread else "all"
+        counts[group] += n - start.get(tid, (name, 0))[1]
+    return dict(counts)
+
+
 @dataclass
 class Proc:
     """One process of the set, named after its service (workers after their parent's)."""
@@ -277,6 +309,9 @@ class Proc:
     cpu_start: float
     cpu_last: float
     rss: list[int] = field(default_factory=list)
+    # Its threads' voluntary context switches at the window's start and at the latest sample.
+    wakeups_start: dict[int, tuple[str, int]] = field(default_factory=dict)
+    wakeups_last: dict[int, tuple[str, int]] = field(default_factory=dict)
 
 
 def _process_name(proc: Any, names: dict[int, str]) -> str:
@@ -333,6 +368,7 @@ class Sampler:
                 self.procs[proc.pid] = Proc(self.names[proc.pid], cpu, cpu)
             entry = self.procs[proc.pid]
             entry.cpu_last = cpu
+            entry.wakeups_last = thread_wakeups(proc.pid)
             if entry.name == "container":
                 if proc.pid != self.container_pid:  # a restarted container starts afresh
                     self.container_pid, self.threads_start = proc.pid, {}
@@ -344,6 +380,7 @@ class Sampler:
     def restart_window(self) -> None:
         for entry in self.procs.values():
             entry.cpu_start = entry.cpu_last
+            entry.wakeups_start = entry.wakeups_last
             entry.rss.clear()
         self.totals.clear()
         self.threads_start = self.threads_last
@@ -656,6 +693,15 @@ def _result(
         if entry.rss:
             rss_max[entry.name] += max(entry.rss)
             rss_last[entry.name] += entry.rss[-1]
+    # Wake-ups a second by process name, and the container's by part (its loops, Zenoh's).
+    wakeups: dict[str, float] = defaultdict(float)
+    for pid, entry in sampler.procs.items():
+        container = entry.name == "container"
+        counts = wakeup_counts(pid, entry.wakeups_start, entry.wakeups_last, by_thread=container)
+        wakeups[entry.name] += sum(counts.values()) / window
+        if container and pid == sampler.container_pid:
+            for group, n in counts.items():
+                wakeups[f"container {group}"] += n / window
     summaries = {n: r.summary(0.0) for n, r in services.items()}
     # A service's CPU on the container's loop, and on a thread of its own where it has one (the
     # recorder's writer).
@@ -742,6 +788,7 @@ def _result(
             "throttled": extra["cgroup"],
         },
         "container_threads": threads,
+        "wakeups_per_s": {k: round(v, 1) for k, v in sorted(wakeups.items())},
         "container_loops_unattributed": unattributed,
         "frames": {
             "camera_hz": camera_hz,
@@ -805,6 +852,9 @@ def _print(r: dict[str, Any]) -> None:
             f"container by thread (% of a core): {parts}; on the loops and the writer but in "
             f"no service's own time: {100 * r['container_loops_unattributed']:.1f}"
         )
+    if r.get("wakeups_per_s"):
+        parts = ", ".join(f"{k} {v:.0f}" for k, v in r["wakeups_per_s"].items())
+        print(f"wake-ups a second (voluntary context switches): {parts}")
     if throttled:
         periods = throttled.get("nr_periods", 0)
         share = throttled.get("nr_throttled", 0) / periods if periods else 0.0
