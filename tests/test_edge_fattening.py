@@ -284,26 +284,10 @@ def test_a_box_side_with_the_room_behind_it_goes_through_its_seeds_median(
     side (``laser._corner_seeds``; the box's top lies past the capture volume, and that
     seed was the top side's only one), it comes out 2.3 mm, the axes as they were (2.2 mm
     with the tapering ends counted as edges, against 3.1 without the median)."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from lpc_core.perception import laser
-    from lpc_core.sim.stereo import StereoSensor
-    from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
-
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=7))
-    errors, before = [], []
-    for view in lv.views("functional", 2, 5, 0, names=["cuboid_upright"], sensor=sensor):
-        lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-        result = reconstruct_laser(lines, seed=view.seq)
-        with monkeypatch.context() as m:
-            m.setattr(laser, "_SIDE_MEDIAN_SEEDS", math.inf)
-            m.setattr(laser, "_corner_seeds", lambda *args: [])
-            old = reconstruct_laser(lines, seed=view.seq)
-        assert result.shape == old.shape == "cuboid", (view.detail, result.reason)
-        assert abs(result.wrist_angle_rad - old.wrist_angle_rad) < 1e-9, view.detail
-        truth = view.truth.grasp_width_m
-        errors.append(result.grasp_width_m - truth)
-        before.append(old.grasp_width_m - truth)
+    errors, before = _box_width_errors(
+        monkeypatch, "cuboid_upright", 7,
+        {"_SIDE_MEDIAN_SEEDS": math.inf, "_corner_seeds": lambda *args: []},
+    )  # fmt: skip
     # Trial 1 frames 0, 2 and 4: -3.4, -4.3, -4.1 mm before. (Trial 0 frame 1, +4.8 mm with
     # neither rule, is mended before the median by the tapering ends, ``laser._ramp_ends``.)
     assert sum(abs(e) < 0.002 < abs(b) for e, b in zip(errors, before, strict=True)) >= 3
@@ -322,27 +306,38 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     (``laser._FAR_EDGES``) it goes through the median of its seeds' edges: those four frames
     come out 1.1-3.3 mm narrower (6.6, 11.6, 12.7, 4.7 -> 3.8, 9.1, 9.4, 3.6 mm too wide),
     the others and every axis as they were."""
+    errors, before = _box_width_errors(monkeypatch, "cuboid_tilt_left", 9, {"_FAR_EDGES": 1.0})
+    narrower = [b - e for e, b in zip(errors, before, strict=True)]
+    assert sum(d > 0.001 for d in narrower) >= 4, narrower
+    assert min(narrower) > -1e-9, narrower
+    assert np.mean(np.abs(before)) > 0.0065, before
+    assert np.mean(np.abs(errors)) < 0.006, errors
+
+
+def _box_width_errors(
+    monkeypatch: pytest.MonkeyPatch, name: str, block_size: int, without: dict[str, object]
+) -> tuple[list[float], list[float]]:
+    """Grasp width errors (m) of the box ``name`` under SGBM of ``block_size``, two trials of
+    five frames, with the rules as they are and with ``laser``'s names in ``without`` set as
+    given (the rule under test undone); both a cuboid on every frame, along the same axis."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.perception import laser
     from lpc_core.sim.stereo import StereoSensor
     from lpc_core.sim.stereo_settings import Matcher
     from services.cli import _laser_views as lv
 
-    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=9))
+    sensor = StereoSensor(matcher=Matcher(kind="sgbm", block_size=block_size))
     errors, before = [], []
-    for view in lv.views("functional", 2, 5, 0, names=["cuboid_tilt_left"], sensor=sensor):
+    for view in lv.views("functional", 2, 5, 0, names=[name], sensor=sensor):
         lines = cut_scan_lines(view.depth, lv.INTRINSICS)
         result = reconstruct_laser(lines, seed=view.seq)
         with monkeypatch.context() as m:
-            m.setattr(laser, "_FAR_EDGES", 1.0)
+            for attr, value in without.items():
+                m.setattr(laser, attr, value)
             old = reconstruct_laser(lines, seed=view.seq)
         assert result.shape == old.shape == "cuboid", (view.detail, result.reason)
         assert abs(result.wrist_angle_rad - old.wrist_angle_rad) < 1e-9, view.detail
         truth = view.truth.grasp_width_m
         errors.append(result.grasp_width_m - truth)
         before.append(old.grasp_width_m - truth)
-    narrower = [b - e for e, b in zip(errors, before, strict=True)]
-    assert sum(d > 0.001 for d in narrower) >= 4, narrower
-    assert min(narrower) > -1e-9, narrower
-    assert np.mean(np.abs(before)) > 0.0065, before
-    assert np.mean(np.abs(errors)) < 0.006, errors
+    return errors, before
