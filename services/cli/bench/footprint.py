@@ -248,15 +248,23 @@ def thread_times(pid: int, proc: Path = Path("/proc")) -> dict[int, tuple[str, f
     """CPU seconds (user + system) and kernel name of each live thread of ``pid``."""
     ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
     times: dict[int, tuple[str, float]] = {}
+    for tid, _, name, fields in _tasks(pid, proc):
+        with contextlib.suppress(ValueError, IndexError):
+            times[tid] = (name, (int(fields[11]) + int(fields[12])) / ticks)
+    return times
+
+
+def _tasks(pid: int, proc: Path) -> Iterator[tuple[int, Path, str, list[str]]]:
+    """Each live thread of ``pid``: its id, /proc directory, kernel name and the fields of its
+    ``stat`` after the name; a thread that ended meanwhile is skipped."""
     with contextlib.suppress(OSError):
         for task in (proc / str(pid) / "task").iterdir():
-            with contextlib.suppress(OSError, ValueError, IndexError):
+            with contextlib.suppress(OSError, ValueError):
                 stat = (task / "stat").read_text()
                 # The name sits in parentheses and may hold spaces: fields follow the last ')'.
-                name = stat[stat.index("(") + 1 : stat.rindex(")")]
-                fields = stat[stat.rindex(")") + 2 :].split()
-                times[int(task.name)] = (name, (int(fields[11]) + int(fields[12])) / ticks)
-    return times
+                close = stat.rindex(")")
+                name = stat[stat.index("(") + 1 : close]
+                yield int(task.name), task, name, stat[close + 2 :].split()
 
 
 def thread_shares(
@@ -274,14 +282,11 @@ def thread_wakeups(pid: int, proc: Path = Path("/proc")) -> dict[int, tuple[str,
     live thread of ``pid``. On a virtual machine each wake-up costs tens of µs of CPU whatever
     the thread then does, so a 100 Hz path is as dear as the hand-overs it makes per message."""
     counts: dict[int, tuple[str, int]] = {}
-    with contextlib.suppress(OSError):
-        for task in (proc / str(pid) / "task").iterdir():
-            with contextlib.suppress(OSError, ValueError, IndexError):
-                stat = (task / "stat").read_text()
-                name = stat[stat.index("(") + 1 : stat.rindex(")")]
-                for line in (task / "status").read_text().splitlines():
-                    if line.startswith("voluntary_ctxt_switches:"):
-                        counts[int(task.name)] = (name, int(line.split()[1]))
+    for tid, task, name, _ in _tasks(pid, proc):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            for line in (task / "status").read_text().splitlines():
+                if line.startswith("voluntary_ctxt_switches:"):
+                    counts[tid] = (name, int(line.split()[1]))
     return counts
 
 
