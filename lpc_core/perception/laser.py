@@ -3022,6 +3022,21 @@ def _rim_free(
     return solid
 
 
+def _outermost_samples(
+    lines: list[LineModels], angle: np.ndarray, on: np.ndarray
+) -> list[tuple[LineModels, int]]:
+    """The line and the index on it of the samples among ``on`` (indices into the lines'
+    points laid end to end, as ``angle`` is) at the smallest and at the largest ``angle``
+    about a round's axis: where its two rims would be."""
+    sizes = [len(ln.points) for ln in lines]
+    owner = np.repeat(np.arange(len(lines)), sizes)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    found = []
+    for i in (int(on[np.argmin(angle[on])]), int(on[np.argmax(angle[on])])):
+        found.append((lines[int(owner[i])], i - int(offsets[owner[i]])))
+    return found
+
+
 # How far from the axis, in radii, the plane behind a round's two rims may lie for the round
 # to rest on it: the table behind the rotation suite's lying cylinders lay 0.74-1.10 radii
 # from their whole-arc fits' axes on SGBM 5-9 (the fit's own radius error moves it).
@@ -3063,16 +3078,11 @@ def _rests_behind_rims(
     if past is None:
         return False
     reach = params.background_reach_px * pixel_rad
-    sizes = [len(ln.points) for ln in lines]
-    owner = np.repeat(np.arange(len(lines)), sizes)
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
     on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
     if len(on) == 0:
         return False
     behind = []
-    for i in (int(on[np.argmin(angle[on])]), int(on[np.argmax(angle[on])])):
-        ln = lines[int(owner[i])]
-        k = i - int(offsets[owner[i]])
+    for ln, k in _outermost_samples(lines, angle, on):
         last = len(ln.points) - 1
         if k not in (0, last):
             return False  # the segment goes on past the round: no rim there
@@ -3233,13 +3243,8 @@ def _occluding_rims(
     reach = params.background_reach_px * pixel_rad
     hw = params.capture_half_width_m
     zlo, zhi = params.capture_z_m
-    sizes = [len(ln.points) for ln in lines]
-    owner = np.repeat(np.arange(len(lines)), sizes)
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
     on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
-    for i in (int(on[np.argmin(angle[on])]), int(on[np.argmax(angle[on])])):
-        ln = lines[int(owner[i])]
-        k = i - int(offsets[owner[i]])
+    for ln, k in _outermost_samples(lines, angle, on):
         last = len(ln.points) - 1
         if k not in (0, last) or ln.step <= 0 or last < _RIM_SAMPLES:
             return False
