@@ -20,6 +20,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "recorder": ("services.cli.bench.recorder", "MCAP write cost, recorder loss, replay speed"),
     "render": ("services.cli.bench.render", "simulated camera and scan-cut speed"),
     "stereo": ("services.cli.bench.stereo", "the stereo camera's artifacts and cost per frame"),
+    "sweep": (
+        "services.cli.bench.sweep",
+        "both methods over many stereo camera settings, one row each, before -> after",
+    ),
     "foxglove": ("services.cli.bench.foxglove", "Foxglove conversion, export and bridge figures"),
     "emg": ("services.cli.bench.emg", "lpc/emg rate from LSL or BrainFlow raw EMG; an outage"),
     "pool": ("services.cli.bench.pool", "the reconstructor's pipe-fed workers against an executor"),

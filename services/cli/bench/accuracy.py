@@ -38,6 +38,7 @@ from lpc_core.perception.laser import LaserParams, reconstruct_laser
 from lpc_core.perception.reconstruction import SHAPES, Reconstruction, wrap_half_turn
 from lpc_core.perception.scans import cut_scan_lines
 from lpc_core.perception.window import WindowState, window_step
+from lpc_core.sim import scene
 from lpc_core.sim.stereo import StereoSensor
 from services.cli import _laser_views as lv
 from services.drivers.depth import (
@@ -338,18 +339,27 @@ def report_rotation(outcomes: list[Outcome]) -> list[str]:
     return lines
 
 
-def report_irregular(outcomes: list[Outcome]) -> list[str]:
-    lines = [
-        "irregular objects (paper's rule: width within ±20 mm, angle within ±10 deg, angle SD "
-        "< 15 deg; here the per-frame medians, the SD of the angle errors, and at least half "
-        "the frames reconstructed)",
-        f"  {'object':18} {'view':6} {'shape':9} {'shape %':>8} {'truth mm':>9} {'est mm':>7} "
-        f"{'angle err':>9} {'angle SD':>8} {'result':>7} {'paper':>6}",
-    ]
+@dataclass(frozen=True)
+class IrregularVerdict:
+    """One irregular object seen from one side, judged by the paper's rule on its frames."""
+
+    name: str
+    detail: str
+    truth: scene.ObjectTruth
+    shape_pct: float
+    width_mm: float  # the median of the frames' estimates
+    angle_error_deg: float  # the median of the frames' errors
+    angle_sd_deg: float  # the spread of the errors about that median
+    handled: bool
+
+
+def irregular_verdicts(outcomes: list[Outcome]) -> list[IrregularVerdict]:
+    """The paper's rule per object and view: width within ±20 mm and angle within ±10 deg
+    (the frames' medians), the angle errors' SD below 15 deg, half the frames reconstructed."""
     groups: dict[tuple[str, str], list[Outcome]] = defaultdict(list)
     for o in outcomes:
         groups[(o.view.subject, o.view.detail)].append(o)
-    passed: dict[str, bool] = {}
+    verdicts = []
     for (name, detail), group in groups.items():
         truth = group[0].view.truth
         done = [o for o in group if o.result.shape != "none"]
@@ -364,13 +374,36 @@ def report_irregular(outcomes: list[Outcome]) -> list[str]:
         ok = len(done) >= len(group) / 2 and abs(est - truth.grasp_width_mm) <= IRREGULAR_WIDTH_MM
         if truth.wrist_angle_rad is not None:
             ok = ok and abs(angle_err) <= IRREGULAR_ANGLE_DEG and sd < IRREGULAR_SD_DEG
-        passed[name] = passed.get(name, True) and bool(ok)
         pct = 100.0 * sum(o.correct for o in group) / len(group)
-        paper = "fail" if name in PAPER_IRREGULAR_FAILED else "ok"
+        verdicts.append(IrregularVerdict(name, detail, truth, pct, est, angle_err, sd, bool(ok)))
+    return verdicts
+
+
+def objects_handled(verdicts: list[IrregularVerdict]) -> dict[str, bool]:
+    """An object is handled when every view of it is."""
+    handled: dict[str, bool] = {}
+    for v in verdicts:
+        handled[v.name] = handled.get(v.name, True) and v.handled
+    return handled
+
+
+def report_irregular(outcomes: list[Outcome]) -> list[str]:
+    lines = [
+        "irregular objects (paper's rule: width within ±20 mm, angle within ±10 deg, angle SD "
+        "< 15 deg; here the per-frame medians, the SD of the angle errors, and at least half "
+        "the frames reconstructed)",
+        f"  {'object':18} {'view':6} {'shape':9} {'shape %':>8} {'truth mm':>9} {'est mm':>7} "
+        f"{'angle err':>9} {'angle SD':>8} {'result':>7} {'paper':>6}",
+    ]
+    verdicts = irregular_verdicts(outcomes)
+    for v in verdicts:
+        paper = "fail" if v.name in PAPER_IRREGULAR_FAILED else "ok"
         lines.append(
-            f"  {name:18} {detail:6} {truth.shape:9} {pct:8.1f} {truth.grasp_width_mm:9.1f} "
-            f"{est:7.1f} {angle_err:9.1f} {sd:8.1f} {'ok' if ok else 'FAIL':>7} {paper:>6}"
+            f"  {v.name:18} {v.detail:6} {v.truth.shape:9} {v.shape_pct:8.1f} "
+            f"{v.truth.grasp_width_mm:9.1f} {v.width_mm:7.1f} {v.angle_error_deg:9.1f} "
+            f"{v.angle_sd_deg:8.1f} {'ok' if v.handled else 'FAIL':>7} {paper:>6}"
         )
+    passed = objects_handled(verdicts)
     lines.append(
         f"  objects handled: {sum(passed.values())}/{len(passed)} "
         f"(paper: {len(passed) - len(PAPER_IRREGULAR_FAILED)}/{len(passed)}; it failed "
