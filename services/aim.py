@@ -6,7 +6,6 @@ default), the tactor directions turn with the hand's reported wrist angle."""
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 
 from lpc_core.control.aim import AimParams, AimState, aim_step, tactor_placement
@@ -33,33 +32,30 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     commands = bus.publisher("lpc/tactors/command")
     cues = bus.publisher("lpc/aim/cue")
 
-    async def follow(key: str) -> None:
-        # These subscriptions only update the shared state; frames drive the outputs.
-        nonlocal state
-        async for message in bus.subscribe(key):
-            state, _ = aim_step(state, message, bus.clock.now_ns())
-
+    # These only update the state that frames are read against: the newest of each is taken
+    # when a frame arrives, so that no sample of theirs wakes the loop or a task (the hand's
+    # status alone is 100 a second).
     keys = ["lpc/grasp/target", "lpc/controller/state"]
     if state.params.follow_wrist:
         keys.append("lpc/prosthesis/state")
-    followers = [asyncio.create_task(follow(key)) for key in keys]
-    try:
-        async for scans in bus.subscribe("lpc/scans"):
-            try:
-                state, outputs = aim_step(state, scans, bus.clock.now_ns())
-            except ValueError as exc:
-                bus.reject("lpc/scans", str(exc))
-                continue
-            # The tactor command first: it is the one on the latency path.
-            for out in outputs:
-                if isinstance(out, TactorCommand):
-                    commands.put(out)
-            for out in outputs:
-                if isinstance(out, AimCue):
-                    cues.put(out)
-    finally:
-        for task in followers:
-            task.cancel()
+    followed = [bus.newest(key) for key in keys]
+    async for scans in bus.subscribe("lpc/scans"):
+        for newest in followed:
+            message = newest.take()
+            if message is not None:
+                state, _ = aim_step(state, message, bus.clock.now_ns())
+        try:
+            state, outputs = aim_step(state, scans, bus.clock.now_ns())
+        except ValueError as exc:
+            bus.reject("lpc/scans", str(exc))
+            continue
+        # The tactor command first: it is the one on the latency path.
+        for out in outputs:
+            if isinstance(out, TactorCommand):
+                commands.put(out)
+        for out in outputs:
+            if isinstance(out, AimCue):
+                cues.put(out)
 
 
 def parser() -> argparse.ArgumentParser:

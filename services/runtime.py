@@ -414,6 +414,57 @@ class Subscription:
                 self._router.remove(self)
 
 
+class Newest(Subscription):
+    """The newest sample of a key, taken when wanted (``take``) instead of delivered: a state
+    that a service reads when something else drives it (aim reads the wrist angle, the grasp
+    target and the controller's state when a frame arrives).
+
+    A sample wakes neither the loop nor a task: from Zenoh's thread it is stored as it is (no
+    call into the loop), and in a process with a ``Router`` it waits, like a ``prompt=False``
+    subscription's, for the loop's next wake-up, which ``take`` does not wait for: it hands
+    over what waits first. A sample that a newer one replaces before it is taken is counted
+    as received, not as dropped: only the newest was wanted. The loop woke for every sample
+    of aim's three state topics: the hand's status alone is 100 a second from another thread.
+    """
+
+    def __init__(self, bus: Bus, key: str) -> None:
+        # Before the subscription is declared: a sample may arrive as soon as it is.
+        self._cell_lock = threading.Lock()
+        self._stream = bus.health.received[key]
+        super().__init__(bus, key, latest=True, capacity=1, decode=True, prompt=False)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Zenoh's thread: stored, not handed to the loop (``take`` reads it there).
+        self._push((str(sample.key_expr), sample.payload.to_bytes(), self._bus.clock.now_ns()))
+
+    def _push(self, item: tuple[str, bytes, int]) -> None:
+        with self._cell_lock:
+            self._queue.append(item)
+            self._stream.count += 1
+            self._stream.stamps.append(item[2])
+
+    def take(self) -> Any | None:
+        """The newest message that arrived since the last ``take``, decoded, or ``None``
+        (none did, or it did not decode: then it is counted as rejected)."""
+        if self._router is not None:
+            self._router.hand_over_now()
+        with self._cell_lock:
+            if not self._queue:
+                return None
+            key, payload, _ = self._queue.popleft()
+        try:
+            if self._router is not None:
+                return self._router.decode(key, payload)
+            return topic_for_key(key).decode(payload, key)
+        except (BadMessage, KeyError) as exc:
+            self._stream.rejected += 1
+            self._bus.reject(key, str(exc))
+            return None
+
+    async def receive(self) -> tuple[str, Any, int]:
+        raise TypeError("a Newest subscription is read with take(), not awaited")
+
+
 class Router:
     """The subscriptions of all the services on one event loop of one process (the container),
     each sample handed to the loop once and to every local subscription it is for.
@@ -593,6 +644,11 @@ class Router:
             with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
                 self._loop.call_soon_threadsafe(self._drain)
 
+    def hand_over_now(self) -> None:
+        """On this router's loop: hand the samples that wait for its next wake-up over now."""
+        if self._inbox:
+            self._drain()
+
     def _drain(self) -> None:
         # Cleared before emptying the inbox: a sample queued meanwhile schedules another drain.
         self._scheduled = False
@@ -670,6 +726,12 @@ class Bus:
         sub = Subscription(
             self, key, latest=latest, capacity=capacity, decode=decode, prompt=prompt
         )
+        self._subs.append(sub)
+        return sub
+
+    def newest(self, key: str) -> Newest:
+        """The newest sample of ``key``, read with ``take()`` (see ``Newest``)."""
+        sub = Newest(self, key)
         self._subs.append(sub)
         return sub
 

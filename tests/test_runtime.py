@@ -242,6 +242,60 @@ def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: 
     asyncio.run(main())
 
 
+def test_newest_takes_the_last_sample_without_waking_the_loop(endpoint: str) -> None:
+    """A ``Bus.newest`` subscription (aim's wrist angle, target and controller state) is not
+    handed samples by waking the loop, with or without a router: ``take`` returns the newest
+    one that arrived, then ``None`` until another does; every sample counts as received, none
+    that a newer one replaced as dropped."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        wakes: list[object] = []
+        call_soon_threadsafe = loop.call_soon_threadsafe
+
+        def counted(callback, *args, **kwargs):  # type: ignore[no-untyped-def]
+            wakes.append(callback)
+            return call_soon_threadsafe(callback, *args, **kwargs)
+
+        loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        routed = Bus(session, "aim", loop=loop, router=router, quiet=True)
+        plain = Bus(session, "aim", loop=loop, quiet=True)  # a process of its own: no router
+        for bus in (routed, plain):
+            newest = bus.newest("lpc/emg")
+            assert newest.take() is None
+
+            def publish(first: int, bus: Bus = bus) -> None:  # another thread, 30 samples
+                for seq in range(first, first + 30):
+                    payload = encode(EmgSample(seq=seq, t_ns=seq + 1, channels=[0.0]))
+                    if bus is routed:
+                        router.deliver("lpc/emg", payload)
+                    else:
+                        session.put("lpc/emg", payload)
+
+            thread = threading.Thread(target=publish, args=(0,))
+            thread.start()
+            thread.join()
+            stream = bus.health.received["lpc/emg"]
+            if bus is plain:  # stored by Zenoh's thread; a router's wait in its inbox
+                wait_for(lambda stream=stream: stream.count == 30, 10.0, "30 samples")
+            assert wakes == [], "no wake-up of the loop per sample"
+            assert newest.take().seq == 29
+            assert newest.take() is None
+            assert (stream.count, stream.dropped, len(stream.stamps)) == (30, 0, 30)
+            publish(30)
+            if bus is plain:
+                wait_for(lambda stream=stream: stream.count == 60, 10.0, "30 more")
+            assert newest.take().seq == 59
+            assert wakes == []
+            bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())
+
+
 def test_health_latency_quantiles_by_partition_equal_the_sorted_ones() -> None:
     """With numpy loaded the health's p50/p99 come from a partition, not a sort: the same
     Python floats as ``_quantile`` on the sorted samples, ties and short streams included."""

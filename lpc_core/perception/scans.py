@@ -222,6 +222,29 @@ def _volume_window(intrinsics: Intrinsics, params: ScanParams) -> _VolumeWindow:
     return _VolumeWindow(rs, cs, sx, sy, lo, hi, lo_u16, span_u16)
 
 
+@dataclass(frozen=True, eq=False)
+class _Geometry:
+    """What a frame's cut needs of its intrinsics and parameters, found in one cache lookup:
+    hashing and comparing the two frozen dataclasses (a new ``Intrinsics`` each frame) for
+    three caches, and the angles in radians three times, cost about a tenth of the cut."""
+
+    table: _ScanTable
+    window: _VolumeWindow
+    angles_rad: np.ndarray  # read-only, shared by every ScanLines of this geometry
+    d_row: np.ndarray  # _past_offsets of the angles
+    d_col: np.ndarray
+
+
+@lru_cache(maxsize=16)
+def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
+    angles = params.angles_rad
+    angles.setflags(write=False)
+    d_row, d_col = _past_offsets(intrinsics, tuple(angles.tolist()))
+    return _Geometry(
+        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col
+    )
+
+
 def _check_depth(depth: object, intrinsics: Intrinsics) -> np.ndarray:
     if not isinstance(depth, np.ndarray):
         raise ValueError(f"depth must be a numpy array, got {type(depth).__name__}")
@@ -245,7 +268,8 @@ def cut_scan_lines(
     every point of the capture volume into ``capture_count``.
     """
     depth = _check_depth(depth, intrinsics)
-    tab = _scan_table(intrinsics, params)
+    geometry = _geometry(intrinsics, params)
+    tab = geometry.table
     units = depth.reshape(-1)[tab.flat_index]
     keep = np.flatnonzero((units >= tab.lo_units) & (units <= tab.hi_units))
     z = units[keep] * intrinsics.depth_scale
@@ -258,17 +282,17 @@ def cut_scan_lines(
     counts = np.bincount(line, minlength=len(params.angles_deg)).tolist()
     bounds = [0, *itertools.accumulate(counts)]
     pixels = tab.flat_index[keep]
-    past = past_line_ends(depth, intrinsics, params.angles_rad, pixels, bounds)
+    past = _past_ends(depth, intrinsics, geometry.d_row, geometry.d_col, pixels, bounds)
     capture_count = -1
     if count_capture:
-        win = _volume_window(intrinsics, params)
+        win = geometry.window
         d = depth[win.rows, win.cols]
         if win.lo_u16 is not None:
             capture_count = int(np.count_nonzero(np.subtract(d, win.lo_u16) <= win.span_u16))
         else:
             capture_count = int(np.count_nonzero((d >= win.lo_units) & (d <= win.hi_units)))
     return ScanLines(
-        angles_rad=params.angles_rad,
+        angles_rad=geometry.angles_rad,
         points=tuple(pts[a:b] for a, b in itertools.pairwise(bounds)),
         pixels=tuple(pixels[a:b] for a, b in itertools.pairwise(bounds)),
         min_points=params.min_points,
@@ -300,13 +324,25 @@ def past_line_ends(
     fattens the edge) or just behind it (a table, which it hardly fattens). ``pixels`` are
     the lines' flat pixel indices concatenated, line ``i``'s in ``bounds[i]:bounds[i + 1]``.
     """
+    d_row, d_col = _past_offsets(intrinsics, tuple(np.asarray(angles_rad).tolist()))
+    return _past_ends(depth, intrinsics, d_row, d_col, pixels, bounds)
+
+
+def _past_ends(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    d_row: np.ndarray,
+    d_col: np.ndarray,
+    pixels: np.ndarray,
+    bounds: list[int],
+) -> np.ndarray:
+    """``past_line_ends`` with the lines' pixel offsets (``_past_offsets``) given."""
     count = len(bounds) - 1
     out = np.zeros((count, 2))
     filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
     if not filled:
         return out
     width, height = intrinsics.width, intrinsics.height
-    d_row, d_col = _past_offsets(intrinsics, tuple(np.asarray(angles_rad).tolist()))
     ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
     lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
     flat = ends[:, None] + (d_row[lines] * width + d_col[lines])
