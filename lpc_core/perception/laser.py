@@ -2982,8 +2982,13 @@ def _rim_free(
                 # with it lie on that fit (no bow) while the fit is too wide all the same (the
                 # 50 mm bottle tilted right, SGBM 5-9 and sparse dots: rims 1-4 px past the
                 # true silhouette on both sides, the fit 2-9 mm wide where no bow was seen).
-                # Not BM's samples, which stop short of the rims in holes, nor lpc's noise
-                # model's, uncorrelated; nor a round lying along a support the lines show,
+                # So too where both outermost samples end their segments in the plateau a
+                # window leaves past a rim it reached (_fattened_rims), correlated or not (BM 7
+                # and 9: the 50 mm bottle 6.5-13.6 mm wide, refitted -0.4 to +7.3; the 60 mm
+                # can 1.8-13.1 mm wide, refitted 2.3-2.7 mm narrow).
+                # Not BM's samples where they stop short of the rims in holes (the can under BM
+                # 5, its fit within 1 mm, refitted 5-13 mm narrow), nor lpc's noise model's,
+                # uncorrelated and unfattened; nor a round lying along a support the lines show,
                 # right behind its rims, where the samples stop short of them (the rotation
                 # suite's 40 mm cylinder refitted without the bow: width MAE 1.0-1.5 -> 1.3-2.3
                 # mm on SGBM 5-9), nor one whose rims stand on a surface behind them
@@ -2991,7 +2996,10 @@ def _rim_free(
                 # plane, refitted went 1.9-3.1 -> 2.2-3.3 mm).
                 and (
                     _lying_along(full, support, params)
-                    or _matched(scan_lines, params) is None
+                    or (
+                        _matched(scan_lines, params) is None
+                        and not _fattened_rims(lines, angle, residuals, params)
+                    )
                     or _rests_behind_rims(
                         lines, full, angle, residuals, params, pixel_rad, scan_lines
                     )
@@ -3007,7 +3015,13 @@ def _rim_free(
         # few more pixels than twice the margin (the 40 mm cylinder lying 230 mm away, 40 px)
         # keeps its fit.
         inner = angle.compress(keep)
-        if inner.max() - inner.min() < _ROUND_INNER_SPAN * (on_round.max() - on_round.min()):
+        if attempt == 0:
+            # The span the samples show about the whole arc's fit. Not the refit's: a narrower
+            # refit holds fewer samples within its bands, so its own span shrinks with it, and
+            # the arc could narrow pass after pass (the jar cap's 60 mm band under SGBM 5, its
+            # third arc 25 px of the 43 px its second refit's bands held, 56 px seen: 23 mm).
+            seen = float(on_round.max() - on_round.min())
+        if inner.max() - inner.min() < _ROUND_INNER_SPAN * seen:
             break
         refit = CylinderSolid.estimate(samples.compress(keep, axis=0), solid.axis, iterations=2)
         if not refit or not lo <= refit.radius <= hi:
@@ -3035,6 +3049,26 @@ def _outermost_samples(
     for i in (int(on[np.argmin(angle[on])]), int(on[np.argmax(angle[on])])):
         found.append((lines[int(owner[i])], i - int(offsets[owner[i]])))
     return found
+
+
+def _fattened_rims(
+    lines: list[LineModels], angle: np.ndarray, residuals: np.ndarray, params: LaserParams
+) -> bool:
+    """Whether the round's two outermost samples (by ``angle``, among those within four inlier
+    bands) each end their segment in a plateau of three or more samples within the depth
+    quantum (``_plateau_end``, as ``_fattened`` reads a segment's end): a round's depth changes
+    fastest at its silhouette, so the samples reached both rims and a matcher's window carried
+    the rim's depth past them, as it pulled the arc inside them toward the camera."""
+    on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
+    if len(on) == 0:
+        return False
+    for ln, k in _outermost_samples(lines, angle, on):
+        if k not in (0, len(ln.points) - 1):
+            return False  # the segment goes on past the round: no rim there
+        inward = 1 if k == 0 else -1
+        if abs(_plateau_end(ln.sz[:, 1], k, inward, _END_PLATEAU_M) - k) < 2:
+            return False
+    return True
 
 
 # How far from the axis, in radii, the plane behind a round's two rims may lie for the round
