@@ -66,9 +66,11 @@ def test_cloud_takes_the_measured_fattening_off_the_width(fatten_px: int) -> Non
 
 
 def test_a_face_without_fattening_keeps_its_width() -> None:
+    # Nothing lies behind this face: its right edge has no depth past it, which the four-line
+    # method takes for a block matcher's hole (hole_fattening_px, tests/test_box_bm.py).
     depth, _ = _slanted_face(0)
     lines = cut_scan_lines(depth, INTRINSICS)
-    aware = reconstruct_laser(lines, LaserParams(), seed=1)
+    aware = reconstruct_laser(lines, LaserParams(hole_fattening_px=0.0), seed=1)
     blind = reconstruct_laser(lines, LaserParams(measure_fattening=False), seed=1)
     assert aware.extra["fattening_px"] == 0.0
     assert aware.grasp_width_m == blind.grasp_width_m
@@ -252,10 +254,13 @@ def test_a_box_side_drops_the_seed_a_block_matcher_fattened_beyond_the_others(
         )
         for view in views:
             lines = cut_scan_lines(view.depth, lv.INTRINSICS)
-            result = reconstruct_laser(lines, seed=view.seq)
+            # These frames leave no depth past the box's right edge: the hole's fattening
+            # (tests/test_box_bm.py) would trim them before _straight_sides sees them.
+            params = LaserParams(hole_fattening_px=0.0)
+            result = reconstruct_laser(lines, params, seed=view.seq)
             with monkeypatch.context() as m:
                 m.setattr(laser, "_STRAIGHT_SIDE_SAMPLES", math.inf)
-                old = reconstruct_laser(lines, seed=view.seq)
+                old = reconstruct_laser(lines, params, seed=view.seq)
             assert result.shape == old.shape == "cuboid", (view.frame, result.reason)
             assert result.wrist_angle_rad == old.wrist_angle_rad
             truth = view.truth.grasp_width_m

@@ -194,14 +194,19 @@ def test_a_box_face_broken_by_holes_gets_its_axis() -> None:
     """BM 5, the box tilted right, trial 1 frame 1: the matcher's holes broke two lines 20-30
     mm inside the face, and the seeds there, on no side, turned the box 62 degrees off its
     axis and left it 16 mm narrow; the samples past the holes lie on the face's plane, and
-    the face's runs go on through them: 0.8 degrees, the width within 1 mm."""
+    the face's runs go on through them: 0.8 degrees, the width within 1 mm. The frame leaves
+    no depth past the box's right edge, and the hole's fattening (tests/test_box_bm.py) takes
+    2 px a side off: 2.9 mm narrow so (BM 5 over-trims the box tilted right)."""
     from services.cli import _laser_views as lv
 
     view = _stereo_view("cuboid_tilt_right", 1, 1, kind="bm", block_size=5)
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
-    assert result.shape == "cuboid"
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    untrimmed = reconstruct_laser(lines, LaserParams(hole_fattening_px=0.0), seed=view.seq)
+    result = reconstruct_laser(lines, seed=view.seq)
+    assert result.shape == untrimmed.shape == "cuboid"
     assert _angle_off(result, view) < 1.5
-    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.002
+    assert abs(untrimmed.grasp_width_m - view.truth.grasp_width_m) < 0.002
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003
 
 
 def test_a_box_face_whose_runs_stop_at_a_holes_border_gets_its_axis() -> None:

@@ -231,6 +231,16 @@ class LaserParams:
     far_background_ratio: float = 0.35
     far_window_shares: float = 1.5
     background_reach_px: float = 30.0
+    # Where no face run shows the fattening and the residuals are not correlated like SGBM's,
+    # a frame whose image holds no depth past an occluding edge facing +x (``_hole_past_edge``:
+    # a block matcher's, whose fattening neither shows) takes ``hole_fattening_px``, a 5 x 5
+    # window's, each side its share of it as above but at most one window: without a
+    # smoothness term the matcher fattens an edge by about half its window whatever lies
+    # behind, and its missing depth there tells no far background. Cuboid width MAE, BM 5 / 7 /
+    # 9 (held-out BM 11), mm: 3.05 / 3.78 / 4.56 (4.79) before, 2.73 / 2.21 / 2.28 (3.19) so;
+    # with shares up to 1.5 windows 3.37 / 2.53 / 2.05 (2.71); a 7 x 7 window's (3 px) 3.44 /
+    # 2.32 / 1.79 (2.54). 0 turns it off.
+    hole_fattening_px: float = 2.0
     # The paper's rule, as its authors' code applies it (``variant="paper"``): on each line an
     # ellipse must beat the circle by this much inlier fraction (the text says "twice").
     paper_ellipse_margin: float = 0.25
@@ -293,6 +303,7 @@ class LaserParams:
             "rim_bias_px",
             "rim_bow_m",
             "window_fattening_px",
+            "hole_fattening_px",
             "far_window_shares",
         ):
             if getattr(self, name) < 0:
@@ -1969,6 +1980,37 @@ def _window_shares(
     return out
 
 
+def _hole_past_edge(lines: list[LineModels], past: list[list[float]]) -> bool:
+    """Whether a face run ends at an occluding edge facing +x in the image (its line heading
+    within 60 degrees of it) where the image holds no depth past the line's end (``past``:
+    ``past_ends_m`` as a list, 0 where none).
+
+    The second imager sits along +x: the pixels it cannot see, the shadow band where a depth
+    image has none, lie on the other side of a near object, to its left. Past an edge facing
+    right the background is seen by both imagers, and lpc's noise model gives it depth (no
+    such hole on its 40 functional, 56 irregular and 60 rotation cuboid-branch frames, 2
+    trials). A block matcher leaves none there on most of its frames that showed no
+    fattening (the functional cuboids, 2 trials, BM 5 / 7 / 9: 26 of 33, 25 of 33, 22 of 27;
+    SGBM 7 and 9: 0 of 2). A nearer neighbour to the right casts its own shadow band past the
+    edge: lpc's noise model shows such a hole on 39 of the 500 clutter frames of ``lpc bench
+    accuracy --quick --trials 5`` (its clutter cuboid width MAE 0.8 -> 1.0 mm, none of the
+    default --quick's frames)."""
+    for ln in lines:
+        run, last = ln.run, len(ln.points) - 1
+        if ln.index >= len(past):
+            continue
+        c = math.cos(ln.angle)
+        for k, end in enumerate((int(run[0]), int(run[-1]))):
+            # The run's first end faces -x along the line, its last +x.
+            if end == last * k and (c if k else -c) > _RIGHTWARD_COS and past[ln.index][k] == 0:
+                return True
+    return False
+
+
+# A line heading within 60 degrees of +x (see _hole_past_edge).
+_RIGHTWARD_COS = 0.5
+
+
 def _unless_rounded(uv: np.ndarray, uncut: list[list[float]], direction: np.ndarray) -> np.ndarray:
     """``direction``, or the minimum-area rectangle's around the seeds ``uv`` when the best
     rectangle along ``direction`` leaves an uncut seed farther inside its sides than
@@ -2544,6 +2586,8 @@ def _decide(
         return _none("fewer than two scan lines lie on the pierced face", summaries, total, extra)
     measured = 0.0
     window = False
+    shares = params
+    past = getattr(scan_lines, "past_ends_m", None)
     if params.edge_fattening_px == 0 and params.measure_fattening:
         measured = _fattening(on_face)
         if measured == 0 and params.window_fattening_px > 0:
@@ -2552,8 +2596,16 @@ def _decide(
                 measured = params.window_fattening_px
                 extra["residual_correlation"] = correlation
                 window = True
+            elif (
+                params.hole_fattening_px > 0
+                and past is not None
+                and _hole_past_edge(on_face, np.asarray(past, dtype=np.float64).tolist())
+            ):
+                measured = params.hole_fattening_px
+                extra["hole_past_edge"] = 1.0
+                window = True
+                shares = replace(params, far_window_shares=min(params.far_window_shares, 1.0))
         extra["fattening_px"] = measured
-    past = getattr(scan_lines, "past_ends_m", None)
     seeds = _collect_seeds(
         on_face, params, extend=True, face=solid,
         past=np.asarray(past, dtype=np.float64).tolist() if past is not None else None,
@@ -2570,7 +2622,7 @@ def _decide(
         ramped = np.where((ramp > 0) & ~seeds.cropped, rest, 0.0)
         seeds = replace(seeds, occluding=np.where(seeds.occluding > 0, 1.0, ramped))
     if window and past is not None and seeds.occluding is not None:
-        share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), params))
+        share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), shares))
         extra["near_ends"] = float(np.count_nonzero((seeds.occluding > 0) & (share < 1.0)))
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
