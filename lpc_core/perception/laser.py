@@ -3548,11 +3548,6 @@ def _rim_axis(
     return solid
 
 
-# Circles drawn through three of a disc's samples, across the support's normal (_lying_disc).
-_DISC_DRAWS = 64
-_DISC_SAMPLES = 64
-
-
 def _lying_disc(
     clean: np.ndarray, support: PlaneSolid, params: LaserParams
 ) -> tuple[CylinderSolid, float] | None:
@@ -3563,9 +3558,9 @@ def _lying_disc(
     Such a band shows 15-20 mm of a round 60 mm across: a cylinder fitted to it with a free
     axis finds one as well across it (the jar cap under SGBM 5-7: 26-31 mm wide cylinders
     lying along the band, 53-86 degrees off its axis, 0.70-0.89 of the runs). A disc stands
-    on its flat face, so its axis is the support's normal; the circle across it is drawn
-    through three samples at a time (the runs hold samples of the top face and the table
-    in front, which pull a least-squares circle to 13 mm on the cap's 30 mm arc), and must
+    on its flat face, so its axis is the support's normal; the circle across it is
+    ``fit.fit_circle``'s RANSAC one (the runs hold samples of the top face and the table in
+    front, which pull a least-squares circle to 13 mm on the cap's 30 mm arc), and must
     explain ``min_solid_fraction`` of the runs, within the radius limits, with the camera
     outside it. A round lying on its side stands its diameter high, a ball too: neither is
     a disc."""
@@ -3583,34 +3578,10 @@ def _lying_disc(
         return None
     e1, e2 = orthonormal_basis(normal)
     uv = d @ np.column_stack([e1, e2])
-    # Three samples per draw (a repeated one leaves no circle: its determinant is 0).
-    picks = _support_rng().integers(0, n, size=(_DISC_DRAWS, 3))
-    a, b, c = uv[picks[:, 0]], uv[picks[:, 1]], uv[picks[:, 2]]
-    # The circumcentre of each triple (perpendicular bisectors' crossing).
-    ab, ac = b - a, c - a
-    det = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
-    ok = np.abs(det) > 1e-12
-    if not ok.any():
+    circle = fit.fit_circle(uv, thr, radius_limits=(lo, hi), seed=_support_rng())
+    if not circle:
         return None
-    ab2, ac2 = (ab * ab).sum(axis=1), (ac * ac).sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cx = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / det
-        cy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
-    centres = a + np.column_stack([cx, cy])
-    radii = np.hypot(cx, cy)
-    ok &= (radii >= lo) & (radii <= hi)
-    if not ok.any():
-        return None
-    centres, radii = centres[ok], radii[ok]
-    # Each circle counted on a sample of the runs (as the cylinder's axis search is).
-    sample = uv[:: max(1, n // _DISC_SAMPLES)]
-    off = np.abs(
-        np.hypot(sample[:, 0] - centres[:, :1], sample[:, 1] - centres[:, 1:]) - radii[:, None]
-    )
-    best = int(np.argmax(np.add.reduce(off <= thr, axis=1)))
-    on = np.abs(np.hypot(*(uv - centres[best]).T) - radii[best]) <= thr
-    circle = fit_circle_2d(uv[on]) if np.count_nonzero(on) >= 3 else None
-    centre, radius = (centres[best], float(radii[best])) if circle is None else circle
+    centre, radius = np.array(circle.center), circle.radius
     if not lo <= radius <= hi or height.max() >= radius:
         # Too tall for this disc: a round lying on its side stands its diameter high.
         return None
