@@ -54,7 +54,7 @@ import numpy as np
 from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
-from lpc_core.perception.cloud import SCAN_LINE_SUPPORT, find_support_plane
+from lpc_core.perception.cloud import SCAN_LINE_SUPPORT, CloudParams, find_support_plane
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.scans import residual_correlation
 from lpc_core.perception.solids import (
@@ -2434,6 +2434,11 @@ def _decide(
     if (shape == "cylinder" and "rim_axis" not in extra) or (lost and "cylinder" in candidates):
         support, supported = _support_plane(lines, params), True
         disc = _lying_disc(clean, support, params) if support is not None else None
+        if disc is None:
+            # A matcher smears the band's lower rim down behind the table, which then hides
+            # the table from the support search (see _DISC_SUPPORT).
+            table = _support_plane(lines, params, _DISC_SUPPORT, _DISC_SUPPORT_LINE_POINTS)
+            disc = _lying_disc(clean, table, params) if table is not None else None
         if disc is not None:
             extra["disc_axis"] = 1.0
             solid, fraction = disc
@@ -2640,6 +2645,16 @@ def _support_rng() -> np.random.Generator:
 # than SCAN_LINE_SUPPORT's 30, or all on one line, were as often a cylinder's own flank below
 # its runs, or a plane through one line's trace, as the table.
 _SUPPORT_MIN_LINE_POINTS = 10
+# The table a disc lies on (_lying_disc) where the support search found none, or none the
+# disc stands on: the plane most of the samples beside the runs lie on, whatever lies behind
+# it, on five samples of two lines. The matcher smears the band's lower rim down behind the
+# table, and the table's few samples beside a 60 mm cap split between the lines (the jar cap
+# from the front, SGBM 7 trial 0 frame 1: 2 of 39 samples 4-9 mm behind the table, its 34
+# samples 7, 8 and 19 on three lines: no support; this one 0.4 degrees off the cap's axis).
+# The disc's own tests (its band reaching down to the plane and standing under its radius,
+# its circle explaining the runs) keep a plane that is no table from reading a disc.
+_DISC_SUPPORT = replace(SCAN_LINE_SUPPORT, support_max_behind_fraction=1.0)
+_DISC_SUPPORT_LINE_POINTS = 5
 
 
 def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | None:
@@ -2651,13 +2666,20 @@ def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | N
     return correlation if correlation >= params.window_correlation_gate else None
 
 
-def _support_plane(lines: list[LineModels], params: LaserParams) -> PlaneSolid | None:
+def _support_plane(
+    lines: list[LineModels],
+    params: LaserParams,
+    search: CloudParams = SCAN_LINE_SUPPORT,
+    min_line_points: int = _SUPPORT_MIN_LINE_POINTS,
+) -> PlaneSolid | None:
     """The support the lines show beside the round, or ``None`` (or when resting is off,
     ``rest_gap_ratio`` 0).
 
     The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
     almost no sample behind it) among the lines' samples off the round's runs, on at least two
-    lines so that it is a plane and not one line's trace.
+    lines so that it is a plane and not one line's trace. ``search`` and ``min_line_points``
+    (the samples it needs on each of those two lines) are the disc's where the plain search
+    found no table under it (``_DISC_SUPPORT``).
     """
     if params.rest_gap_ratio == 0:
         return None
@@ -2673,12 +2695,12 @@ def _support_plane(lines: list[LineModels], params: LaserParams) -> PlaneSolid |
     if len(beside) < SCAN_LINE_SUPPORT.support_min_points:
         return None
     # A fixed seed: the same lines give the same support (decide has no frame seed).
-    mask = find_support_plane(beside, SCAN_LINE_SUPPORT, _support_rng())
+    mask = find_support_plane(beside, search, _support_rng())
     if mask is None:
         return None
     owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
     per_line = np.bincount(owner.compress(mask), minlength=len(lines))
-    if np.count_nonzero(per_line >= _SUPPORT_MIN_LINE_POINTS) < 2:
+    if np.count_nonzero(per_line >= min_line_points) < 2:
         return None
     support = PlaneSolid.estimate(beside.compress(mask, axis=0))
     return support if support else None
