@@ -2429,9 +2429,13 @@ def _decide(
     support: PlaneSolid | None = None
     supported = False
     # A cylinder, or a frame no solid explains where a cylinder was fitted (the jar cap's
-    # free cylinder put its axis in front of the band: SGBM 5 trial 0 frames 1 and 4).
+    # free cylinder put its axis in front of the band: SGBM 5 trial 0 frames 1 and 4), or a
+    # face where one was: a 60 mm round's band seen from the front is flat within the
+    # threshold across 20 mm (the jar cap under SGBM 3-7: faces 18-30 mm wide holding
+    # 0.74-0.82 of the runs, 16-83 degrees off its axis; the disc 0.70-0.77, within a degree).
     lost = shape != "cylinder" and candidates[shape].score < params.min_solid_fraction
-    if (shape == "cylinder" and "rim_axis" not in extra) or (lost and "cylinder" in candidates):
+    rival = "cylinder" in candidates and (lost or shape == "cuboid")
+    if (shape == "cylinder" and "rim_axis" not in extra) or rival:
         support, supported = _support_plane(lines, params), True
         disc = _lying_disc(clean, support, params) if support is not None else None
         if disc is None:
@@ -2448,9 +2452,12 @@ def _decide(
                 candidates["cylinder"],
                 solid=solid,
                 residuals=solid.residuals(clean),
-                **({"fraction": fraction, "reason": ""} if lost else {}),
+                **({"fraction": fraction, "reason": ""} if rival else {}),
             )
             shape = "cylinder"
+        elif shape == "cuboid":
+            # A face rests on no support (_resting_width's rounds do).
+            support = None
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -3592,11 +3599,16 @@ def _lying_disc(
     n = len(height)
     lo, hi = params.radius_limits_m
     thr = params.solid_threshold_m
-    if n < 3 or abs(float(height.min())) > 3 * thr or float(height.max()) >= hi:
-        # Not on the support, or taller than any disc's radius: a disc's band reaches down
-        # to the support it lies on (the cap's lowest samples 0.4 mm below the table to 0.9
-        # mm above it, 3.2 under a matcher's smear), and nothing lies below it. Most rounds
-        # end here, before the circles are drawn.
+    if n < 3:
+        return None
+    tallest = float(height.max())
+    if abs(float(height.min())) > 3 * thr or not 3 * thr < tallest < hi:
+        # Not on the support, in it, or taller than any disc's radius: a disc's band reaches
+        # down to the support it lies on (the cap's lowest samples 0.4 mm below the table to
+        # 0.9 mm above it, 3.2 under a matcher's smear), and nothing lies below it; and it
+        # stands off it (runs within 2.2 mm of a plane are that plane's: a box's face that
+        # _DISC_SUPPORT's search took for the table, cuboid_tilt_left under SGBM 7). Most
+        # rounds end here, before the circle is fitted.
         return None
     e1, e2 = orthonormal_basis(normal)
     uv = d @ np.column_stack([e1, e2])
@@ -3604,7 +3616,7 @@ def _lying_disc(
     if not circle:
         return None
     centre, radius = np.array(circle.center), circle.radius
-    if not lo <= radius <= hi or height.max() >= radius:
+    if not lo <= radius <= hi or tallest >= radius:
         # Too tall for this disc: a round lying on its side stands its diameter high.
         return None
     # The camera (the origin) sees the outside of the disc.
