@@ -54,7 +54,7 @@ import numpy as np
 from numpy.linalg import _umath_linalg
 
 from lpc_core.perception import fit
-from lpc_core.perception.cloud import SCAN_LINE_SUPPORT, find_support_plane
+from lpc_core.perception.cloud import SCAN_LINE_SUPPORT, CloudParams, find_support_plane
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.scans import residual_correlation
 from lpc_core.perception.solids import (
@@ -2471,11 +2471,20 @@ def _decide(
     support: PlaneSolid | None = None
     supported = False
     # A cylinder, or a frame no solid explains where a cylinder was fitted (the jar cap's
-    # free cylinder put its axis in front of the band: SGBM 5 trial 0 frames 1 and 4).
+    # free cylinder put its axis in front of the band: SGBM 5 trial 0 frames 1 and 4), or a
+    # face where one was: a 60 mm round's band seen from the front is flat within the
+    # threshold across 20 mm (the jar cap under SGBM 3-7: faces 18-30 mm wide holding
+    # 0.74-0.82 of the runs, 16-83 degrees off its axis; the disc 0.70-0.77, within a degree).
     lost = shape != "cylinder" and candidates[shape].score < params.min_solid_fraction
-    if (shape == "cylinder" and "rim_axis" not in extra) or (lost and "cylinder" in candidates):
+    rival = "cylinder" in candidates and (lost or shape == "cuboid")
+    if (shape == "cylinder" and "rim_axis" not in extra) or rival:
         support, supported = _support_plane(lines, params), True
         disc = _lying_disc(clean, support, params) if support is not None else None
+        if disc is None:
+            # A matcher smears the band's lower rim down behind the table, which then hides
+            # the table from the support search (see _DISC_SUPPORT).
+            table = _support_plane(lines, params, _DISC_SUPPORT, _DISC_SUPPORT_LINE_POINTS)
+            disc = _lying_disc(clean, table, params) if table is not None else None
         if disc is not None:
             extra["disc_axis"] = 1.0
             solid, fraction = disc
@@ -2485,9 +2494,12 @@ def _decide(
                 candidates["cylinder"],
                 solid=solid,
                 residuals=solid.residuals(clean),
-                **({"fraction": fraction, "reason": ""} if lost else {}),
+                **({"fraction": fraction, "reason": ""} if rival else {}),
             )
             shape = "cylinder"
+        elif shape == "cuboid":
+            # A face rests on no support (_resting_width's rounds do).
+            support = None
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -2692,6 +2704,16 @@ def _support_rng() -> np.random.Generator:
 # than SCAN_LINE_SUPPORT's 30, or all on one line, were as often a cylinder's own flank below
 # its runs, or a plane through one line's trace, as the table.
 _SUPPORT_MIN_LINE_POINTS = 10
+# The table a disc lies on (_lying_disc) where the support search found none, or none the
+# disc stands on: the plane most of the samples beside the runs lie on, whatever lies behind
+# it, on five samples of two lines. The matcher smears the band's lower rim down behind the
+# table, and the table's few samples beside a 60 mm cap split between the lines (the jar cap
+# from the front, SGBM 7 trial 0 frame 1: 2 of 39 samples 4-9 mm behind the table, its 34
+# samples 7, 8 and 19 on three lines: no support; this one 0.4 degrees off the cap's axis).
+# The disc's own tests (its band reaching down to the plane and standing under its radius,
+# its circle explaining the runs) keep a plane that is no table from reading a disc.
+_DISC_SUPPORT = replace(SCAN_LINE_SUPPORT, support_max_behind_fraction=1.0)
+_DISC_SUPPORT_LINE_POINTS = 5
 
 
 def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | None:
@@ -2703,13 +2725,20 @@ def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | N
     return correlation if correlation >= params.window_correlation_gate else None
 
 
-def _support_plane(lines: list[LineModels], params: LaserParams) -> PlaneSolid | None:
+def _support_plane(
+    lines: list[LineModels],
+    params: LaserParams,
+    search: CloudParams = SCAN_LINE_SUPPORT,
+    min_line_points: int = _SUPPORT_MIN_LINE_POINTS,
+) -> PlaneSolid | None:
     """The support the lines show beside the round, or ``None`` (or when resting is off,
     ``rest_gap_ratio`` 0).
 
     The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
     almost no sample behind it) among the lines' samples off the round's runs, on at least two
-    lines so that it is a plane and not one line's trace.
+    lines so that it is a plane and not one line's trace. ``search`` and ``min_line_points``
+    (the samples it needs on each of those two lines) are the disc's where the plain search
+    found no table under it (``_DISC_SUPPORT``).
     """
     if params.rest_gap_ratio == 0:
         return None
@@ -2725,12 +2754,12 @@ def _support_plane(lines: list[LineModels], params: LaserParams) -> PlaneSolid |
     if len(beside) < SCAN_LINE_SUPPORT.support_min_points:
         return None
     # A fixed seed: the same lines give the same support (decide has no frame seed).
-    mask = find_support_plane(beside, SCAN_LINE_SUPPORT, _support_rng())
+    mask = find_support_plane(beside, search, _support_rng())
     if mask is None:
         return None
     owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
     per_line = np.bincount(owner.compress(mask), minlength=len(lines))
-    if np.count_nonzero(per_line >= _SUPPORT_MIN_LINE_POINTS) < 2:
+    if np.count_nonzero(per_line >= min_line_points) < 2:
         return None
     support = PlaneSolid.estimate(beside.compress(mask, axis=0))
     return support if support else None
@@ -3634,11 +3663,6 @@ def _rim_axis(
     return solid
 
 
-# Circles drawn through three of a disc's samples, across the support's normal (_lying_disc).
-_DISC_DRAWS = 64
-_DISC_SAMPLES = 64
-
-
 def _lying_disc(
     clean: np.ndarray, support: PlaneSolid, params: LaserParams
 ) -> tuple[CylinderSolid, float] | None:
@@ -3649,9 +3673,9 @@ def _lying_disc(
     Such a band shows 15-20 mm of a round 60 mm across: a cylinder fitted to it with a free
     axis finds one as well across it (the jar cap under SGBM 5-7: 26-31 mm wide cylinders
     lying along the band, 53-86 degrees off its axis, 0.70-0.89 of the runs). A disc stands
-    on its flat face, so its axis is the support's normal; the circle across it is drawn
-    through three samples at a time (the runs hold samples of the top face and the table
-    in front, which pull a least-squares circle to 13 mm on the cap's 30 mm arc), and must
+    on its flat face, so its axis is the support's normal; the circle across it is
+    ``fit.fit_circle``'s RANSAC one (the runs hold samples of the top face and the table in
+    front, which pull a least-squares circle to 13 mm on the cap's 30 mm arc), and must
     explain ``min_solid_fraction`` of the runs, within the radius limits, with the camera
     outside it. A round lying on its side stands its diameter high, a ball too: neither is
     a disc."""
@@ -3661,43 +3685,24 @@ def _lying_disc(
     n = len(height)
     lo, hi = params.radius_limits_m
     thr = params.solid_threshold_m
-    if n < 3 or abs(float(height.min())) > 3 * thr or float(height.max()) >= hi:
-        # Not on the support, or taller than any disc's radius: a disc's band reaches down
-        # to the support it lies on (the cap's lowest samples 0.4 mm below the table to 0.9
-        # mm above it, 3.2 under a matcher's smear), and nothing lies below it. Most rounds
-        # end here, before the circles are drawn.
+    if n < 3:
+        return None
+    tallest = float(height.max())
+    if abs(float(height.min())) > 3 * thr or not 3 * thr < tallest < hi:
+        # Not on the support, in it, or taller than any disc's radius: a disc's band reaches
+        # down to the support it lies on (the cap's lowest samples 0.4 mm below the table to
+        # 0.9 mm above it, 3.2 under a matcher's smear), and nothing lies below it; and it
+        # stands off it (runs within 2.2 mm of a plane are that plane's: a box's face that
+        # _DISC_SUPPORT's search took for the table, cuboid_tilt_left under SGBM 7). Most
+        # rounds end here, before the circle is fitted.
         return None
     e1, e2 = orthonormal_basis(normal)
     uv = d @ np.column_stack([e1, e2])
-    # Three samples per draw (a repeated one leaves no circle: its determinant is 0).
-    picks = _support_rng().integers(0, n, size=(_DISC_DRAWS, 3))
-    a, b, c = uv[picks[:, 0]], uv[picks[:, 1]], uv[picks[:, 2]]
-    # The circumcentre of each triple (perpendicular bisectors' crossing).
-    ab, ac = b - a, c - a
-    det = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
-    ok = np.abs(det) > 1e-12
-    if not ok.any():
+    circle = fit.fit_circle(uv, thr, radius_limits=(lo, hi), seed=_support_rng())
+    if not circle:
         return None
-    ab2, ac2 = (ab * ab).sum(axis=1), (ac * ac).sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cx = (ac[:, 1] * ab2 - ab[:, 1] * ac2) / det
-        cy = (ab[:, 0] * ac2 - ac[:, 0] * ab2) / det
-    centres = a + np.column_stack([cx, cy])
-    radii = np.hypot(cx, cy)
-    ok &= (radii >= lo) & (radii <= hi)
-    if not ok.any():
-        return None
-    centres, radii = centres[ok], radii[ok]
-    # Each circle counted on a sample of the runs (as the cylinder's axis search is).
-    sample = uv[:: max(1, n // _DISC_SAMPLES)]
-    off = np.abs(
-        np.hypot(sample[:, 0] - centres[:, :1], sample[:, 1] - centres[:, 1:]) - radii[:, None]
-    )
-    best = int(np.argmax(np.add.reduce(off <= thr, axis=1)))
-    on = np.abs(np.hypot(*(uv - centres[best]).T) - radii[best]) <= thr
-    circle = fit_circle_2d(uv[on]) if np.count_nonzero(on) >= 3 else None
-    centre, radius = (centres[best], float(radii[best])) if circle is None else circle
-    if not lo <= radius <= hi or height.max() >= radius:
+    centre, radius = np.array(circle.center), circle.radius
+    if not lo <= radius <= hi or tallest >= radius:
         # Too tall for this disc: a round lying on its side stands its diameter high.
         return None
     # The camera (the origin) sees the outside of the disc.
