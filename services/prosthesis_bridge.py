@@ -198,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--hand-port is for --hand ability")
     if args.hand == "ability" and args.profile != "lpc":
         parser.error("--hand ability keeps its wrist on CAN in lpc's layout: --profile lpc")
+    if args.hand == "ability" and args.interface == "serial":
+        # That link runs on a thread of its own, which a serial bus that never waits would spin.
+        parser.error("--interface serial is for --hand can")
     if args.interface == "virtual" and not args.sim_hand:
         print(
             "[prosthesis_bridge] warning: virtual bus without --sim-hand: no hand", file=sys.stderr

@@ -404,6 +404,8 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--hand-port is for --hand ability"
     if getattr(args, "hand_can", None) and ":" not in args.hand_can:
         return "--hand-can wants INTERFACE:CHANNEL, e.g. serial:/dev/pts/3"
+    if getattr(args, "hand_can", None) and getattr(args, "hand", "can") != "can":
+        return "--hand-can is for --hand can"
     try:
         stereo_sensor(args)
     except ValueError as exc:
