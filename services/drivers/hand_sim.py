@@ -1,7 +1,8 @@
 """A simulated hand on a CAN bus: the other end of the hand driver, for tests and ``lpc up``.
 
 It opens its own python-can bus on the same channel as the driver (python-can's virtual bus
-connects buses of one process; socketcan's ``vcan0`` connects processes), listens for velocity
+connects buses of one process; socketcan's ``vcan0``, or python-can's serial bus on a pty from
+``open_pty_bus``, connects processes), listens for velocity
 commands in the ``lpc`` or ``robolimb`` profile, advances ``lpc_core.sim.hand`` in real time and
 sends status at 100 Hz. Like real hands it has its own fail-safe: with no command for
 ``hand_watchdog_s`` it stops and flags it (PSYONIC's hand leaves API mode after 300 ms).
@@ -42,10 +43,14 @@ def open_pty_bus() -> tuple[can.BusABC, str]:
     a reader never sees half of one."""
     try:
         bus = open_can_bus("serial", "/dev/ptmx")
+    except (can.CanError, OSError) as exc:
+        raise DeviceUnavailable(f"simulated hand cannot open a pty: {exc}") from exc
+    try:
         fd = bus.fileno()
         fcntl.ioctl(fd, _TIOCSPTLCK, struct.pack("i", 0))
         number = struct.unpack("i", fcntl.ioctl(fd, _TIOCGPTN, b"\0" * 4))[0]
     except (can.CanError, OSError) as exc:
+        bus.shutdown()
         raise DeviceUnavailable(f"simulated hand cannot open a pty: {exc}") from exc
     return bus, f"/dev/pts/{number}"
 
