@@ -3,7 +3,9 @@
 40 ms (default), so that the hand is stopped within 50 ms of the last command even with
 scheduling jitter; a command older than that when it arrives is dropped and counted. Bus errors are
 logged and counted, and the bridge reopens the bus with backoff. ``--sim-hand`` runs the
-simulated hand on the same bus (required with python-can's in-process virtual bus).
+simulated hand on the same bus (required with python-can's in-process virtual bus); a
+simulated hand in a process of its own speaks python-can's serial bus on a pty
+(``hand_sim --ports-file``; ``--interface serial --channel /dev/pts/N`` here).
 
 ``--hand ability`` drives a PSYONIC Ability Hand on ``--hand-port`` (pyserial, 460800 baud; a
 simulated one on a pseudo-terminal without a port) in the command's grip, with the wrist
@@ -59,11 +61,12 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         for key, count in list(link.counters.items()):  # totals: assign, do not add
             bus.health.counters[key] = count
 
-    # A hand on CAN whose status this loop can wait for (socketcan's file, or the simulated
-    # hand on this loop, which says when it has sent) runs on the loop: no thread wakes every
-    # cycle for the link, its watchdog or the simulated hand. Other buses keep the link's thread.
+    # A hand on CAN whose status this loop can wait for (socketcan's or the serial bus's file,
+    # or the simulated hand on this loop, which says when it has sent) runs on the loop: no
+    # thread wakes every cycle for the link, its watchdog or the simulated hand. Other buses
+    # keep the link's thread. The serial bus must: its reads never wait (open_can_bus).
     on_loop = getattr(args, "hand", "can") == "can" and (
-        args.sim_hand or args.interface == "socketcan"
+        args.sim_hand or args.interface in ("socketcan", "serial")
     )
     sim = fingers = None
     if args.sim_hand:
@@ -195,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--hand-port is for --hand ability")
     if args.hand == "ability" and args.profile != "lpc":
         parser.error("--hand ability keeps its wrist on CAN in lpc's layout: --profile lpc")
+    if args.hand == "ability" and args.interface == "serial":
+        # That link runs on a thread of its own, which a serial bus that never waits would spin.
+        parser.error("--interface serial is for --hand can")
     if args.interface == "virtual" and not args.sim_hand:
         print(
             "[prosthesis_bridge] warning: virtual bus without --sim-hand: no hand", file=sys.stderr

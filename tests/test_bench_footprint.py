@@ -87,6 +87,11 @@ def test_footprint_smoke_together_under_a_quota() -> None:
     # By default the simulated camera is a device outside the set, measured on its own.
     assert report["devices"] == "outside"
     assert report["outside_set"]["sim-camera"]["rss_mb"] > 10
+    # So are the simulated hand and tactor controller (one device process, the hand on a
+    # python-can serial bus over a pty): not a service of the set.
+    assert report["outside_set"]["sim-hand+tactors"]["rss_mb"] > 10
+    assert "hand_sim" not in report["services"]
+    assert report["topics"]["lpc/prosthesis/state"]["rate_hz"] > 50
     services = report["services"]
     for name in ("camera", "scans", "reconstructor", "aim", "controller", "recorder"):
         assert services[name]["cpu_from"] == "event loop", name

@@ -7,6 +7,7 @@ import asyncio
 import itertools
 import threading
 import time
+from pathlib import Path
 
 import can
 import pytest
@@ -388,3 +389,52 @@ def test_bridge_service_moves_the_hand_and_stops_it(
         process.wait(timeout=10)
         sub.undeclare()
     assert process.returncode == 0
+
+
+def test_bridge_drives_a_simulated_hand_in_another_process_over_a_serial_can_bus(
+    rendezvous: zenoh.Session, endpoint: str, tmp_path: Path
+) -> None:
+    """The hand as a device apart from the set (``lpc bench footprint --devices outside``):
+    ``hand_sim --ports-file`` serves it on python-can's serial bus over a pty, the bridge opens
+    the pty as a python-can bus of its own, closes the hand through it and reads its status."""
+    ports = tmp_path / "ports"
+    hand = spawn_service("services.hand_sim", endpoint, "--ports-file", str(ports))
+    bridge = None
+    states: list = []
+    sub = rendezvous.declare_subscriber(
+        "lpc/prosthesis/state",
+        lambda s: states.append(decode("lpc/prosthesis/state", s.payload.to_bytes())),
+    )
+    try:
+        wait_for(ports.exists, 20.0, "the simulated hand's port")
+        port = dict(line.split(" ", 1) for line in ports.read_text().splitlines())["hand"]
+        bridge = spawn_service(
+            "services.prosthesis_bridge", endpoint, "--interface", "serial", "--channel", port
+        )
+        wait_for(lambda: len(states) > 10, 20.0, "status from the hand over the pty")
+        start = states[-1].aperture_mm
+        pub = rendezvous.declare_publisher("lpc/prosthesis/command")
+        seq = itertools.count(1)
+        deadline = time.monotonic() + 10.0
+        while states[-1].aperture_mm > start - 10.0 and time.monotonic() < deadline:
+            pub.put(
+                encode(ProsthesisCommand(seq=next(seq), t_ns=time.time_ns(), grasp=0.5, wrist=0.0))
+            )
+            time.sleep(0.01)
+        assert states[-1].aperture_mm <= start - 10.0  # closed by at least 10 mm
+        # Commands stop: the bridge's watchdog stops the hand in the other process.
+        wait_for(
+            lambda: (
+                len(states) > 20 and abs(states[-1].aperture_mm - states[-10].aperture_mm) < 0.01
+            ),
+            5.0,
+            "the hand to stop",
+        )
+        assert states[-1].hand == "lpc:serial"
+    finally:
+        sub.undeclare()
+        for process in (bridge, hand):
+            if process is not None:
+                process.terminate()
+                process.wait(timeout=10)
+    assert bridge is not None and bridge.returncode == 0 and hand.returncode == 0

@@ -227,6 +227,24 @@ def test_up_args_ability_hand_reaches_the_bridge(monkeypatch: pytest.MonkeyPatch
     assert up._validate(parse("--hand-port", "/dev/ttyUSB0")) == "--hand-port is for --hand ability"
 
 
+def test_up_args_hand_can_drives_a_hand_on_a_bus_instead_of_the_simulated_one() -> None:
+    """--hand-can: the bridge opens the named python-can bus (a simulated hand as a device,
+    ``hand_sim --ports-file``) and runs no simulated hand of its own."""
+    args = parse("--hand-can", "serial:/dev/pts/7", "--tactor-port", "/dev/pts/8")
+    assert up._validate(args) is None
+    assert argv_of("prosthesis_bridge", args) == [
+        "--interface",
+        "serial",
+        "--channel",
+        "/dev/pts/7",
+    ]
+    assert argv_of("tactor_bridge", args)[-2:] == ["--tactor-port", "/dev/pts/8"]
+    assert up._validate(parse("--hand-can", "/dev/pts/7")) is not None
+    assert up._validate(parse("--hand", "ability", "--hand-can", "serial:/dev/pts/7")) == (
+        "--hand-can is for --hand can"
+    )
+
+
 def test_up_args_together_one_container_and_the_bridge_apart() -> None:
     """--together: every service but the prosthesis bridge in one container child, in start
     order, the control path on its loop; each service's own main accepts the flags it gets."""

@@ -109,8 +109,14 @@ def _channel_pair(text: str) -> tuple[int, int]:
 
 
 def _hand_argv(args: argparse.Namespace) -> list[str]:
-    """The simulated CAN hand (or wrist), and the Ability Hand when asked for."""
-    argv = ["--sim-hand"]
+    """The simulated CAN hand (or wrist), or the hand on ``--hand-can``'s bus, and the Ability
+    Hand when asked for."""
+    hand_can = getattr(args, "hand_can", None)
+    if hand_can:
+        interface, channel = hand_can.split(":", 1)
+        argv = ["--interface", interface, "--channel", channel]
+    else:
+        argv = ["--sim-hand"]
     if getattr(args, "hand", "can") == "ability":
         argv += ["--hand", "ability"]
         if getattr(args, "hand_port", None):
@@ -160,7 +166,7 @@ SERVICES: dict[str, ServiceSpec] = {
     # The simulated hand carries no camera: the tactor directions do not turn with its wrist.
     "aim": ServiceSpec("services.aim", lambda args: ["--camera-fixed"]),
     # The hand: python-can's virtual bus is in-process, so the bridge runs the simulated hand
-    # (with --hand ability, the wrist rotator's CAN side of it).
+    # (with --hand ability, the wrist rotator's CAN side of it), unless --hand-can names a bus.
     "prosthesis_bridge": ServiceSpec("services.prosthesis_bridge", lambda args: _hand_argv(args)),
     "controller": ServiceSpec("services.controller", _controller_argv),
     "emg": ServiceSpec("services.emg", _emg_argv),
@@ -281,6 +287,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="serial port of the Ability Hand (--hand ability), e.g. /dev/ttyUSB0",
     )
     parser.add_argument(
+        "--hand-can",
+        metavar="INTERFACE:CHANNEL",
+        help="the hand on this python-can bus instead of the simulated one in the bridge, e.g. "
+        "serial:/dev/pts/3 (a simulated hand as a device: python -m services.hand_sim "
+        "--ports-file)",
+    )
+    parser.add_argument(
         "--method",
         choices=("laser", "cloud"),
         default="laser",
@@ -389,6 +402,10 @@ def _validate(args: argparse.Namespace) -> str | None:
         return "--foxglove-port must be a TCP port number"
     if getattr(args, "hand_port", None) and getattr(args, "hand", "can") != "ability":
         return "--hand-port is for --hand ability"
+    if getattr(args, "hand_can", None) and ":" not in args.hand_can:
+        return "--hand-can wants INTERFACE:CHANNEL, e.g. serial:/dev/pts/3"
+    if getattr(args, "hand_can", None) and getattr(args, "hand", "can") != "can":
+        return "--hand-can is for --hand can"
     try:
         stereo_sensor(args)
     except ValueError as exc:

@@ -82,9 +82,14 @@ class VirtualBus(can.interfaces.virtual.VirtualBus):
 
 
 def open_can_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
-    """A python-can bus; the virtual one is ``VirtualBus``."""
+    """A python-can bus; the virtual one is ``VirtualBus``. python-can's serial bus (a CAN
+    link over a serial line, e.g. to ``hand_sim --pty``) ignores ``recv``'s timeout and waits
+    the port's: it gets a port that never waits, for readers that wait on its file instead
+    (``HandLink.start(loop)``)."""
     if interface == "virtual":
         return VirtualBus(channel=channel, **kwargs)
+    if interface == "serial":
+        kwargs.setdefault("timeout", 0.0)
     return can.Bus(interface=interface, channel=channel, **kwargs)
 
 

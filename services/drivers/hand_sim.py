@@ -1,7 +1,8 @@
 """A simulated hand on a CAN bus: the other end of the hand driver, for tests and ``lpc up``.
 
 It opens its own python-can bus on the same channel as the driver (python-can's virtual bus
-connects buses of one process; socketcan's ``vcan0`` connects processes), listens for velocity
+connects buses of one process; socketcan's ``vcan0``, or python-can's serial bus on a pty from
+``open_pty_bus``, connects processes), listens for velocity
 commands in the ``lpc`` or ``robolimb`` profile, advances ``lpc_core.sim.hand`` in real time and
 sends status at 100 Hz. Like real hands it has its own fail-safe: with no command for
 ``hand_watchdog_s`` it stops and flags it (PSYONIC's hand leaves API mode after 300 ms).
@@ -12,6 +13,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import fcntl
+import struct
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -27,6 +30,29 @@ from services.drivers.hand import DEFAULT_CHANNEL, open_can_bus
 
 PERIOD_S = 0.01
 _STOP = HandCommand()
+# Linux's pty ioctls, which Python's termios does not name: unlock the slave, get its number.
+_TIOCSPTLCK = 0x40045431
+_TIOCGPTN = 0x80045430
+
+
+def open_pty_bus() -> tuple[can.BusABC, str]:
+    """python-can's serial bus on a new pseudo-terminal's master, and the slave's path: a CAN
+    link between processes (this kernel has no vcan), where the driver opens the path with
+    ``--interface serial --channel /dev/pts/N``. Both ends read without waiting
+    (``open_can_bus``): run the hand with ``start(loop)``. Each frame goes out in one write, so
+    a reader never sees half of one."""
+    try:
+        bus = open_can_bus("serial", "/dev/ptmx")
+    except (can.CanError, OSError) as exc:
+        raise DeviceUnavailable(f"simulated hand cannot open a pty: {exc}") from exc
+    try:
+        fd = bus.fileno()
+        fcntl.ioctl(fd, _TIOCSPTLCK, struct.pack("i", 0))
+        number = struct.unpack("i", fcntl.ioctl(fd, _TIOCGPTN, b"\0" * 4))[0]
+    except (can.CanError, OSError) as exc:
+        bus.shutdown()
+        raise DeviceUnavailable(f"simulated hand cannot open a pty: {exc}") from exc
+    return bus, f"/dev/pts/{number}"
 
 
 def _next_tick(tick: float, now: float) -> float:
@@ -65,16 +91,20 @@ class SimulatedHand:
         object_mm: float | None = None,
         emg: Callable[[], Sequence[float]] | None = None,
         hand_watchdog_s: float = 0.3,
+        bus: can.BusABC | None = None,
         **kwargs: Any,
     ) -> None:
         if profile not in ("lpc", "robolimb"):
             raise ValueError(f"profile must be 'lpc' or 'robolimb', got {profile!r}")
-        try:
-            self._bus = open_can_bus(interface, channel, receive_own_messages=False, **kwargs)
-        except (can.CanError, ImportError, OSError, ValueError) as exc:
-            raise DeviceUnavailable(
-                f"simulated hand cannot open {interface}:{channel}: {exc}"
-            ) from exc
+        if bus is not None:
+            self._bus = bus
+        else:
+            try:
+                self._bus = open_can_bus(interface, channel, receive_own_messages=False, **kwargs)
+            except (can.CanError, ImportError, OSError, ValueError) as exc:
+                raise DeviceUnavailable(
+                    f"simulated hand cannot open {interface}:{channel}: {exc}"
+                ) from exc
         self.profile = profile
         self.object_mm = object_mm
         self.emg = emg

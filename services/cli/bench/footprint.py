@@ -13,8 +13,13 @@ The simulated camera is a device, as the RealSense is on the worn computer, wher
 makes the depth and the camera service only receives finished frames. So by default
 (``--devices outside``) it runs as ``lpc sim-camera``, started before the set and stopped after
 it, outside the quota, and the set reads it with ``--source sim-device``; its own CPU and memory
-are printed on a line of their own, not in the set's totals. ``--devices inside`` measures the
-set as ``lpc up --source sim``, rendering in the camera service, under the quota.
+are printed on a line of their own, not in the set's totals. So are the simulated hand and
+tactor controller, physical devices on the worn computer too: one device process
+(``python -m services.hand_sim --ports-file``) serves the hand on python-can's serial bus over a
+pty (this kernel has no vcan) and the tactors on another pty, and the set drives them with
+``lpc up --hand-can serial:PORT --tactor-port PORT``. ``--devices inside`` measures the set as
+``lpc up --source sim``, rendering in the camera service, the hand simulated in the prosthesis
+bridge and the tactors in the tactor bridge, under the quota.
 
 CPU and memory come from the processes themselves (psutil: user + system time over the
 measured window, and resident set size); with ``--together`` the per-service CPU is what
@@ -435,9 +440,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--devices",
         choices=("outside", "inside"),
         default="outside",
-        help="outside (default): the simulated camera runs as a device (lpc sim-camera) apart "
-        "from the set and its quota, as the RealSense's chip does; inside: the camera service "
-        "renders the scene itself (lpc up --source sim), under the quota",
+        help="outside (default): the simulated camera (lpc sim-camera), hand and tactors "
+        "(services.hand_sim --ports-file) run as devices apart from the set and its quota, as "
+        "the RealSense, the hand and the tactor driver are; inside: the set simulates them "
+        "(lpc up --source sim), under the quota",
     )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     parser.add_argument("--port", type=int, default=7467, help="rendezvous port (loopback)")
@@ -509,13 +515,21 @@ def _measure(
     args: argparse.Namespace, quota: CpuQuota | None, tmp: Path, devices: CpuQuota | None = None
 ) -> dict | None:
     if getattr(args, "devices", "outside") == "inside":
-        return _measure_set(args, quota, tmp, ["sim"], None)
+        return _measure_set(args, quota, tmp, ["sim"], {})
     path = tmp / "camera.sock"
-    with _sim_camera(args, path, devices) as device:
-        if device is None:
-            print("lpc bench footprint: error: lpc sim-camera did not start", file=sys.stderr)
+    with (
+        _sim_camera(args, path, devices) as camera,
+        _sim_hand(args, tmp / "ports", devices) as (hand, ports),
+    ):
+        if camera is None or hand is None:
+            which = "lpc sim-camera" if camera is None else "services.hand_sim"
+            print(f"lpc bench footprint: error: {which} did not start", file=sys.stderr)
             return None
-        return _measure_set(args, quota, tmp, ["sim-device", str(path)], device)
+        source = ["sim-device", str(path), "--hand-can", f"serial:{ports['hand']}"]
+        source += ["--tactor-port", ports["tactors"]]
+        return _measure_set(
+            args, quota, tmp, source, {"sim-camera": camera, "sim-hand+tactors": hand}
+        )
 
 
 @contextlib.contextmanager
@@ -541,12 +555,42 @@ def _sim_camera(
         stop(device)
 
 
+@contextlib.contextmanager
+def _sim_hand(
+    args: argparse.Namespace, path: Path, group: CpuQuota | None
+) -> Iterator[tuple[subprocess.Popen[bytes] | None, dict[str, str]]]:
+    """The simulated hand and tactor controller on ptys, in a device process in cgroup
+    ``group`` (not the set's), until the set has stopped: the process and its ports (from
+    ``path``, ``hand PORT`` and ``tactors PORT`` lines), or None if it does not start. It
+    joins the set's bus (``--port``) to follow the pre-shape as the bridge's simulated hand
+    does; Zenoh keeps trying until ``lpc up`` listens."""
+    device = subprocess.Popen(
+        [sys.executable, "-m", "services.hand_sim", "--ports-file", str(path),
+         "--tactors", "eai", "--quiet", "--connect", f"tcp/127.0.0.1:{args.port}"],
+        stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        preexec_fn=group.enter if group else None,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not path.exists():
+            if device.poll() is not None or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        if not path.exists():
+            yield None, {}
+            return
+        ports = dict(line.split(" ", 1) for line in path.read_text().splitlines())
+        yield device, ports
+    finally:
+        stop(device)
+
+
 def _measure_set(
     args: argparse.Namespace,
     quota: CpuQuota | None,
     tmp: Path,
     source: list[str],
-    device: subprocess.Popen[bytes] | None,
+    devices: dict[str, subprocess.Popen[bytes]],
 ) -> dict | None:
     total_s = args.warmup + args.seconds
     argv = [
@@ -567,7 +611,7 @@ def _measure_set(
     print(note, " ".join(argv[2:]), file=sys.stderr, flush=True)
     with lpc_up(argv, quota.enter if quota else None) as (up, started, log):
         try:
-            observed = _observe(args, up, started, quota, device, live)
+            observed = _observe(args, up, started, quota, devices, live)
         except KeyboardInterrupt:
             observed = None
     if observed is None:
@@ -584,7 +628,7 @@ def _observe(
     up: subprocess.Popen[str],
     started: threading.Event,
     quota: CpuQuota | None,
-    device: subprocess.Popen[bytes] | None = None,
+    devices: dict[str, subprocess.Popen[bytes]] | None = None,
     live: bool = True,
 ) -> tuple[Watcher, Captures, Sampler, dict[str, ProcessReport], dict, float] | None:
     deadline = time.monotonic() + START_TIMEOUT_S
@@ -592,8 +636,8 @@ def _observe(
         if up.poll() is not None or time.monotonic() > deadline:
             return None
     watcher, captures, sampler = Watcher(), Captures(), Sampler(up.pid)
-    # The device is no child of lpc up: sampled on its own, kept out of the set's figures.
-    devices = Sampler(device.pid) if device is not None else None
+    # The devices are no children of lpc up: sampled on their own, out of the set's figures.
+    outside = {name: Sampler(device.pid) for name, device in (devices or {}).items()}
     services: dict[str, ProcessReport] = {}
     keys = [t.key for t in TOPICS if t.key != "lpc/camera/depth" and "*" not in t.key]
     conf = zenoh_config(connect=[f"tcp/127.0.0.1:{args.port}"])
@@ -621,15 +665,15 @@ def _observe(
             if not in_window and now >= window_start:
                 in_window = True
                 sampler.restart_window()
-                if devices is not None:
-                    devices.restart_window()
+                for device in outside.values():
+                    device.restart_window()
                 stat_start = quota.stat() if quota else {}
                 with watcher.lock:
                     watcher.lost.clear()
                     watcher.seen.clear()
             sampler.sample()
-            if devices is not None:
-                devices.sample()
+            for device in outside.values():
+                device.sample()
             if in_window:
                 watcher.sample_into(services, now - window_start)
             next_sample += 1.0
@@ -641,7 +685,7 @@ def _observe(
         memory = sampler.memory_detail()
         stat_end = quota.stat() if quota else {}
     throttle = {k: stat_end[k] - stat_start.get(k, 0) for k in stat_end}
-    extra = {"memory": memory, "cgroup": throttle, "devices": devices}
+    extra = {"memory": memory, "cgroup": throttle, "devices": outside}
     return watcher, captures, sampler, services, extra, elapsed
 
 
@@ -717,7 +761,9 @@ def _result(
         if r.samples and "cpu_ms" in r.samples[-1].counters
     }
     rows: dict[str, dict[str, Any]] = {}
-    for name in sorted(set(cpu) | set(summaries), key=_order):
+    # The simulated hand device joins the bus (it follows the pre-shape): its health is no
+    # service's of the set.
+    for name in sorted((set(cpu) | set(summaries)) - {"hand_sim"}, key=_order):
         s = summaries.get(name, {})
         counters = services[name].samples[-1].counters if name in services else {}
         first = services[name].samples[0].counters if name in services else {}
@@ -768,9 +814,9 @@ def _result(
         own = sum(v for n, v in loop_cpu.items() if n != "container")
         unattributed = round((on_loops - own) / window, 4)
     outside: dict[str, dict[str, float]] = {}
-    if extra.get("devices") is not None:
-        device: Sampler = extra["devices"]
-        outside["sim-camera"] = {
+    device: Sampler
+    for name, device in extra.get("devices", {}).items():
+        outside[name] = {
             "cpu": round(sum(e.cpu_last - e.cpu_start for e in device.procs.values()) / window, 4),
             "rss_mb": round(max(device.totals, default=0) / 2**20, 1),
         }
@@ -817,9 +863,9 @@ def _order(name: str) -> tuple[int, str]:
 def _print(r: dict[str, Any]) -> None:
     quota = f"quota {r['cpus']:g} CPU (cgroup {r['cgroup']})" if r["cpus"] else "no quota"
     devices = (
-        "simulated camera outside the set (a device, not counted)"
+        "simulated camera, hand and tactors outside the set (devices, not counted)"
         if r["devices"] == "outside"
-        else "simulated camera inside the set (rendered by the camera service)"
+        else "simulated camera, hand and tactors inside the set"
     )
     print(
         f"lpc bench footprint: {r['mode']}, {quota}, recorder {'on' if r['record'] else 'off'}, "
