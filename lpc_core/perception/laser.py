@@ -3017,6 +3017,11 @@ def _rim_free(
     refitted). A round lying on the table has the table within a diameter behind its rims,
     where a matcher's samples stop 2-7 px short of them (see ``_occluding_rims``): it keeps
     its fit.
+
+    Under residuals correlated like SGBM's (``_matched``) the silhouette the samples show
+    leaves out the plateaus a window fattened past it (``_fattened_samples``), unless the
+    round lies along ``support`` or rests on a surface right behind its rims
+    (``_rests_behind_rims``).
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
@@ -3024,26 +3029,42 @@ def _rim_free(
     samples = np.concatenate([ln.points for ln in lines])
     thr = params.solid_threshold_m
     lo, hi = params.radius_limits_m
+    angle = _across_view(full, samples)
+    if angle is None:
+        return None
+    residuals = full.residuals(samples)
+    # Under an SGBM-like window the samples run past the silhouette in the plateau the window
+    # carries the rim's depth into (the 50 mm bottle tilted right at SGBM 9: 2-9 px past it),
+    # so their extent lies too far out to trim the pulled arc inside it. The extent leaves
+    # those plateaus out (_fattened_end: a plateau, then a rim), but not a round's that lies
+    # along or rests on a surface seen right behind its rims, where what ends a segment is not
+    # fattening alone (the lying 50 mm bottle without them: +1.9 -> +9.0 mm on a BM 7 frame
+    # that passed the correlation gate, +1.9 -> -4.1 at P1 x 3, P2 x 6).
+    fattened = _fattened_samples(lines)
+    if not (
+        fattened.any()
+        and not _lying_along(full, support, params)
+        and _matched(scan_lines, params) is not None
+        and not _rests_behind_rims(lines, full, angle, residuals, params, pixel_rad, scan_lines)
+    ):
+        fattened[:] = False
+    unfattened = ~fattened
     solid = full
     kept = None
     for attempt in range(3):
-        angle = _across_view(solid, samples)
-        if angle is None:
-            return None
-        residuals = solid.residuals(samples)
-        on_round = angle.compress(residuals <= 4 * thr)
+        if attempt:
+            angle = _across_view(solid, samples)
+            if angle is None:
+                return None
+            residuals = solid.residuals(samples)
+        on = residuals <= 4 * thr
+        on_round = angle.compress(on)
         if len(on_round) == 0:
             return None
-        first, last = float(on_round.min()), float(on_round.max())
-        # A side past which the segments go on (onto the support a lying round touches)
-        # shows no silhouette: only the fit's counts there.
-        if np.count_nonzero(angle < first) >= _ROUND_GOES_ON:
-            first = -math.inf
-        if np.count_nonzero(angle > last) >= _ROUND_GOES_ON:
-            last = math.inf
+        first, last = _seen_extent(angle, on_round)
         inset = np.minimum(angle - first, last - angle)
         if attempt == 0:
-            rim = (inset < _RIM_PX * pixel_rad) & (residuals <= 4 * thr)
+            rim = (inset < _RIM_PX * pixel_rad) & on
             if np.count_nonzero(rim) < _ROUND_GOES_ON:
                 return None
             w = samples.compress(rim, axis=0) - full.point
@@ -3087,6 +3108,14 @@ def _rim_free(
                 )
             ):
                 return None
+        if fattened.any():
+            # The bow and the arc's least span are read on every sample, as without plateaus:
+            # only where the trim starts moves in.
+            bare_on = angle.compress(on & unfattened)
+            if len(bare_on) == 0:
+                break
+            bare_first, bare_last = _seen_extent(angle.compress(unfattened), bare_on)
+            inset = np.minimum(angle - bare_first, bare_last - angle)
         # Twice the inlier band: the whole arc's fit, too flat, may miss the inner arc by more.
         near = residuals <= 2 * thr
         keep = near & (np.minimum(inset, solid.silhouette_distance(samples)) >= margin)
@@ -3115,6 +3144,19 @@ def _rim_free(
     if _narrower_than_runs(solid, clean, pixel_rad):
         return None
     return solid
+
+
+def _seen_extent(angle: np.ndarray, on_round: np.ndarray) -> tuple[float, float]:
+    """The extremes of the view angles ``on_round`` (those of the samples on the round, among
+    ``angle``, every sample's): the silhouette the samples show, infinite on a side past which
+    ``_ROUND_GOES_ON`` or more samples go on (onto the support a lying round touches), which
+    shows no silhouette: only the fit's counts there."""
+    first, last = float(on_round.min()), float(on_round.max())
+    if np.count_nonzero(angle < first) >= _ROUND_GOES_ON:
+        first = -math.inf
+    if np.count_nonzero(angle > last) >= _ROUND_GOES_ON:
+        last = math.inf
+    return first, last
 
 
 def _outermost_samples(
@@ -3475,11 +3517,36 @@ def _fattened(lines: list[LineModels]) -> bool:
     for ln in lines:
         z = ln.sz[:, 1]
         for end, inward in ((0, 1), (len(z) - 1, -1)):
-            j = _plateau_end(z, end, inward, _END_PLATEAU_M)
-            span = abs(j - end)
-            k = j + inward * span
-            count += span >= 2 and 0 <= k < len(z) and z[j] - z[k] >= 2 * _END_PLATEAU_M
+            count += _fattened_end(z, end, inward) != end
     return count >= _FATTENED_ENDS
+
+
+def _fattened_end(z: np.ndarray, end: int, inward: int) -> int:
+    """The last sample of the plateau that ends a segment at ``end`` (walking ``inward``, +1
+    or -1, along its depths ``z``) where that end shows a matcher's fattening, else ``end``:
+    three or more samples within the depth quantum (``_plateau_end``), then a rim, the surface
+    nearer by two quanta or more over as many samples again inward."""
+    j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+    span = abs(j - end)
+    k = j + inward * span
+    if span >= 2 and 0 <= k < len(z) and z[j] - z[k] >= 2 * _END_PLATEAU_M:
+        return j
+    return end
+
+
+def _fattened_samples(lines: list[LineModels]) -> np.ndarray:
+    """Whether each of the lines' samples (laid end to end) lies in a plateau that ends its
+    segment and shows a matcher's fattening (``_fattened_end``)."""
+    marks = []
+    for ln in lines:
+        z = ln.sz[:, 1]
+        mark = np.zeros(len(z), dtype=bool)
+        for end, inward in ((0, 1), (len(z) - 1, -1)):
+            j = _fattened_end(z, end, inward)
+            if j != end:
+                mark[min(j, end) : max(j, end) + 1] = True
+        marks.append(mark)
+    return np.concatenate(marks)
 
 
 def _plateau_free(
