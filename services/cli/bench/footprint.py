@@ -533,26 +533,33 @@ def _measure(
 
 
 @contextlib.contextmanager
-def _sim_camera(
-    args: argparse.Namespace, path: Path, group: CpuQuota | None
+def _device(
+    argv: list[str], ready: Path, group: CpuQuota | None
 ) -> Iterator[subprocess.Popen[bytes] | None]:
-    """``lpc sim-camera`` on ``path``, in cgroup ``group`` (not the set's), until the set has
-    stopped; None if it does not start."""
+    """A simulated device (``python -m`` ``argv``) in cgroup ``group`` (not the set's), until
+    the set has stopped; None if it has not made ``ready`` (its socket or ports file) in time."""
     device = subprocess.Popen(
-        [sys.executable, "-m", "services.cli", "sim-camera", "--socket", str(path),
-         "--rate", f"{args.rate:g}"],
+        [sys.executable, "-m", *argv],
         stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
         preexec_fn=group.enter if group else None,
     )  # fmt: skip
     try:
         deadline = time.monotonic() + START_TIMEOUT_S
-        while not path.exists():
+        while not ready.exists():
             if device.poll() is not None or time.monotonic() > deadline:
                 break
             time.sleep(0.05)
-        yield device if path.exists() else None
+        yield device if ready.exists() else None
     finally:
         stop(device)
+
+
+def _sim_camera(
+    args: argparse.Namespace, path: Path, group: CpuQuota | None
+) -> contextlib.AbstractContextManager[subprocess.Popen[bytes] | None]:
+    """``lpc sim-camera`` on ``path``, in cgroup ``group``."""
+    argv = ["services.cli", "sim-camera", "--socket", str(path), "--rate", f"{args.rate:g}"]
+    return _device(argv, path, group)
 
 
 @contextlib.contextmanager
@@ -560,29 +567,17 @@ def _sim_hand(
     args: argparse.Namespace, path: Path, group: CpuQuota | None
 ) -> Iterator[tuple[subprocess.Popen[bytes] | None, dict[str, str]]]:
     """The simulated hand and tactor controller on ptys, in a device process in cgroup
-    ``group`` (not the set's), until the set has stopped: the process and its ports (from
-    ``path``, ``hand PORT`` and ``tactors PORT`` lines), or None if it does not start. It
-    joins the set's bus (``--port``) to follow the pre-shape as the bridge's simulated hand
-    does; Zenoh keeps trying until ``lpc up`` listens."""
-    device = subprocess.Popen(
-        [sys.executable, "-m", "services.hand_sim", "--ports-file", str(path),
-         "--tactors", "eai", "--quiet", "--connect", f"tcp/127.0.0.1:{args.port}"],
-        stdin=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-        preexec_fn=group.enter if group else None,
-    )  # fmt: skip
-    try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while not path.exists():
-            if device.poll() is not None or time.monotonic() > deadline:
-                break
-            time.sleep(0.05)
-        if not path.exists():
+    ``group``: the process and its ports (from ``path``, ``hand PORT`` and ``tactors PORT``
+    lines), or None if it does not start. It joins the set's bus (``--port``) to follow the
+    pre-shape as the bridge's simulated hand does; Zenoh keeps trying until ``lpc up``
+    listens."""
+    argv = ["services.hand_sim", "--ports-file", str(path), "--tactors", "eai", "--quiet",
+            "--connect", f"tcp/127.0.0.1:{args.port}"]  # fmt: skip
+    with _device(argv, path, group) as device:
+        if device is None:
             yield None, {}
             return
-        ports = dict(line.split(" ", 1) for line in path.read_text().splitlines())
-        yield device, ports
-    finally:
-        stop(device)
+        yield device, dict(line.split(" ", 1) for line in path.read_text().splitlines())
 
 
 def _measure_set(
