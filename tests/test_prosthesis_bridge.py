@@ -336,6 +336,22 @@ def test_link_rejects_a_bad_watchdog() -> None:
 # --------------------------------------------------------------------------- over the bus
 
 
+def _closes_then_stops(states: list, command) -> None:  # type: ignore[no-untyped-def]
+    """Fresh grasp commands close the hand by at least 10 mm; once they stop, the bridge's
+    watchdog stops it (its aperture settles)."""
+    start = states[-1].aperture_mm
+    deadline = time.monotonic() + 10.0
+    while states[-1].aperture_mm > start - 10.0 and time.monotonic() < deadline:
+        command(0.5)
+        time.sleep(0.01)
+    assert states[-1].aperture_mm <= start - 10.0  # closed by at least 10 mm
+    wait_for(
+        lambda: len(states) > 20 and abs(states[-1].aperture_mm - states[-10].aperture_mm) < 0.01,
+        5.0,
+        "the hand to stop",
+    )
+
+
 def test_bridge_service_moves_the_hand_and_stops_it(
     rendezvous: zenoh.Session, endpoint: str
 ) -> None:
@@ -347,7 +363,6 @@ def test_bridge_service_moves_the_hand_and_stops_it(
     process = spawn_service("services.prosthesis_bridge", endpoint, "--sim-hand")
     try:
         wait_for(lambda: len(states) > 10, 20.0, "status from the bridge")
-        start = states[-1].aperture_mm
         pub = rendezvous.declare_publisher("lpc/prosthesis/command")
         seq = itertools.count(1)
 
@@ -358,19 +373,7 @@ def test_bridge_service_moves_the_hand_and_stops_it(
                 )
             )
 
-        deadline = time.monotonic() + 10.0
-        while states[-1].aperture_mm > start - 10.0 and time.monotonic() < deadline:
-            command(0.5)
-            time.sleep(0.01)
-        assert states[-1].aperture_mm <= start - 10.0  # closed by at least 10 mm
-        # Commands stop: the watchdog stops the hand (aperture settles within a few mm).
-        wait_for(
-            lambda: (
-                len(states) > 20 and abs(states[-1].aperture_mm - states[-10].aperture_mm) < 0.01
-            ),
-            5.0,
-            "the hand to stop",
-        )
+        _closes_then_stops(states, command)
         # A stale command (200 ms old) is dropped, not executed.
         settled = states[-1].aperture_mm
         pub.put(
@@ -412,23 +415,15 @@ def test_bridge_drives_a_simulated_hand_in_another_process_over_a_serial_can_bus
             "services.prosthesis_bridge", endpoint, "--interface", "serial", "--channel", port
         )
         wait_for(lambda: len(states) > 10, 20.0, "status from the hand over the pty")
-        start = states[-1].aperture_mm
         pub = rendezvous.declare_publisher("lpc/prosthesis/command")
         seq = itertools.count(1)
-        deadline = time.monotonic() + 10.0
-        while states[-1].aperture_mm > start - 10.0 and time.monotonic() < deadline:
-            pub.put(
-                encode(ProsthesisCommand(seq=next(seq), t_ns=time.time_ns(), grasp=0.5, wrist=0.0))
-            )
-            time.sleep(0.01)
-        assert states[-1].aperture_mm <= start - 10.0  # closed by at least 10 mm
-        # Commands stop: the bridge's watchdog stops the hand in the other process.
-        wait_for(
-            lambda: (
-                len(states) > 20 and abs(states[-1].aperture_mm - states[-10].aperture_mm) < 0.01
+        _closes_then_stops(
+            states,
+            lambda grasp: pub.put(
+                encode(
+                    ProsthesisCommand(seq=next(seq), t_ns=time.time_ns(), grasp=grasp, wrist=0.0)
+                )
             ),
-            5.0,
-            "the hand to stop",
         )
         assert states[-1].hand == "lpc:serial"
     finally:

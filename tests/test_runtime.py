@@ -189,6 +189,19 @@ def test_health_latency_percentiles_are_numpys_linear_ones() -> None:
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
 
 
+def _counted_wakes(loop: asyncio.AbstractEventLoop) -> list[object]:
+    """The callbacks handed to ``loop`` from other threads from now on (each a wake-up)."""
+    wakes: list[object] = []
+    call_soon_threadsafe = loop.call_soon_threadsafe
+
+    def counted(callback, *args, **kwargs):  # type: ignore[no-untyped-def]
+        wakes.append(callback)
+        return call_soon_threadsafe(callback, *args, **kwargs)
+
+    loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+    return wakes
+
+
 def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: str) -> None:
     """Samples from another thread that only a ``prompt=False`` subscription wants (the
     recorder's) wait for the loop's next wake-up instead of waking it, and still arrive all,
@@ -196,14 +209,7 @@ def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: 
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
-        wakes: list[object] = []
-        call_soon_threadsafe = loop.call_soon_threadsafe
-
-        def counted(callback, *args, **kwargs):  # type: ignore[no-untyped-def]
-            wakes.append(callback)
-            return call_soon_threadsafe(callback, *args, **kwargs)
-
-        loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+        wakes = _counted_wakes(loop)
         session = zenoh.open(zenoh_config(connect=[endpoint]))
         router = Router(session, loop, wildcard=False)
         bus = Bus(session, "recorder", loop=loop, router=router, quiet=True)
@@ -250,14 +256,7 @@ def test_newest_takes_the_last_sample_without_waking_the_loop(endpoint: str) -> 
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
-        wakes: list[object] = []
-        call_soon_threadsafe = loop.call_soon_threadsafe
-
-        def counted(callback, *args, **kwargs):  # type: ignore[no-untyped-def]
-            wakes.append(callback)
-            return call_soon_threadsafe(callback, *args, **kwargs)
-
-        loop.call_soon_threadsafe = counted  # type: ignore[method-assign]
+        wakes = _counted_wakes(loop)
         session = zenoh.open(zenoh_config(connect=[endpoint]))
         router = Router(session, loop, wildcard=False)
         routed = Bus(session, "aim", loop=loop, router=router, quiet=True)

@@ -685,6 +685,21 @@ def test_a_round_resting_on_a_support_behind_its_rims_keeps_its_fit_under_a_wind
     assert abs(error_mm) < 3.0, (error_mm, before_mm)
 
 
+def _jar_cap_front_disc(trial: int, frame: int) -> tuple[View, Reconstruction, float]:
+    """The jar cap seen from the front on SGBM 7, read as a disc lying flat (a cylinder along
+    the table's normal): its view, result and wrist angle error in degrees."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _bench_frame(
+        "jar_cap", trial, frame, suite="irregular", detail="front", kind="sgbm", block_size=7
+    )
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    return view, result, float(error)
+
+
 def test_a_jar_cap_whose_table_the_matcher_smeared_still_lies_flat_on_it() -> None:
     """SGBM (block 7), the jar cap from the front, trial 0 frame 1: the matcher smeared the
     band's lower rim 4-9 mm down behind the table (2 of the 39 samples beside the runs), and
@@ -692,15 +707,7 @@ def test_a_jar_cap_whose_table_the_matcher_smeared_still_lies_flat_on_it() -> No
     none; the free cylinder lay along the band, 30 mm wide and 53 degrees off the truth's wrist
     angle. The plane most of those samples lie on is the table (laser._DISC_SUPPORT), and the
     cap a disc lying flat on it: within a degree of the truth, 57 mm wide (the truth 60)."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
-    view, result = _bench_frame(
-        "jar_cap", 0, 1, suite="irregular", detail="front", kind="sgbm", block_size=7
-    )
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    view, result, error = _jar_cap_front_disc(trial=0, frame=1)
     assert abs(error) < 2.0, error
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.005, result.grasp_width_m
@@ -711,15 +718,7 @@ def test_a_jar_cap_whose_band_a_face_explains_is_a_disc_on_the_table() -> None:
     band are flat within the threshold, and a face held 0.82 of the runs against the free
     cylinder's 0.73: a box 18 mm wide, 16 degrees off the truth's wrist angle. The disc lying
     flat on the table the lines show holds 0.70 (laser._lying_disc): within a degree."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
-    view, result = _bench_frame(
-        "jar_cap", 0, 0, suite="irregular", detail="front", kind="sgbm", block_size=7
-    )
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    _, _, error = _jar_cap_front_disc(trial=0, frame=0)
     assert abs(error) < 1.0, error
 
 
