@@ -81,3 +81,8 @@ def test_summarise_counts_irregular_objects_and_per_frame_shape_accuracy() -> No
     assert table["all"] == pytest.approx([7 / 3, 75.0])
     assert table["angle"][0] == pytest.approx(1.5)
     assert table["irregular"] == [9, 10]
+
+    # Without the functional set the shapes' table is the rotation suite's.
+    rotation = [{"setting": "bm7", "suite": "rotation",
+                 "methods": {"laser": {"rows": rows[:2], "failed": [], "objects": 0}}}]  # fmt: skip
+    assert sweep.summarise(rotation)["bm7"]["laser"]["table"]["cylinder"] == [3.0, 100.0]
