@@ -83,7 +83,7 @@ class VirtualBus(can.interfaces.virtual.VirtualBus):
 
 def open_can_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
     """A python-can bus; the virtual one is ``VirtualBus``. python-can's serial bus (a CAN
-    link over a serial line, e.g. to ``hand_sim --pty``) ignores ``recv``'s timeout and waits
+    link over a serial line, e.g. to ``hand_sim --ports-file``) ignores ``recv``'s timeout and waits
     the port's: it gets a port that never waits, for readers that wait on its file instead
     (``HandLink.start(loop)``)."""
     if interface == "virtual":
