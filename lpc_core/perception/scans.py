@@ -162,7 +162,6 @@ class _ScanTable:
     hi_units: np.ndarray  # (M,) int32 largest
 
 
-@lru_cache(maxsize=16)
 def _scan_table(intrinsics: Intrinsics, params: ScanParams) -> _ScanTable:
     xs, ys = intrinsics.pixel_rays()
     z_near, z_far = params.z_limits_m
