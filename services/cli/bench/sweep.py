@@ -90,6 +90,21 @@ SETTINGS: dict[str, Setting] = {
     "sgbm3": Setting("untuned", "SGBM 3", matcher={"block_size": 3}),
     "sgbm11": Setting("untuned", "SGBM 11", matcher={"block_size": 11}),
     "bm11": Setting("untuned", "BM 11", matcher={"kind": "bm", "block_size": 11}),
+    "notex": Setting("untuned", "SGBM 7, no texture check", matcher={"min_texture": 0.0}),
+    "cvsample": Setting(
+        "untuned",
+        "SGBM 7, OpenCV sample's P1 and P2 (x 3), speckle range 32",
+        matcher={"speckle_range": 32},
+        smoothness=(3.0, 3.0),
+    ),
+    "3way": Setting("untuned", "SGBM 7, 3-way mode", matcher={"sgbm_mode": "3way"}),
+    "hh": Setting("untuned", "SGBM 7, 8-path (HH) mode", matcher={"sgbm_mode": "hh"}),
+    "pattern1": Setting("untuned", "SGBM 7, another projector's dots", rig={"pattern_seed": 1}),
+    "dim": Setting(
+        "untuned",
+        "SGBM 7, half the signal, more read noise",
+        rig={"gain_dn": 160.0, "read_noise_dn": 2.0},
+    ),
 }
 
 
