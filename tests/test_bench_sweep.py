@@ -33,8 +33,9 @@ def test_every_setting_builds_its_sensor_and_the_untuned_differ_from_the_tuning(
     assert sensors["sgbm7"].matcher.p1 is None  # OpenCV's usual penalties
     tuning = [s for n, s in sensors.items() if sweep.SETTINGS[n].group == "tuning"]
     untuned = [s for n, s in sensors.items() if sweep.SETTINGS[n].group == "untuned"]
-    assert len(tuning) == 8 and len(untuned) == 10
-    assert not set(map(repr, tuning)) & set(map(repr, untuned))
+    fresh = [s for n, s in sensors.items() if sweep.SETTINGS[n].group == "fresh"]
+    assert len(tuning) == 8 and len(untuned) == 16 and len(fresh) == 5
+    assert len(set(map(repr, sensors.values()))) == len(sensors)  # no setting twice
 
 
 def test_sweep_prints_a_row_and_compares_with_an_earlier_run(
