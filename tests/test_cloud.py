@@ -15,6 +15,7 @@ from lpc_core.perception.cloud import (
     CylinderModel,
     PlaneModel,
     SphereModel,
+    _camera_facing,
     _plane_hypotheses,
     _support_refit,
     crop_points,
@@ -30,6 +31,7 @@ from lpc_core.perception.cloud import (
     voxel_downsample,
 )
 from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.solids import silhouette_distance
 
 INTR = Intrinsics()
 PARAMS = CloudParams()
@@ -626,3 +628,39 @@ def test_an_upright_box_under_semi_global_matching_gets_its_axis_from_the_whole_
     assert result.shape == "cuboid", (result.shape, result.reason)
     error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
     assert abs(error) < 1.0
+
+
+def _pulled_can(pull_m: float, decay_px: float) -> tuple[np.ndarray, CylinderModel]:
+    """A 30 mm can's camera-facing side at 0.25 m, its rims pulled out of the surface (toward
+    the camera) by ``pull_m`` decaying over ``decay_px`` in from the silhouette, as a wide
+    window pulls them (SGBM 11: +2.5 mm within 2 px, +1.0 at 4-6, +0.3 at 8-10), and the
+    RANSAC start a little off."""
+    rng = np.random.default_rng(0)
+    centre, radius, axis = np.array([0.0, 0.0, 0.25]), 0.03, np.array([0.0, 1.0, 0.0])
+    phi, y = rng.uniform(-np.pi / 2, np.pi / 2, 4000), rng.uniform(-0.05, 0.05, 4000)
+    points = np.column_stack([radius * np.sin(phi), y, 0.25 - radius * np.cos(phi)])
+    points += rng.normal(0.0, 0.0003, points.shape)
+    inside_px = silhouette_distance(points, centre, radius, axis) * INTR.fx
+    points = points[inside_px > 0]
+    pull = pull_m * np.exp(-inside_px[inside_px > 0] / decay_px)
+    across = points - centre
+    across[:, 1] = 0.0
+    points += across / np.linalg.norm(across, axis=1)[:, None] * pull[:, None]
+    start = CylinderModel(centre + np.array([0.001, 0.0, 0.002]), axis, radius + 0.003)
+    return points, start
+
+
+def test_camera_facing_moves_in_past_a_rim_band_a_wide_window_pulled() -> None:
+    points, start = _pulled_can(0.003, 3.5)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    moved = _camera_facing(points, start, PARAMS, 1 / INTR.fx)
+    assert 1000 * (fixed.radius - 0.03) > 1.7  # the 6 px margin keeps 1.8 mm of the pull
+    assert 1000 * (moved.radius - 0.03) < 1.3
+
+
+def test_camera_facing_keeps_its_margin_on_an_unpulled_rim() -> None:
+    points, start = _pulled_can(0.0, 3.5)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    moved = _camera_facing(points, start, PARAMS, 1 / INTR.fx)
+    assert moved.radius == fixed.radius
+    assert abs(1000 * (moved.radius - 0.03)) < 0.3

@@ -80,6 +80,14 @@ class CloudParams:
     # silhouette, and a cuboid face's side that no other face meets (an occluding edge) moves
     # in by ``edge_fattening_px``.
     silhouette_margin_px: float = 6.0
+    # A wider window, or a stronger smoothness, pulls a round's rim toward the camera further
+    # in than that margin (SGBM 11: +2.5 mm within 2 px of the silhouette, +1.0 at 4-6, +0.3
+    # at 8-10). While the band of ``rim_band_px`` just outside the margin lies out of the fit
+    # by more than ``rim_bulge_m`` and its median's noise (median), the margin moves in by the
+    # band; only where the frame's residuals are correlated like a window matcher's and every
+    # rim has its background far behind (see _round_facing). 0 turns it off.
+    rim_band_px: float = 2.0
+    rim_bulge_m: float = 0.0003
     edge_fattening_px: float = 0.0
     # A round resting on the supporting plane is fitted again touching it, as the four-line
     # method does (``LaserParams.rest_gap_ratio``, ``solids.resting_width``). 0 turns it off.
@@ -136,6 +144,8 @@ class CloudParams:
             raise ValueError("radius_max_m must be greater than radius_min_m")
         for name in (
             "silhouette_margin_px",
+            "rim_band_px",
+            "rim_bulge_m",
             "edge_fattening_px",
             "window_fattening_px",
             "far_background_ratio",
@@ -1051,10 +1061,25 @@ def _camera_facing(
     else:
         solid = CylinderSolid(point=model.center, axis=model.axis, radius=model.radius)
     need = max(10, len(points) // 8)
-    for _ in range(2):
-        keep = (solid.residuals(points) <= params.fit_threshold_m) & (
-            solid.silhouette_distance(points) >= margin
-        )
+    band = params.rim_band_px * pixel_rad
+    passes = 0
+    while True:
+        residuals = solid.residuals(points)
+        inside = solid.silhouette_distance(points)
+        close = residuals <= params.fit_threshold_m
+        if passes >= 2:
+            # The fit's own rim band: points pulled toward the camera lie outside the solid.
+            rim = close & (inside >= margin - band) & (inside < margin)
+            if band <= 0 or np.count_nonzero(rim) < 5:
+                break
+            outward = _outward(points, solid)
+            spread = 1.4826 * float(np.median(np.abs(outward[close & (inside >= margin)])))
+            # The band's median against its own noise (a median's error, 1.25 sd / sqrt(n)).
+            noise = 3.0 * 1.2533 * spread / math.sqrt(np.count_nonzero(rim))
+            if float(np.median(outward[rim])) <= max(params.rim_bulge_m, noise):
+                break
+            margin += band
+        keep = close & (inside >= margin)
         if np.count_nonzero(keep) < need:
             break
         refit = (
@@ -1065,9 +1090,77 @@ def _camera_facing(
         if not refit or not params.radius_min_m <= refit.radius <= params.radius_max_m:
             break
         solid = refit
+        passes += 1
     if isinstance(solid, SphereSolid):
         return SphereModel(solid.center, solid.radius)
     return CylinderModel(solid.point, solid.axis, solid.radius)
+
+
+def _round_facing(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    points: np.ndarray,
+    model: SphereModel | CylinderModel,
+    params: CloudParams,
+) -> SphereModel | CylinderModel:
+    """The round's camera-facing fit (_camera_facing): its rim band moves in past the margin
+    only where a window matcher made the frame and every rim has its background far behind
+    (_far_rims), where the matcher pulls the rim toward the camera."""
+    pixel_rad = 1.0 / intrinsics.fx
+    fixed = _camera_facing(points, model, replace(params, rim_band_px=0.0), pixel_rad)
+    if params.rim_band_px <= 0 or not _far_rims(depth, intrinsics, fixed, params):
+        return fixed
+    if not _window_matched(depth, intrinsics, params):
+        return fixed
+    return _camera_facing(points, model, params, pixel_rad)
+
+
+def _far_rims(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    model: SphereModel | CylinderModel,
+    params: CloudParams,
+) -> bool:
+    """Whether the background past each rim of the round lies far behind it (_far_behind):
+    a cylinder's two sides, a sphere's four (left, right, up, down in view). A table just
+    behind a rim (a ball or a can lying on it) takes the window's pull the other way."""
+    middle = model.center
+    ray = middle / np.linalg.norm(middle)
+    if isinstance(model, CylinderModel):
+        across = np.cross(model.axis, ray)
+        if np.linalg.norm(across) < 1e-6:
+            return False
+        outwards = [across / np.linalg.norm(across)]
+    else:
+        e1 = np.cross(ray, (0.0, 1.0, 0.0))
+        e1 /= np.linalg.norm(e1)
+        outwards = [e1, np.cross(ray, e1)]
+    ratio = params.far_background_ratio
+    return all(
+        _far_behind(depth, intrinsics, middle + sign * model.radius * e, sign * e, ratio=ratio)
+        for e in outwards
+        for sign in (1.0, -1.0)
+    )
+
+
+def _window_matched(depth: np.ndarray, intrinsics: Intrinsics, params: CloudParams) -> bool:
+    """Whether the frame's scan lines hold residuals correlated like a window matcher's
+    (``scans.residual_correlation`` at least ``window_correlation_gate``, as _measured_fattening
+    asks): per-pixel noise, as lpc's noise model's, pulls no rim."""
+    from lpc_core.perception.scans import cut_scan_lines, residual_correlation
+
+    scan_lines = cut_scan_lines(depth, intrinsics)
+    correlation = residual_correlation(scan_lines.angles_rad, scan_lines.points)
+    return correlation >= params.window_correlation_gate
+
+
+def _outward(points: np.ndarray, solid: SphereSolid | CylinderSolid) -> np.ndarray:
+    """Signed distance of each point from the solid's surface, positive outside it."""
+    if isinstance(solid, SphereSolid):
+        return np.linalg.norm(points - solid.center, axis=1) - solid.radius
+    w = points - solid.point
+    across = w - np.outer(w @ solid.axis, solid.axis)
+    return np.linalg.norm(across, axis=1) - solid.radius
 
 
 def _pierced_face(
@@ -1436,7 +1529,7 @@ def reconstruct_cloud(
     pixel_rad = 1.0 / intrinsics.fx
     support = cloud[~keep]
     if isinstance(fit, _Fit) and isinstance(fit.model, SphereModel):
-        sphere = _camera_facing(segment, fit.model, params, pixel_rad)
+        sphere = _round_facing(depth, intrinsics, segment, fit.model, params)
         resting = _resting_width(
             segment[fit.inliers], support, sphere.center, sphere.radius, None, params
         )
@@ -1447,7 +1540,7 @@ def reconstruct_cloud(
             points=used, extra=extra,
         )  # fmt: skip
     if isinstance(fit, _Fit) and isinstance(fit.model, CylinderModel):
-        cylinder = _camera_facing(segment, fit.model, params, pixel_rad)
+        cylinder = _round_facing(depth, intrinsics, segment, fit.model, params)
         resting = _resting_width(
             segment[fit.inliers], support, cylinder.center, cylinder.radius, cylinder.axis, params
         )
