@@ -17,6 +17,7 @@ import pytest
 from lpc_core.perception.laser import (
     LaserParams,
     LineModels,
+    _beyond_edges,
     _short_of_ball,
     analyse_lines,
     principal_direction,
@@ -25,7 +26,7 @@ from lpc_core.perception.laser import (
     sphere_from_circles,
 )
 from lpc_core.perception.reconstruction import wrap_half_turn
-from lpc_core.perception.solids import SphereSolid
+from lpc_core.perception.solids import PlaneSolid, SphereSolid
 
 Hit = Callable[[np.ndarray], np.ndarray]  # (n, 3) ray directions with z = 1 -> (n,) depth
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -587,3 +588,43 @@ def test_short_of_ball_needs_two_lines_short_of_the_balls_chord() -> None:
         behind = np.column_stack([t * c, t * s, np.full(30, 0.25)])
         ln.points = np.concatenate([ln.points, behind])
     assert _short_of_ball(wall, ball, params)
+
+
+def _face_then_flat(
+    angle: float, on_face: int = 20, flat: int = 8
+) -> tuple[LineModels, PlaneSolid]:
+    """A scan line at ``angle`` over a face turned 17 degrees toward it (depth z = 0.2 - 0.3
+    s, s along the line, nearer the camera toward its +s end), ``on_face`` samples 0.0047 rad
+    apart on it, then ``flat`` more, where the segment ends, at the last face sample's depth:
+    the fill a semi-global matcher carries past a box's side."""
+    c, s_ = math.cos(angle), math.sin(angle)
+    q = -0.05 + 0.0047 * np.arange(on_face + flat)
+    z = 0.2 / (1.0 + 0.3 * q)
+    z[on_face:] = z[on_face - 1]
+    points = np.column_stack([q * z * c, q * z * s_, z])
+    line = LineModels(index=0, angle=angle, total=len(q), points=points,
+                      sz=np.column_stack([q * z, z]), run=np.arange(on_face))  # fmt: skip
+    normal = -np.array([0.3 * c, 0.3 * s_, 1.0]) / math.hypot(0.3, 1.0)
+    return line, PlaneSolid(point=np.array([0.0, 0.0, 0.2]), normal=normal)
+
+
+def test_beyond_edges_drops_a_walk_along_the_rows_that_keeps_the_edges_depth() -> None:
+    """Past a box's side a semi-global matcher carries the face's disparity into the
+    background along the image rows: 8 samples at the edge's depth, 2.2 mm behind the face at
+    their end, falling away like a bevel and longer than the 3-pixel fattening, were kept as
+    more of the box (half the signal, the box tilted left, trial 1 frame 1: 17.3 mm too wide,
+    11.0 with the fill dropped). A line within 30 degrees of the rows drops it; the diagonal
+    and vertical lines keep it (on the diagonals the soap bar's rounded edges look the same);
+    so does a line along the rows whose walk turns away from the edge's depth (a bevel)."""
+    params = replace(LaserParams(), edge_fattening_px=3.0)
+    for degrees, kept in ((0.0, 0), (20.0, 0), (180.0, 0), (45.0, 1), (90.0, 1)):
+        line, face = _face_then_flat(math.radians(degrees))
+        beyond, _ = _beyond_edges([line], face, params)
+        assert len(beyond) == kept, degrees
+    line, face = _face_then_flat(0.0)
+    z = line.points[:, 2].copy()
+    z[20:] += 0.0006 * np.arange(1, 9)  # 0.6 mm a sample further: 4.8 mm at its end
+    scale = z / line.points[:, 2]
+    bevel = replace(line, points=line.points * scale[:, None], sz=line.sz * scale[:, None])
+    beyond, _ = _beyond_edges([bevel], face, params)
+    assert len(beyond) == 1
