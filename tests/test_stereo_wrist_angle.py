@@ -275,3 +275,46 @@ def test_a_run_ending_on_the_fattening_ramp_is_trimmed_as_an_occluding_edge(
     width = view.truth.grasp_width_m
     assert before.grasp_width_m - width > 0.0025
     assert abs(after.grasp_width_m - width) < 0.001
+
+
+def test_a_seed_cut_where_the_face_ends_breaks_the_counts_tie() -> None:
+    """The box tilted right at 'dim' (trial 3 frame 2; 85 mm wide against the capture
+    volume's 100 mm): its four uncut seeds lie one on each side, and every direction over 56
+    degrees puts each on a side; that span's middle was 28 degrees off the face's axis (74.1
+    degrees in the face's frame). The line along x, cut at the capture volume's side at
+    x = +49.6 mm, has the background past its end: the face ends within 15 mm of it, and
+    the directions keeping its side that near are 7 degrees off."""
+    uv = np.array(
+        [
+            [-0.0496, -0.0004], [-0.0458, -0.0481], [-0.0, -0.0519], [0.0396, -0.0409],
+            [0.0496, 0.0006], [0.0481, 0.0507], [-0.0, 0.0518], [-0.0408, 0.0426],
+        ]
+    )  # fmt: skip
+    cut = np.array([True, False, True, False, True, False, True, False])
+    reach = np.array([0.0, 0.0, 0.0, 0.0, 0.0154, 0.0, 0.0, 0.0])
+    truth = 74.1
+
+    def off(u: np.ndarray) -> float:
+        return abs((math.degrees(math.atan2(u[1], u[0])) - truth + 90.0) % 180.0 - 90.0)
+
+    assert off(_edge_direction(uv, cut, TOL)) > 25.0
+    assert off(_edge_direction(uv, cut, TOL, reach)) < 8.0
+    assert off(_edge_direction(uv, cut, TOL, np.zeros(8))) > 25.0
+
+
+def test_the_face_ends_past_a_cut_seed_only_off_its_plane() -> None:
+    """A seed cut at the capture volume's side 200 mm away: with the depth past the line's
+    end on the face's plane the face goes on (no reach); 40 mm behind it, or 10 mm in front
+    (the next face past a crease), the face ends within the past window's middle, 19 px
+    along the line (17.9 mm at a pixel of 4.7 mrad); no depth there tells nothing."""
+    face = laser.PlaneSolid(point=np.array([0.0, 0.0, 0.2]), normal=np.array([0.0, 0.0, -1.0]))
+    end = [0.049, 0.0, 0.2]
+    pixel = 0.0047
+
+    def reach(behind: float) -> float:
+        return laser._face_ends_past(end, 1.0, 0.0, 1.0, behind, face, pixel)
+
+    assert reach(0.201) == 0.0
+    assert reach(0.0) == 0.0
+    assert reach(0.24) == pytest.approx(19 * pixel * 0.2)
+    assert reach(0.19) == pytest.approx(0.01786)

@@ -955,6 +955,7 @@ class _Seeds:
     points: np.ndarray  # (K, 3)
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
     occluding: np.ndarray | None = None  # (K,) bool: its run ends where its segment does
+    reach: np.ndarray | None = None  # (K,) m: cut, the face ending within this past it; else 0
 
 
 # A face's run that stops at most _RAMP_SAMPLES samples short of its segment's end, those
@@ -1078,7 +1079,7 @@ def _collect_seeds(
     """
     # In samples: a sample is a pixel along x or y, as far as a window's half reaches.
     trim = params.edge_fattening_px if face is not None else 0.0
-    pts, cropped, occludes = [], [], []
+    pts, cropped, occludes, reach = [], [], [], []
     hw, margin = params.capture_half_width_m, params.crop_margin_m
     zlo, zhi = params.capture_z_m
     for line in lines:
@@ -1112,16 +1113,20 @@ def _collect_seeds(
                 if e is not None
             )
             occluding = run[-k] == (len(line.points) - 1) * k  # run[0] == 0 or run[-1] == last
+            ends_within = 0.0
             if (
-                not at_crop
-                and occluding
+                occluding
                 and face is not None
                 and past is not None
                 and line.index < len(past)
                 and not (line.beyond and len(line.beyond[k]))
             ):
-                at_crop = _face_goes_on(p, c, s_, sign, past[line.index][k], face, params,
-                                        pixel_rad, line.step)  # fmt: skip
+                if not at_crop:
+                    at_crop = _face_goes_on(p, c, s_, sign, past[line.index][k], face, params,
+                                            pixel_rad, line.step)  # fmt: skip
+                elif max(abs(p[0]), abs(p[1])) >= hw - margin:
+                    ends_within = _face_ends_past(p, c, s_, sign, past[line.index][k], face,
+                                                  pixel_rad)  # fmt: skip
             if extend and not at_crop and trim > 0 and occluding and line.step > 0:
                 q = (p[0] * c + p[1] * s_) / p[2]
                 q += sign * (params.edge_extension - trim) * line.step
@@ -1134,10 +1139,12 @@ def _collect_seeds(
             pts.append(p)
             cropped.append(at_crop)
             occludes.append(bool(occluding))
+            reach.append(ends_within)
     return _Seeds(
         points=np.array(pts),
         cropped=np.array(cropped, dtype=bool),
         occluding=np.array(occludes, dtype=bool),
+        reach=np.array(reach),
     )
 
 
@@ -1189,6 +1196,30 @@ def _face_goes_on(
     return abs(on[2] - behind) <= _PAST_ON_FACE_M
 
 
+def _face_ends_past(
+    end: list[float],
+    c: float,
+    s_: float,
+    sign: float,
+    behind: float,
+    face: PlaneSolid,
+    pixel_rad: float,
+) -> float:
+    """How far past the seed ``end``, cut at the capture volume's side, the face ends: when
+    the depth ``behind`` past the line's end (``sign``: which end, along the line's direction
+    ``c, s_``) lies off the face's plane by more than _PAST_ON_FACE_M (a background, or the
+    next face past a crease), more than half of the window 8-30 px past the end is off the
+    face, so its edge lies within _PAST_MIDDLE_PX pixels of the seed along the line (no
+    farther across its side); 0 when the depth is missing or on the face."""
+    if behind <= 0.0 or pixel_rad <= 0.0:
+        return 0.0
+    q = (end[0] * c + end[1] * s_) / end[2] + sign * _PAST_MIDDLE_PX * pixel_rad
+    on = _on_plane(end, (q * c, q * s_, 1.0), face)
+    if abs(on[2] - behind) <= _PAST_ON_FACE_M:
+        return 0.0
+    return _PAST_MIDDLE_PX * pixel_rad * end[2]
+
+
 def _on_plane(end: list[float], ray: tuple[float, float, float], plane: PlaneSolid) -> list[float]:
     """Where the ray from the camera along ``ray`` meets ``plane`` (``end`` when it runs
     along the plane)."""
@@ -1235,7 +1266,9 @@ def _perp(u: np.ndarray) -> np.ndarray:
 _TURN = np.array([-1.0, 1.0])  # (x, y) -> (-y, x): a quarter turn
 
 
-def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarray | None:
+def _edge_direction(
+    uv: np.ndarray, cropped: np.ndarray, tol: float, reach: np.ndarray | None = None
+) -> np.ndarray | None:
     """The rectangle orientation that puts the object's seeds on the sides of the seeds' box.
 
     The face (cut by the capture volume) holds every seed, and the seeds not cut by the
@@ -1245,6 +1278,13 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     direction). Directions through two uncut seeds are tried first and refined by least
     squares; when none scores best (one seed per edge, a face larger than the capture volume),
     the answer is the middle of the widest span of best-scoring directions on a 1-degree grid.
+
+    With one uncut seed a side, every direction over a span of up to 60 degrees puts each on
+    a side, and that span's middle was 20-30 degrees off where the face's diagonal runs along
+    a scan line (the box tilted right, 85 mm wide against the capture volume's 100 mm). A
+    seed cut at the capture volume's side where the face ends within ``reach`` past it (its
+    entry, 0 for none: ``_face_ends_past``) then has its side pass within that reach: among
+    directions the uncut seeds score alike, those keeping more such seeds near a side win.
     """
     valid = uv.compress(~cropped, axis=0)
     if len(valid) < 2:
@@ -1256,12 +1296,17 @@ def _edge_direction(uv: np.ndarray, cropped: np.ndarray, tol: float) -> np.ndarr
     grid = _ANGLE_GRID
     dirs = np.concatenate([pairs, grid])
     on, shared, area = _rectangle_scores(uv, ~cropped, dirs, tol)
-    best = np.lexsort((area, -shared, -on))[0]
+    if reach is not None and reach.any():
+        near, _, _ = _rectangle_scores(uv, reach > 0, dirs, reach[:, None])
+    else:
+        near = np.zeros_like(on)
+    best = np.lexsort((area, -near, -shared, -on))[0]
     if best < len(pairs):
         refined = _refine_direction(valid, pairs[best], tol)
         r_on, r_shared = _rectangle_score(uv.tolist(), (~cropped).tolist(), refined.tolist(), tol)
         return refined if (r_on, r_shared) >= (on[best], shared[best]) else pairs[best]
-    top = (on[len(pairs) :] == on[best]) & (shared[len(pairs) :] == shared[best])
+    k = len(pairs)
+    top = (on[k:] == on[best]) & (shared[k:] == shared[best]) & (near[k:] == near[best])
     return grid[_widest_run_middle(top)]
 
 
@@ -1419,9 +1464,10 @@ _ANGLE_GRID = np.column_stack(
 
 
 def _rectangle_scores(
-    uv: np.ndarray, valid: np.ndarray, dirs: np.ndarray, tol: float
+    uv: np.ndarray, valid: np.ndarray, dirs: np.ndarray, tol: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per direction: uncut seeds on a side of all seeds' box, those on shared sides, area."""
+    """Per direction: uncut seeds on a side of all seeds' box, those on shared sides, area
+    (``tol`` a scalar, or a column: one per seed)."""
     k = len(dirs)
     # Coordinates along each direction and across it, side by side: (seeds, 2K).
     c = uv @ np.concatenate([dirs, _perp(dirs)]).T
@@ -1561,7 +1607,8 @@ def _face_geometry(
         pts_all = pts
     else:
         tol = params.edge_tolerance_m
-        direction = _edge_direction(uv, cropped, tol)
+        reach = None if seeds.reach is None else seeds.reach[order]
+        direction = _edge_direction(uv, cropped, tol, reach)
         wide = params.scattered_edge_tolerance_m
         # The disc test weighs the circle against the rectangle the count chose (its
         # direction without the best pooled fit, which only turns a rectangle's axis): a
