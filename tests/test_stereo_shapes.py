@@ -731,3 +731,46 @@ def test_a_box_face_is_no_table_for_a_disc() -> None:
     assert result.shape == "cuboid", (result.shape, result.reason)
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003, result.grasp_width_m
+
+
+def test_a_jar_cap_whose_lower_rim_the_matcher_smeared_below_the_table_is_a_disc() -> None:
+    """SGBM (block 7) with the OpenCV sample's smoothness (P1 and P2 x 3, speckle range 32),
+    the jar cap from the front, trial 0 frame 2: the support search found the table, within
+    half a degree, but the end of one line crossing the band lay 5.2 mm below it (the band's
+    lower rim smeared behind the table), so no disc stood on it and the free cylinder lay 11
+    degrees off. A run's last samples below the table are the smear (laser._smeared_below):
+    the disc lies on it, within a degree."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    area = 7 * 7
+    view, result = _bench_frame(
+        "jar_cap", 0, 2, suite="irregular", detail="front", kind="sgbm", block_size=7,
+        p1=8 * area * 3, p2=32 * area * 3, speckle_range=32,
+    )  # fmt: skip
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 1.0, error
+
+
+def test_a_jar_cap_whose_table_both_searches_missed_is_a_disc_on_the_plane_beside() -> None:
+    """SGBM (block 7, uniqueness 5), the jar cap from the front, trial 0 frame 4: a face
+    held 0.65 of the runs over the cylinder, a box 29 mm wide and 46 degrees off; both
+    support searches took a plane through the cap's top face and the table behind it (65
+    and 27 degrees off the table), on which no disc stood. Of the planes through samples
+    beside the runs, the table's holds the disc (laser._disc_on_plane_beside): 0.82 of the
+    runs, within a degree of the truth."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _bench_frame(
+        "jar_cap", 0, 4, suite="irregular", detail="front", kind="sgbm", block_size=7,
+        uniqueness=5,
+    )  # fmt: skip
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 1.0, error
+    assert result.grasp_width_m is not None
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.010, result.grasp_width_m
