@@ -1009,58 +1009,6 @@ def _ramp_ends(
     return out
 
 
-def _smeared_ends(
-    lines: list[LineModels],
-    face: PlaneSolid,
-    past: list[list[float]],
-    params: LaserParams,
-) -> list[bool]:
-    """Per face run end (two a line, as ``_collect_seeds`` orders the seeds): whether its run
-    stops short of its segment's end on samples a smoothness term smeared over the
-    background: more than ``_RAMP_SAMPLES`` of them, most in front of the face (no face of a
-    convex solid lies there; a window's ramp down to the background, ``_ramp_ends``, lies
-    behind it), none more than ``_CREASE_OFF_M`` behind it (no next face), and past them a
-    far background (``far_background_ratio``): the first of the line's samples beyond the
-    segment that leaves the face's neighbourhood (the smear may run on past the segment's
-    end), else the scans' depth ``past`` the line's end (none: far).
-
-    SGBM's P1 and P2 carry the face's disparity over the background farther than its
-    window: under P1 x 3, P2 x 6 the upright box's runs stopped 3-18 samples short of their
-    segments on 41 of its 61 uncut seeds (9-13 of 60 at SGBM 5-9), on samples rising up to
-    13 mm toward the camera, and those seeds, taken as no edge, kept their fattening (a
-    median 4 px past the true side, against the noise model's frames of the same poses)."""
-    toward = -1.0 if float(face.point @ face.normal) > 0 else 1.0  # the camera's side
-    out = []
-    for line in lines:
-        run = line.run
-        for k in (0, 1):
-            ramp = line.points[: run[0]] if k == 0 else line.points[run[-1] + 1 :]
-            if not len(ramp):
-                out.append(False)
-                continue
-            off = ((ramp - face.point) @ face.normal * toward).tolist()
-            if min(off) < -_CREASE_OFF_M or len(ramp) <= _RAMP_SAMPLES or median(off) <= 0:
-                out.append(False)
-                continue
-            end = line.points[0 if k == 0 else -1]
-            z = float(end[2])
-            beyond = line.beyond[k] if line.beyond else _NO_POINTS
-            if len(beyond):
-                # The smear may run on past the segment's end: the background is the first
-                # sample beyond it that leaves the face's neighbourhood.
-                walk = beyond[::-1] if k == 0 else beyond
-                away = ((walk - face.point) @ face.normal * toward) < -_CREASE_OFF_M
-                left = np.flatnonzero(away)
-                if len(left):
-                    behind = float(walk[left[0], 2])
-                else:
-                    behind = past[line.index][k] if line.index < len(past) else 0.0
-            else:
-                behind = past[line.index][k] if line.index < len(past) else 0.0
-            out.append(behind == 0.0 or behind - z > params.far_background_ratio * z)
-    return out
-
-
 def _collect_seeds(
     lines: list[LineModels],
     params: LaserParams,
@@ -2783,11 +2731,6 @@ def _decide(
         ramp = np.array(_ramp_ends(on_face, solid, behind, params), dtype=float)
         rest = np.maximum(0.0, 1.0 - ramp / measured) if measured > 0 else np.ones_like(ramp)
         ramped = np.where((ramp > 0) & ~seeds.cropped, rest, 0.0)
-        if "residual_correlation" in extra:
-            # A smoothness term (correlated residuals: SGBM's, not a plain block matcher's)
-            # smeared the face past such an end: it is an edge, and takes the whole trim.
-            smeared = np.array(_smeared_ends(on_face, solid, behind, params), dtype=bool)
-            ramped = np.where(smeared & ~seeds.cropped, 1.0, ramped)
         seeds = replace(seeds, occluding=np.where(seeds.occluding > 0, 1.0, ramped))
     if window and past is not None and seeds.occluding is not None:
         share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), shares))
