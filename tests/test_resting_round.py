@@ -9,7 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from lpc_core.perception.laser import LaserParams, LineModels, _resting_width, reconstruct_laser
+from lpc_core.perception.laser import (
+    LaserParams,
+    LineModels,
+    _resting_width,
+    _support_plane,
+    reconstruct_laser,
+)
 from lpc_core.perception.scans import cut_scan_lines
 from lpc_core.perception.solids import PlaneSolid, SphereSolid, resting_width
 
@@ -103,6 +109,42 @@ def test_a_ball_held_above_the_table_keeps_its_own_fit() -> None:
     assert _resting_width(*_star(table_z=0.26), fit, LaserParams()) is None
     # A fit already on the support (within the solids' threshold) keeps its own width too.
     assert _resting_width(*_star(table_z=0.22), fit, LaserParams()) is None
+
+
+def _table_beside(second: int, beyond: bool) -> list[LineModels]:
+    """The large ball's lines under a wide window: its table shows on one line (27 samples
+    past the jump at the ball's rim) and ``second`` samples on another, past a jump (the
+    table seen beyond the rim, ``beyond``) or in the ball's segment after its run, no jump
+    between (a flank of the object the matcher smeared onto the table's plane)."""
+    lines, _ = _star(table_z=0.22)
+    for line in lines:
+        line.beyond = (line.beyond[0][:0], line.beyond[1][:0])
+    one, other = lines[1], lines[2]
+    one.beyond = (one.beyond[0], _star(table_z=0.22)[0][1].beyond[1][:27])
+    table = _star(table_z=0.22)[0][2].beyond[1][:second]
+    if beyond:
+        other.beyond = (other.beyond[0], table)
+    else:
+        other.points = np.concatenate([other.points, table])
+    return lines
+
+
+def test_the_table_past_the_rims_on_a_second_line_with_a_few_samples_is_the_support() -> None:
+    """SGBM 7, the 70 mm ball, trial 0 frames 1-3: the table on line 1 (37-41 samples) and
+    6-7 samples past the rim's jump on line 2, under the two-line rule's 10: no support, and
+    the ball 4.9 and 4.2 mm wide on frames 1 and 3; resting on the table within 0.3 mm."""
+    support = _support_plane(_table_beside(4, beyond=True), LaserParams())
+    assert support is not None
+    assert abs(abs(float(support.normal[2])) - 1.0) < 1e-9
+    assert abs(float(support.point[2]) - 0.22) < 1e-9
+
+
+def test_a_few_samples_joined_to_the_run_do_not_show_the_support() -> None:
+    """SGBM 9, the 70 mm ball, trial 0 frame 0: the table's 28 samples on line 1 and 5 of the
+    ball's rim in its segment on line 3, 33 mm above the table, made a plane 36 degrees off it
+    and the ball 17.7 mm narrow; samples joined to the run need the rule's 10 samples."""
+    assert _support_plane(_table_beside(4, beyond=False), LaserParams()) is None
+    assert _support_plane(_table_beside(12, beyond=False), LaserParams()) is not None
 
 
 def test_a_small_ball_under_semi_global_matching_rests_on_the_table() -> None:

@@ -2803,6 +2803,14 @@ def _support_rng() -> np.random.Generator:
 # than SCAN_LINE_SUPPORT's 30, or all on one line, were as often a cylinder's own flank below
 # its runs, or a plane through one line's trace, as the table.
 _SUPPORT_MIN_LINE_POINTS = 10
+# A line's samples past a jump from the round's segment are no part of the round, and lying
+# on the plane another line's table trace spans, they tilt it as the table does: three show
+# the support (a plane's own minimum). A wide window leaves the table beside a 70 mm ball
+# 0-8 samples on its second line inside the capture volume (SGBM 5 and 7, OpenCV's sample's
+# smoothness, half the signal: 3-8, all past the jump); a few samples joined to the run
+# were the round's own rim or flank (SGBM 9, the ball, trial 0 frame 0: its rim 33 mm above
+# the table on line 3 tilted line 1's trace 36 degrees, the ball 17.7 mm narrow).
+_SUPPORT_MIN_FAR_POINTS = 3
 # The table a disc lies on (_lying_disc) where the support search found none, or none the
 # disc stands on: the plane most of the samples beside the runs lie on, whatever lies behind
 # it, on five samples of two lines. The matcher smears the band's lower rim down behind the
@@ -2837,28 +2845,34 @@ def _support_plane(
     almost no sample behind it) among the lines' samples off the round's runs, on at least two
     lines so that it is a plane and not one line's trace. ``search`` and ``min_line_points``
     (the samples it needs on each of those two lines) are the disc's where the plain search
-    found no table under it (``_DISC_SUPPORT``).
+    found no table under it (``_DISC_SUPPORT``); a line whose samples past a jump from the
+    round's segment lie on the plane shows it with ``_SUPPORT_MIN_FAR_POINTS`` of them.
     """
     if params.rest_gap_ratio == 0:
         return None
+    # Each piece's line, and whether a jump parts it from the round's segment (beyond).
     pieces = [
-        (ln.index, p)
+        (ln.index, k < len(ln.beyond), p)
         for ln in lines
-        for p in (*ln.beyond, ln.points[: ln.run[0]], ln.points[ln.run[-1] + 1 :])
+        for k, p in enumerate((*ln.beyond, ln.points[: ln.run[0]], ln.points[ln.run[-1] + 1 :]))
         if len(p)
     ]
     if not pieces:
         return None
-    beside = np.concatenate([p for _, p in pieces])
+    beside = np.concatenate([p for *_, p in pieces])
     if len(beside) < SCAN_LINE_SUPPORT.support_min_points:
         return None
     # A fixed seed: the same lines give the same support (decide has no frame seed).
     mask = find_support_plane(beside, search, _support_rng())
     if mask is None:
         return None
-    owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
-    per_line = np.bincount(owner.compress(mask), minlength=len(lines))
-    if np.count_nonzero(per_line >= min_line_points) < 2:
+    counts = [len(p) for *_, p in pieces]
+    owner = np.repeat([i for i, _, _ in pieces], counts).compress(mask)
+    far = np.repeat([b for _, b, _ in pieces], counts).compress(mask)
+    per_line = np.bincount(owner, minlength=len(lines))
+    per_line_far = np.bincount(owner.compress(far), minlength=len(lines))
+    shown = (per_line >= min_line_points) | (per_line_far >= _SUPPORT_MIN_FAR_POINTS)
+    if np.count_nonzero(shown) < 2:
         return None
     support = PlaneSolid.estimate(beside.compress(mask, axis=0))
     return support if support else None
