@@ -685,14 +685,18 @@ def test_a_round_resting_on_a_support_behind_its_rims_keeps_its_fit_under_a_wind
     assert abs(error_mm) < 3.0, (error_mm, before_mm)
 
 
-def _jar_cap_front_disc(trial: int, frame: int) -> tuple[View, Reconstruction, float]:
-    """The jar cap seen from the front on SGBM 7, read as a disc lying flat (a cylinder along
-    the table's normal): its view, result and wrist angle error in degrees."""
+def _jar_cap_front_disc(
+    trial: int, frame: int, **matcher: int
+) -> tuple[View, Reconstruction, float]:
+    """The jar cap seen from the front on SGBM 7 (``matcher``: other settings), read as a disc
+    lying flat (a cylinder along the table's normal): its view, result and wrist angle error
+    in degrees."""
     from lpc_core.perception.reconstruction import wrap_half_turn
 
     view, result = _bench_frame(
-        "jar_cap", trial, frame, suite="irregular", detail="front", kind="sgbm", block_size=7
-    )
+        "jar_cap", trial, frame, suite="irregular", detail="front", kind="sgbm", block_size=7,
+        **matcher,
+    )  # fmt: skip
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert "disc_axis" in result.extra
     assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
@@ -740,17 +744,8 @@ def test_a_jar_cap_whose_lower_rim_the_matcher_smeared_below_the_table_is_a_disc
     lower rim smeared behind the table), so no disc stood on it and the free cylinder lay 11
     degrees off. A run's last samples below the table are the smear (laser._smeared_below):
     the disc lies on it, within a degree."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
     area = 7 * 7
-    view, result = _bench_frame(
-        "jar_cap", 0, 2, suite="irregular", detail="front", kind="sgbm", block_size=7,
-        p1=8 * area * 3, p2=32 * area * 3, speckle_range=32,
-    )  # fmt: skip
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    _, _, error = _jar_cap_front_disc(0, 2, p1=8 * area * 3, p2=32 * area * 3, speckle_range=32)
     assert abs(error) < 1.0, error
 
 
@@ -761,16 +756,7 @@ def test_a_jar_cap_whose_table_both_searches_missed_is_a_disc_on_the_plane_besid
     and 27 degrees off the table), on which no disc stood. Of the planes through samples
     beside the runs, the table's holds the disc (laser._disc_on_plane_beside): 0.82 of the
     runs, within a degree of the truth."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
-    view, result = _bench_frame(
-        "jar_cap", 0, 4, suite="irregular", detail="front", kind="sgbm", block_size=7,
-        uniqueness=5,
-    )  # fmt: skip
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    view, result, error = _jar_cap_front_disc(0, 4, uniqueness=5)
     assert abs(error) < 1.0, error
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.010, result.grasp_width_m

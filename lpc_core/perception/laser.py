@@ -1144,9 +1144,8 @@ def _face_goes_on(
     hw = params.capture_half_width_m - params.crop_margin_m
     if max(abs(end[0]), abs(end[1])) < hw - _EDGE_REACH_SAMPLES * step * end[2]:
         return False
-    q = (end[0] * c + end[1] * s_) / end[2] + sign * _PAST_MIDDLE_PX * pixel_rad
-    on = _on_plane(end, (q * c, q * s_, 1.0), face)
-    return abs(on[2] - behind) <= _PAST_ON_FACE_M
+    # Past a line's end with depth (checked above), no reach means the depth is on the face.
+    return _face_ends_past(end, c, s_, sign, behind, face, pixel_rad) == 0.0
 
 
 def _face_ends_past(
