@@ -16,7 +16,6 @@ from lpc_core.perception.cloud import (
     PlaneModel,
     SphereModel,
     _camera_facing,
-    _plane_hypotheses,
     _support_refit,
     crop_points,
     estimate_normals,
@@ -26,6 +25,7 @@ from lpc_core.perception.cloud import (
     fit_sphere,
     grid_clusters,
     nearest_segment,
+    plane_hypotheses,
     reconstruct_cloud,
     smallest_eigenvectors,
     voxel_downsample,
@@ -232,7 +232,7 @@ def test_plane_hypotheses_are_the_triples_planes_facing_away_from_the_camera() -
     picks = rng.integers(0, len(table), size=(64, 3))
     picks[0] = (3, 7, 9)
     picks[1] = (3, 9, 11)
-    normals, offsets, valid = _plane_hypotheses(table, picks)
+    normals, offsets, valid = plane_hypotheses(table, picks)
     assert not valid[0] and not valid[1] and valid[2:].all()
     p0, p1, p2 = (table[picks[:, i]] for i in range(3))
     cross = np.cross(p1 - p0, p2 - p0)[2:]

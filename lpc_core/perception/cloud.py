@@ -447,7 +447,7 @@ def _sample(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
 _XYZXY = [0, 1, 2, 0, 1]
 
 
-def _plane_hypotheses(
+def plane_hypotheses(
     points: np.ndarray, picks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Planes through the point triples ``points[picks]`` ((T, 3) indices): unit normals
@@ -513,7 +513,7 @@ def find_support_plane(
         return None
     threshold = params.support_threshold_m
     picks = rng.integers(0, n, size=(params.support_trials, 3))
-    normals, offsets, valid = _plane_hypotheses(points, picks)
+    normals, offsets, valid = plane_hypotheses(points, picks)
     # All the points when they are few (no copy: _sample's arange would only copy them).
     if n <= params.score_sample:
         sub = np.ascontiguousarray(points)
@@ -898,7 +898,7 @@ def fit_cuboid(
         return FailedFit("fewer than 3 points")
     trials = params.face_trials
     picks = rng.integers(0, n, size=(trials, 3))
-    rows, hyp_d, valid = _plane_hypotheses(points, picks)
+    rows, hyp_d, valid = plane_hypotheses(points, picks)
     hyp_n = np.ascontiguousarray(rows.T)
     first = _best_face(points, normals, hyp_n, hyp_d, valid, params, rng)
     if first is None:
@@ -1596,6 +1596,7 @@ __all__ = [
     "fit_sphere",
     "grid_clusters",
     "nearest_segment",
+    "plane_hypotheses",
     "reconstruct_cloud",
     "smallest_eigenvectors",
     "voxel_downsample",

@@ -57,8 +57,8 @@ from lpc_core.perception import fit
 from lpc_core.perception.cloud import (
     SCAN_LINE_SUPPORT,
     CloudParams,
-    _plane_hypotheses,
     find_support_plane,
+    plane_hypotheses,
 )
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.scans import residual_correlation
@@ -3976,7 +3976,7 @@ def _disc_on_plane_beside(
     owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
     rng = _support_rng()
     picks = rng.integers(0, n, size=(_DISC_TABLE_TRIALS, 3))
-    normals, offsets, valid = _plane_hypotheses(beside, picks)
+    normals, offsets, valid = plane_hypotheses(beside, picks)
     on = np.abs(beside @ normals + offsets) <= _DISC_SUPPORT.support_threshold_m
     per_line = np.stack([on[owner == ln.index].sum(axis=0) for ln in lines])
     planar = (per_line >= _DISC_SUPPORT_LINE_POINTS).sum(axis=0) >= 2
