@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 import numpy as np
 import pytest
@@ -42,6 +43,33 @@ def test_bench_accuracy_runs_frames_through_librealsense_filters(
     assert "librealsense filters: hole_filling" in out
     assert "[method laser]" in out and "[method cloud]" in out
     assert "98.0" in out  # the paper's full-cloud figure for spheres beside the cloud method's
+
+
+def test_a_cached_frame_is_written_beside_another_writers_temporary_file(tmp_path) -> None:
+    """Two sweeps rendering the same frame at once each write a temporary file and rename it
+    onto the frame: with one name for both, the second rename found its file gone (a sweep
+    crashed on ``os.replace``). Another process's temporary files, still there, do not stop
+    this one's frames from being written and read back."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from services.cli import _laser_views as lv
+
+    def frames() -> list:
+        return list(lv.views("functional", 1, 2, 0, names=["sphere_small"],
+                             sensor=StereoSensor(), cache=tmp_path))  # fmt: skip
+
+    first = frames()
+    keys = [p.stem for p in tmp_path.glob("*.npy")]
+    assert len(keys) == 2
+    for key in keys:
+        (tmp_path / f"{key}.npy").unlink()
+        # Where a writer of the same frame in another process has its temporary file.
+        (tmp_path / f"{key}.{key[:8]}.tmp.npy").mkdir()
+        (tmp_path / f"{key}.{os.getpid() + 1}.tmp.npy").mkdir()
+    again = frames()
+    assert sorted(p.stem for p in tmp_path.glob("*.npy") if p.is_file()) == sorted(keys)
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a.depth, b.depth)
 
 
 def test_bench_accuracy_rejects_an_unknown_filter(capsys: pytest.CaptureFixture[str]) -> None:

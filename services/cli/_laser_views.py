@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import pickle
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
@@ -277,7 +278,9 @@ def _cached_depth(
         pass
     depth = sensor.render_depth(world, INTRINSICS, pose, rng)
     cache.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{key[:8]}.tmp.npy")
+    # Each process its own temporary file: two sweeps rendering the same frame at once must
+    # not rename each other's away.
+    tmp = cache / f"{key}.{os.getpid()}.tmp.npy"
     np.save(tmp, depth)
     tmp.replace(path)
     return depth
