@@ -108,33 +108,64 @@ SETTINGS: dict[str, Setting] = {
         "SGBM 7, half the signal, more read noise",
         rig={"gain_dn": 160.0, "read_noise_dn": 2.0},
     ),
-    # Held out from every helper of stop 32: only the lead's before -> after ran on them.
-    "fresh-sgbm5": Setting(
-        "fresh",
+    # Held out from every helper of stop 32 (then its "fresh" group); studied from stop 33.
+    "sgbm5-u15": Setting(
+        "untuned",
         "SGBM 5, uniqueness 15, P1 x 2, P2 x 4",
         matcher={"block_size": 5, "uniqueness": 15},
         smoothness=(2.0, 4.0),
     ),
-    "fresh-sgbm9": Setting(
-        "fresh",
+    "sgbm9-3way": Setting(
+        "untuned",
         "SGBM 9, 3-way mode, P2 x 2",
         matcher={"block_size": 9, "sgbm_mode": "3way"},
         smoothness=(1.0, 2.0),
     ),
-    "fresh-dots": Setting(
-        "fresh",
+    "pattern2": Setting(
+        "untuned",
         "SGBM 7, a third dot pattern, 0.05 dots/px², blurrier optics",
         rig={"pattern_seed": 2, "dot_density": 0.05, "blur_sigma_px": 0.8},
     ),
-    "fresh-rig": Setting(
-        "fresh",
+    "base45": Setting(
+        "untuned",
         "SGBM 7, 45 mm baseline, 70 % of the signal, read noise 1.5",
         rig={"baseline_m": 0.045, "projector_x_m": 0.0225, "gain_dn": 220.0, "read_noise_dn": 1.5},
     ),
-    "fresh-bm": Setting(
-        "fresh",
+    "bm7-u5": Setting(
+        "untuned",
         "BM 7, uniqueness 5, texture threshold 20",
         matcher={"kind": "bm", "block_size": 7, "uniqueness": 5, "texture_threshold": 20},
+    ),
+    # Held out from every helper of stop 33: only the lead's before -> after runs on them.
+    "fresh-light": Setting(
+        "fresh",
+        "SGBM 7, four times the room light, albedo 0.6, a fourth dot pattern",
+        rig={"ambient": 0.32, "albedo": 0.6, "pattern_seed": 3},
+    ),
+    "fresh-hh5": Setting(
+        "fresh",
+        "SGBM 5, HH mode, P1 x 1.5, P2 x 3, uniqueness 12, 0.05 dots/px²",
+        rig={"dot_density": 0.05},
+        matcher={"block_size": 5, "sgbm_mode": "hh", "uniqueness": 12},
+        smoothness=(1.5, 3.0),
+    ),
+    "fresh-soft9": Setting(
+        "fresh",
+        "SGBM 9, P1 and P2 / 2, uniqueness 5, speckle range 16, texture check 3",
+        matcher={"block_size": 9, "uniqueness": 5, "speckle_range": 16, "min_texture": 3.0},
+        smoothness=(0.5, 0.5),
+    ),
+    "fresh-bm9": Setting(
+        "fresh",
+        "BM 9, uniqueness 15, texture threshold 5, a fifth dot pattern, optics 0.7 px",
+        rig={"pattern_seed": 4, "blur_sigma_px": 0.7},
+        matcher={"kind": "bm", "block_size": 9, "uniqueness": 15, "texture_threshold": 5},
+    ),
+    "fresh-shot": Setting(
+        "fresh",
+        "SGBM 7, 2.5 times the shot noise, 80 % of the signal, dots 0.8 px, left-right 2 px",
+        rig={"electrons_per_dn": 4.0, "gain_dn": 260.0, "dot_sigma_px": 0.8},
+        matcher={"disp12_max_diff": 2},
     ),
 }
 
