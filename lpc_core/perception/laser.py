@@ -3161,6 +3161,9 @@ def _rim_free(
     ):
         fattened[:] = False
     unfattened = ~fattened
+    # Samples that run on past the round only in a window's smear toward a background far
+    # behind (see _smeared_past) show no support the round's segment goes on onto.
+    counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines)
     solid = full
     kept = None
     for attempt in range(3):
@@ -3173,7 +3176,7 @@ def _rim_free(
         on_round = angle.compress(on)
         if len(on_round) == 0:
             return None
-        first, last = _seen_extent(angle, on_round)
+        first, last = _seen_extent(angle.compress(counted), on_round)
         inset = np.minimum(angle - first, last - angle)
         if attempt == 0:
             rim = (inset < _RIM_PX * pixel_rad) & on
@@ -3226,7 +3229,7 @@ def _rim_free(
             bare_on = angle.compress(on & unfattened)
             if len(bare_on) == 0:
                 break
-            bare_first, bare_last = _seen_extent(angle.compress(unfattened), bare_on)
+            bare_first, bare_last = _seen_extent(angle.compress(unfattened & counted), bare_on)
             inset = np.minimum(angle - bare_first, bare_last - angle)
         # Twice the inlier band: the whole arc's fit, too flat, may miss the inner arc by more.
         near = residuals <= 2 * thr
@@ -3256,6 +3259,53 @@ def _rim_free(
     if _narrower_than_runs(solid, clean, pixel_rad):
         return None
     return solid
+
+
+def _smeared_past(
+    lines: list[LineModels],
+    full: CylinderSolid,
+    params: LaserParams,
+    pixel_rad: float,
+    scan_lines: ScanLinesLike | None,
+) -> np.ndarray:
+    """Whether each of the lines' samples (laid end to end) lies off ``full`` (beyond four
+    inlier bands) past the line's last inlier toward a segment end that is an occluding edge
+    before a background more than ``full``'s diameter behind it, or before nothing (the
+    line's own samples beyond the segment within ``background_reach_px``, else the scans'
+    ``past_ends_m``, as ``_occluding_rims`` reads them).
+
+    Such samples are a matcher's smear from the rim toward the far background, whose depth
+    its smoothness carries over a few pixels (they part from the fit by about 1 mm a pixel),
+    not a support the round's segment goes on onto: a support a round rests on lies within a
+    diameter behind its rims (see ``_rests_behind_rims``)."""
+    marks = []
+    past = getattr(scan_lines, "past_ends_m", None)
+    reach = params.background_reach_px * pixel_rad
+    for ln in lines:
+        mark = np.zeros(len(ln.points), dtype=bool)
+        marks.append(mark)
+        inliers = np.flatnonzero(full.residuals(ln.points) <= 4 * params.solid_threshold_m)
+        if past is None or len(inliers) == 0:
+            continue
+        c, s_ = math.cos(ln.angle), math.sin(ln.angle)
+        for side, outside in ((0, slice(0, inliers[0])), (1, slice(inliers[-1] + 1, None))):
+            # Between the last inlier and the segment's end every sample is off the fit.
+            if not len(mark[outside]):
+                continue
+            end = ln.points[0 if side == 0 else -1]
+            beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
+            behind = 0.0
+            if len(beyond):
+                b = (beyond[:, 0] * c + beyond[:, 1] * s_) / beyond[:, 2]
+                near = np.abs(b - (end[0] * c + end[1] * s_) / end[2]) <= reach
+                if not near.any():
+                    continue  # a hole beside the end: what lies behind it is not seen
+                behind = float(np.median(beyond[near, 2]))
+            elif ln.index < len(past):
+                behind = float(past[ln.index][side])
+            if behind == 0.0 or behind - float(end[2]) > 2 * full.radius:
+                mark[outside] = True
+    return np.concatenate(marks) if marks else np.zeros(0, dtype=bool)
 
 
 def _seen_extent(angle: np.ndarray, on_round: np.ndarray) -> tuple[float, float]:
