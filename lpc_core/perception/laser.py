@@ -2800,18 +2800,17 @@ def _decide(
         extra["near_ends"] = float(np.count_nonzero((seeds.occluding > 0) & (share < 1.0)))
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
-    if seeds.occluding is not None:
+    if seeds.occluding is not None and past is not None:
         # A run that stops short of its segment's end with a far background behind it ended
         # at the face's edge as well, its last samples on a fattening ramp too long for
         # _ramp_ends: its place took a whole window's fattening, as an occluding seed's.
-        far = np.array(
-            _far_behind(on_face, np.asarray(past).tolist() if past is not None else [], params)
-        )
-        cut = seeds.cropped
-        seeds = replace(
-            seeds,
-            fattened=np.where(seeds.occluding > 0, seeds.occluding, np.where(far & ~cut, 1.0, 0.0)),
-        )
+        # Not without the scans' depth past the lines' ends (recorded before it was): with
+        # no samples beyond its segment, a crease's run would count as far.
+        far = np.array(_far_behind(on_face, np.asarray(past).tolist(), params))
+        fattened = np.where(far & ~seeds.cropped, 1.0, 0.0)
+        seeds = replace(seeds, fattened=np.where(seeds.occluding > 0, seeds.occluding, fattened))
+    elif seeds.occluding is not None:
+        seeds = replace(seeds, fattened=seeds.occluding)
     walk = replace(params, edge_fattening_px=measured) if measured else params
     beyond, smeared = _beyond_edges(on_face, solid, walk) if params.bevels else (None, False)
     face = _face_geometry(
