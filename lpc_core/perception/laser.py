@@ -1557,6 +1557,18 @@ def _seeds_direction(
 
 # A fattened seed moves back along its line by at most this share of its run's length.
 _UNFATTEN_MAX_RUN = 0.3
+# The trims move seeds by a window and a half at most (2-3 mm across a face tens of mm wide):
+# a trimmed count farther than this from the seeds' own picked another rectangle (the soap
+# bar's rounded face at SGBM 5, uniqueness 15: 5.0 -> 42.2 degrees off).
+_UNFATTEN_MAX_TURN_DEG = 20.0
+
+
+def _turn_deg(u: np.ndarray, v: np.ndarray) -> float:
+    """How far the rectangle along ``v`` is turned from the one along ``u`` (0-45 degrees:
+    a rectangle's direction and the one across it are the same rectangle)."""
+    cos = abs(float(u @ v)) / float(np.linalg.norm(u) * np.linalg.norm(v))
+    sin = abs(float(u[0] * v[1] - u[1] * v[0])) / float(np.linalg.norm(u) * np.linalg.norm(v))
+    return math.degrees(math.atan2(min(cos, sin), max(cos, sin)))
 
 
 def _unfattened_seeds(seeds: _Seeds, trim_rad: float) -> np.ndarray:
@@ -1638,7 +1650,9 @@ def _face_geometry(
             trimmed = _unfattened_seeds(seeds, trim_px * pixel_rad).take(order, axis=0)
             t_uv = (trimmed - origin) @ to_plane
             t_direction, t_classic = _seeds_direction(t_uv, cropped, reach, params)
-            if _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol) >= score:
+            if _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol) >= score and (
+                _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
+            ):
                 direction, classic = t_direction, t_classic
         pts_all = pts
         if beyond is not None and len(beyond):
