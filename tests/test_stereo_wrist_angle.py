@@ -80,8 +80,12 @@ def _with_and_without_the_rule(
     lines = cut_scan_lines(view.depth, lv.INTRINSICS)
     rule_off = LaserParams(scattered_edge_tolerance_m=0, window_fattening_px=0)
     # Without the crease's direction as well, which would hide the rule on a box whose lines
-    # run on onto its next face (the lying box).
-    with mock.patch.object(laser, "_crease_direction", lambda *_: None):
+    # run on onto its next face (the lying box), nor the fattened seeds' trims taken back
+    # before the count, which would hide it where the trimmed seeds fit a rectangle.
+    with (
+        mock.patch.object(laser, "_crease_direction", lambda *_: None),
+        mock.patch.object(laser, "_unfattened_seeds", lambda seeds, _: seeds.points.copy()),
+    ):
         before = reconstruct_laser(lines, rule_off, seed=view.seq)
         after = reconstruct_laser(lines, LaserParams(window_fattening_px=0), seed=view.seq)
     assert before.shape == after.shape == "cuboid"
@@ -222,16 +226,23 @@ def test_a_box_face_whose_runs_stop_at_a_holes_border_gets_its_axis() -> None:
     assert _angle_off(result, view) < 1.5
 
 
-def test_a_stray_last_sample_at_the_capture_edge_leaves_the_seed_cut() -> None:
+def test_a_stray_last_sample_at_the_capture_edge_leaves_the_seed_cut(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """SGBM 7, the box tilted left, trial 0 frame 3: the line along the box reaches the
     capture volume's edge, but its last sample lies 1.5 mm behind the face and ends the run a
     sample short, past the crop margin; counted on a side, that seed turned the box 7.5
-    degrees off its axis. Cut, as the segment's end is: 0.7 degrees."""
+    degrees off its axis. Cut, as the segment's end is: 0.7 degrees (with the fattened
+    seeds' trims taken back before the count, 2.4: checked below)."""
     from services.cli import _laser_views as lv
 
     view = _stereo_view("cuboid_tilt_left", 0, 3)
-    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    result = reconstruct_laser(lines, seed=view.seq)
     assert result.shape == "cuboid"
+    assert _angle_off(result, view) < 2.5
+    monkeypatch.setattr(laser, "_unfattened_seeds", lambda seeds, _: seeds.points.copy())
+    result = reconstruct_laser(lines, seed=view.seq)
     assert _angle_off(result, view) < 1.5
 
 
@@ -318,3 +329,43 @@ def test_the_face_ends_past_a_cut_seed_only_off_its_plane() -> None:
     assert reach(0.0) == 0.0
     assert reach(0.24) == pytest.approx(19 * pixel * 0.2)
     assert reach(0.19) == pytest.approx(0.01786)
+
+
+def test_fattened_seeds_move_back_along_their_lines_by_their_share() -> None:
+    """Each uncut seed moves toward its line's other end by its share of the window's trim
+    (an angle: times its depth), at most 0.3 of its run; cut seeds and those without a share
+    stay."""
+    points = np.array([[-0.02, 0.0, 0.4], [0.02, 0.0, 0.4], [0.0, -0.02, 0.4], [0.0, 0.02, 0.4]])
+    seeds = laser._Seeds(
+        points=points,
+        cropped=np.array([False, False, True, False]),
+        fattened=np.array([1.0, 0.0, 1.0, 1.5]),
+    )
+    trim_rad = 0.005  # 2 mm at 0.4 m
+    got = laser._unfattened_seeds(seeds, trim_rad)
+    assert got[0] == pytest.approx([-0.018, 0.0, 0.4])
+    assert got[1] == pytest.approx(points[1])
+    assert got[2] == pytest.approx(points[2])
+    assert got[3] == pytest.approx([0.0, 0.017, 0.4])
+    far = laser._unfattened_seeds(seeds, 0.05)  # 20 mm: capped at 0.3 of the 40 mm run
+    assert far[0] == pytest.approx([-0.008, 0.0, 0.4])
+
+
+def test_a_tilted_box_whose_seeds_took_different_fattenings_gets_its_axis(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SGBM 7, the box tilted left, trial 1 frame 0: its long sides' seeds lie 1-10 mm out,
+    each by the fattening its background gave it, and no rectangle holds them; the count
+    turned 7.1 degrees off its axis. With each seed's share of the window's trim taken back
+    along its line (a whole window where its run stopped short of its segment with a far
+    background behind it), they fit a rectangle as well, 1.2 degrees off."""
+    from services.cli import _laser_views as lv
+
+    view = _stereo_view("cuboid_tilt_left", 1, 0)
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    after = reconstruct_laser(lines, seed=view.seq)
+    monkeypatch.setattr(laser, "_unfattened_seeds", lambda seeds, _: seeds.points.copy())
+    before = reconstruct_laser(lines, seed=view.seq)
+    assert before.shape == after.shape == "cuboid"
+    assert _angle_off(before, view) > 6.0
+    assert _angle_off(after, view) < 1.5

@@ -961,6 +961,9 @@ class _Seeds:
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
     occluding: np.ndarray | None = None  # (K,) bool: its run ends where its segment does
     reach: np.ndarray | None = None  # (K,) m: cut, the face ending within this past it; else 0
+    # (K,) the share of the window's trim each uncut seed's place took (its run ended at the
+    # face's edge with a far background behind it): for the direction only
+    fattened: np.ndarray | None = None
 
 
 # A face's run that stops at most _RAMP_SAMPLES samples short of its segment's end, those
@@ -983,11 +986,11 @@ def _ramp_ends(
 ) -> list[int]:
     """Per face run end (two a line, as ``_collect_seeds`` orders the seeds): how many samples
     short of its segment's end its run stops on a fattening ramp down to a far background
-    (the line's samples ``beyond`` its segment, else the scans' depth ``past`` its end; none:
-    far), 0 where it does not."""
+    (``_far_behind``), 0 where it does not."""
     toward = -1.0 if float(face.point @ face.normal) > 0 else 1.0  # the camera's side
+    far = _far_behind(lines, past, params)
     out = []
-    for line in lines:
+    for i, line in enumerate(lines):
         run = line.run
         for k in (0, 1):
             ramp = line.points[: run[0]] if k == 0 else line.points[run[-1] + 1 :]
@@ -998,14 +1001,27 @@ def _ramp_ends(
             if min(off) < -_CREASE_OFF_M or max(off) >= -_RAMP_BEHIND_M:
                 out.append(0)
                 continue
+            out.append(len(ramp) if far[2 * i + k] else 0)
+    return out
+
+
+def _far_behind(
+    lines: list[LineModels], past: list[list[float]], params: LaserParams
+) -> list[bool]:
+    """Per face run end (two a line): whether the background behind it lies more than
+    far_background_ratio of the end's depth behind it (the line's samples ``beyond`` its
+    segment, else the scans' depth ``past`` its end; none: far)."""
+    out = []
+    for line in lines:
+        run = line.run
+        for k in (0, 1):
             z = float(line.points[run[0] if k == 0 else run[-1], 2])
             beyond = line.beyond[k] if line.beyond else _NO_POINTS
             if len(beyond):
                 behind = float(np.median((beyond[-4:] if k == 0 else beyond[:4])[:, 2]))
             else:
                 behind = past[line.index][k] if line.index < len(past) else 0.0
-            far = behind == 0.0 or behind - z > params.far_background_ratio * z
-            out.append(len(ramp) if far else 0)
+            out.append(behind == 0.0 or behind - z > params.far_background_ratio * z)
     return out
 
 
@@ -1513,6 +1529,67 @@ def _min_area_direction(uv: np.ndarray) -> np.ndarray:
     return edges[int(np.argmin(np.ptp(a, axis=0) * np.ptp(b, axis=0)))]
 
 
+def _seeds_direction(
+    uv: np.ndarray, cropped: np.ndarray, reach: np.ndarray | None, params: LaserParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rectangle direction the seeds ``uv`` (in the face's plane, sorted around it) give,
+    and the one the disc test weighs (the count's, without the best pooled fit)."""
+    tol = params.edge_tolerance_m
+    uncut = [p for p, c in zip(uv.tolist(), cropped.tolist(), strict=True) if not c]
+    direction = _edge_direction(uv, cropped, tol, reach)
+    wide = params.scattered_edge_tolerance_m
+    # The disc test weighs the circle against the rectangle the count chose (its
+    # direction without the best pooled fit, which only turns a rectangle's axis): a
+    # disc's seeds fit some rectangle, and the best of them would hide the disc.
+    classic = direction
+    if direction is not None and wide > tol:
+        count = direction
+        direction = _scattered_direction(uv, cropped, count, tol, wide)
+        classic = _scattered_direction(uv, cropped, count, tol, wide, best_fit=False)
+    if direction is None or classic is None:
+        direction = classic = _min_area_direction(uv)
+        return direction, classic
+    turned = classic is not direction
+    direction = _unless_rounded(uv, uncut, direction)
+    classic = _unless_rounded(uv, uncut, classic) if turned else direction
+    return direction, classic
+
+
+# A fattened seed moves back along its line by at most this share of its run's length.
+_UNFATTEN_MAX_RUN = 0.3
+# The trims move seeds by a window and a half at most (2-3 mm across a face tens of mm wide):
+# a trimmed count farther than this from the seeds' own picked another rectangle (the soap
+# bar's rounded face at SGBM 5, uniqueness 15: 5.0 -> 42.2 degrees off).
+_UNFATTEN_MAX_TURN_DEG = 20.0
+
+
+def _turn_deg(u: np.ndarray, v: np.ndarray) -> float:
+    """How far the rectangle along ``v`` is turned from the one along ``u`` (0-45 degrees:
+    a rectangle's direction and the one across it are the same rectangle)."""
+    cos = abs(float(u @ v)) / float(np.linalg.norm(u) * np.linalg.norm(v))
+    sin = abs(float(u[0] * v[1] - u[1] * v[0])) / float(np.linalg.norm(u) * np.linalg.norm(v))
+    return math.degrees(math.atan2(min(cos, sin), max(cos, sin)))
+
+
+def _unfattened_seeds(seeds: _Seeds, trim_rad: float) -> np.ndarray:
+    """The seeds with each uncut fattened one moved back toward its line's other end by its
+    share (``fattened``) of the window's fattening ``trim_rad`` (an angle: its depth times it
+    on the face, at most _UNFATTEN_MAX_RUN of the run)."""
+    pts = seeds.points.copy()
+    share = seeds.fattened
+    if share is None:
+        return pts
+    partner = np.arange(len(pts)) ^ 1
+    partner = np.minimum(partner, len(pts) - 1)
+    run = seeds.points[partner] - seeds.points
+    length = np.linalg.norm(run, axis=1)
+    move = (share > 0) & ~seeds.cropped & (length > 1e-9)
+    step = np.minimum(share * trim_rad * seeds.points[:, 2], _UNFATTEN_MAX_RUN * length)
+    safe = np.where(length > 1e-9, length, 1.0)
+    pts += np.where(move[:, None], run * (step / safe)[:, None], 0.0)
+    return pts
+
+
 @dataclass(frozen=True)
 class _Face:
     width: float
@@ -1558,24 +1635,25 @@ def _face_geometry(
         classic = direction
         pts_all = pts
     else:
-        tol = params.edge_tolerance_m
         reach = None if seeds.reach is None else seeds.reach[order]
-        direction = _edge_direction(uv, cropped, tol, reach)
-        wide = params.scattered_edge_tolerance_m
-        # The disc test weighs the circle against the rectangle the count chose (its
-        # direction without the best pooled fit, which only turns a rectangle's axis): a
-        # disc's seeds fit some rectangle, and the best of them would hide the disc.
-        classic = direction
-        if direction is not None and wide > tol:
-            count = direction
-            direction = _scattered_direction(uv, cropped, count, tol, wide)
-            classic = _scattered_direction(uv, cropped, count, tol, wide, best_fit=False)
-        if direction is None:
-            direction = classic = _min_area_direction(uv)
-        else:
-            turned = classic is not direction
-            direction = _unless_rounded(uv, uncut, direction)
-            classic = _unless_rounded(uv, uncut, classic) if turned else direction
+        direction, classic = _seeds_direction(uv, cropped, reach, params)
+        valid = (~cropped).tolist()
+        tol = params.edge_tolerance_m
+        score = _rectangle_score(pts, valid, direction.tolist(), tol)
+        if score[0] < sum(valid) and trim_px > 0 and pixel_rad > 0 and seeds.fattened is not None:
+            # Seeds off every side the count gives them: each occluding seed takes back the
+            # fattening it took (its share of the window's trim) along its line, and the
+            # count runs again. A side's seeds with different backgrounds behind them are
+            # moved out by different amounts, which turns it. Kept where the trimmed seeds fit
+            # a rectangle at least as well: a wrong share (a far background that did not
+            # fatten there) spreads them instead.
+            trimmed = _unfattened_seeds(seeds, trim_px * pixel_rad).take(order, axis=0)
+            t_uv = (trimmed - origin) @ to_plane
+            t_direction, t_classic = _seeds_direction(t_uv, cropped, reach, params)
+            if _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol) >= score and (
+                _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
+            ):
+                direction, classic = t_direction, t_classic
         pts_all = pts
         if beyond is not None and len(beyond):
             pts_all = pts + ((beyond - origin) @ to_plane).tolist()
@@ -2736,6 +2814,17 @@ def _decide(
         extra["near_ends"] = float(np.count_nonzero((seeds.occluding > 0) & (share < 1.0)))
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
+    if seeds.occluding is not None and past is not None:
+        # A run that stops short of its segment's end with a far background behind it ended
+        # at the face's edge as well, its last samples on a fattening ramp too long for
+        # _ramp_ends: its place took a whole window's fattening, as an occluding seed's.
+        # Not without the scans' depth past the lines' ends (recorded before it was): with
+        # no samples beyond its segment, a crease's run would count as far.
+        far = np.array(_far_behind(on_face, np.asarray(past).tolist(), params))
+        fattened = np.where(far & ~seeds.cropped, 1.0, 0.0)
+        seeds = replace(seeds, fattened=np.where(seeds.occluding > 0, seeds.occluding, fattened))
+    elif seeds.occluding is not None:
+        seeds = replace(seeds, fattened=seeds.occluding)
     walk = replace(params, edge_fattening_px=measured) if measured else params
     beyond, smeared = _beyond_edges(on_face, solid, walk) if params.bevels else (None, False)
     face = _face_geometry(
