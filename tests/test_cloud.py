@@ -16,6 +16,7 @@ from lpc_core.perception.cloud import (
     PlaneModel,
     SphereModel,
     _camera_facing,
+    _column_counts,
     _support_refit,
     crop_points,
     estimate_normals,
@@ -664,3 +665,17 @@ def test_camera_facing_keeps_its_margin_on_an_unpulled_rim() -> None:
     moved = _camera_facing(points, start, PARAMS, 1 / INTR.fx)
     assert moved.radius == fixed.radius
     assert abs(1000 * (moved.radius - 0.03)) < 0.3
+
+
+@pytest.mark.parametrize("rows", [1, 30, 254, 255, 256, 384, 510, 511, 766])
+def test_column_counts_match_a_wide_sum_past_the_byte_range(rows: int) -> None:
+    # The support search counts each hypothesis's points in uint8 chunks of 255 rows: the
+    # counts must be the int32 sums whatever the row count, all-true columns included.
+    rng = np.random.default_rng(rows)
+    hits = rng.random((rows, 64)) < rng.random(64)
+    hits[:, 0] = True
+    hits[:, 1] = False
+    counts = _column_counts(hits)
+    assert counts.dtype == np.int32
+    np.testing.assert_array_equal(counts, hits.sum(axis=0))
+    assert counts[0] == rows and counts[1] == 0

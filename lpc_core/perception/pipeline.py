@@ -80,12 +80,13 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
         frame_seq=frame.seq,
         lines=[
             ScanLine(
-                angle_deg=float(np.degrees(angle)),
+                angle_deg=angle,
                 points=to_wire(points.astype(np.float32)),
                 past_ends_m=past,
             )
+            # The angles in degrees in one call (the same ufunc loop as four scalar calls).
             for angle, points, past in zip(
-                lines.angles_rad, lines.points, _past_ends(lines), strict=True
+                np.degrees(lines.angles_rad).tolist(), lines.points, _past_ends(lines), strict=True
             )
         ],
         capture_points=int(getattr(lines, "capture_count", lines.total_points)),

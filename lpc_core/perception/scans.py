@@ -270,12 +270,18 @@ def cut_scan_lines(
     geometry = _geometry(intrinsics, params)
     tab = geometry.table
     units = depth.reshape(-1)[tab.flat_index]
-    keep = np.flatnonzero((units >= tab.lo_units) & (units <= tab.hi_units))
+    # The mask's own nonzero, not np.flatnonzero's ravel and Python wrappers: the mask is 1-D.
+    keep = ((units >= tab.lo_units) & (units <= tab.hi_units)).nonzero()[0]
     z = units[keep] * intrinsics.depth_scale
     line = tab.line[keep]
     order = np.lexsort((z * tab.along[keep], line))
     keep, z = keep[order], z[order]
-    pts = np.column_stack([z * tab.slope_x[keep], z * tab.slope_y[keep], z])
+    # np.column_stack's rows written in place: the same products, without its wrappers and
+    # the three temporary columns it copies.
+    pts = np.empty((len(z), 3))
+    np.multiply(z, tab.slope_x[keep], out=pts[:, 0])
+    np.multiply(z, tab.slope_y[keep], out=pts[:, 1])
+    pts[:, 2] = z
     pts.setflags(write=False)
     # Each line's rows as slices (np.split costs more than the cut's arithmetic).
     counts = np.bincount(line, minlength=len(params.angles_deg)).tolist()
