@@ -398,6 +398,19 @@ def test_reconstruct_cloud_keeps_a_lone_face_that_looks_like_a_support():
     assert _angle_error_deg(result.wrist_angle_rad, np.pi / 2) < 3.0
 
 
+def test_reconstruct_cloud_puts_back_a_face_taken_for_the_table_with_a_stray_through_it():
+    # A lone box face (the table behind it unmatched, as BM's texture check leaves it) passes
+    # the support-plane test; a stray slab of mismatches beside it, off the axis, straddles
+    # its plane. Nothing to grasp reaches through its table: the face is put back and fitted
+    # (on main the slab was taken, 29.6 mm wide).
+    face = _hit_box((0.0, 0.0, 0.22), np.eye(3), (0.09, 0.2, 0.04))
+    stray = _hit_box((0.08, 0.0, 0.206), _rotation((0, 1, 0), np.radians(60)), (0.03, 0.03, 0.003))
+    result = reconstruct_cloud(_frame(face, stray, seed=4), INTR, EXACT_EDGES, seed=4)
+    assert result.shape == "cuboid"
+    assert abs(result.grasp_width_m - 0.09) < 0.004
+    assert result.extra["support_points"] == 0.0
+
+
 def test_reconstruct_cloud_can_with_its_lid_in_view():
     # An upright can (axis along -y) seen 40 degrees from above: side and lid in view.
     axis = _rotation((1, 0, 0), np.radians(40)) @ (0.0, -1.0, 0.0)
