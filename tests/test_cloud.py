@@ -399,6 +399,19 @@ def test_reconstruct_cloud_keeps_a_lone_face_that_looks_like_a_support():
     assert _angle_error_deg(result.wrist_angle_rad, np.pi / 2) < 3.0
 
 
+def test_reconstruct_cloud_puts_back_a_face_taken_for_the_table_with_a_stray_through_it():
+    # A lone box face (the table behind it unmatched, as BM's texture check leaves it) passes
+    # the support-plane test; a stray slab of mismatches beside it, off the axis, straddles
+    # its plane. Nothing to grasp reaches through its table: the face is put back and fitted
+    # (on main the slab was taken, 29.6 mm wide).
+    face = _hit_box((0.0, 0.0, 0.22), np.eye(3), (0.09, 0.2, 0.04))
+    stray = _hit_box((0.08, 0.0, 0.206), _rotation((0, 1, 0), np.radians(60)), (0.03, 0.03, 0.003))
+    result = reconstruct_cloud(_frame(face, stray, seed=4), INTR, EXACT_EDGES, seed=4)
+    assert result.shape == "cuboid"
+    assert abs(result.grasp_width_m - 0.09) < 0.004
+    assert result.extra["support_points"] == 0.0
+
+
 def test_reconstruct_cloud_can_with_its_lid_in_view():
     # An upright can (axis along -y) seen 40 degrees from above: side and lid in view.
     axis = _rotation((1, 0, 0), np.radians(40)) @ (0.0, -1.0, 0.0)
@@ -521,6 +534,27 @@ def test_reconstruct_cloud_box_side_ignores_a_locally_fattened_stretch():
     # Without the stretch the sides stay the extremes, as before.
     clean = _width_errors_mm((box, table), 0.04, PARAMS)
     assert np.array_equal(clean, _width_errors_mm((box, table), 0.04, every_extreme))
+
+
+def test_a_block_matchers_hole_past_a_side_facing_x_trims_the_far_sides() -> None:
+    # A face seen square on (the lines measure no fattening) fattened 2 px a side, its
+    # background 90 mm behind, and no depth past its right side (a block matcher's hole):
+    # the sides move in by a 5 x 5 window's 2 px (52.7 mm on main).
+    z = np.minimum(
+        _hit_box((0.0, 0.0, 0.22), np.eye(3), (0.05, 0.09, 0.04)),
+        _hit_plane((0, 0, 1), (0, 0, 0.31)),
+    )
+    z = _fattened(z, 2)
+    box = z < 0.25
+    cols, rows = np.flatnonzero(box.any(axis=0)), np.flatnonzero(box.any(axis=1))
+    z[rows.min() : rows.max() + 1, cols.max() + 1 : cols.max() + 36] = np.inf
+    z = z + np.random.default_rng(3).normal(0.0, 0.0003, z.shape)
+    depth = np.where(np.isfinite(z), np.rint(z / INTR.depth_scale), 0).astype(np.uint16)
+    result = reconstruct_cloud(depth, INTR, seed=3)
+    assert result.extra["fattening_px"] == PARAMS.hole_fattening_px
+    assert abs(result.grasp_width_m - 0.05) < 0.0015
+    untrimmed = reconstruct_cloud(depth, INTR, CloudParams(hole_fattening_px=0.0), seed=3)
+    assert untrimmed.grasp_width_m - 0.05 > 0.002
 
 
 def test_find_support_plane_keeps_a_sparse_dot_table_with_a_noise_tail() -> None:

@@ -54,6 +54,10 @@ class CloudParams:
     support_threshold_m: float = 0.003
     support_min_points: int = 150
     support_max_behind_fraction: float = 0.03
+    # A segment with more than this part behind the supporting plane does not rest on it: an
+    # object's segment had at most 5 % there (BM 7, 11, SGBM 7 frames), mismatches straddling
+    # a box's face taken for the plane 36-53 % (see _behind_support).
+    segment_max_behind_fraction: float = 0.25
     # Clusters: connected cells of this size (26-neighbourhood). Points closer than a cell
     # along every axis always join; gaps wider than 2 sqrt(3) cells (14 mm) always split.
     cluster_cell_m: float = 0.004
@@ -111,6 +115,10 @@ class CloudParams:
     window_fattening_px: float = 3.0
     window_correlation_gate: float = 0.25
     far_background_ratio: float = 0.35
+    # Where neither shows one, a frame with no depth past an occluding side facing +x (a
+    # block matcher's, see _hole_past) takes a 5 x 5 window's fattening on the sides with
+    # their background far behind, as the four-line method's ``hole_fattening_px`` does.
+    hole_fattening_px: float = 2.0
     # An occluding side of a cuboid face with a stretch (a strip two voxels wide) further out
     # than this past its median stretch was fattened there, and the median stretch bounds it
     # (see _strip_sides). Half a voxel: a clean edge's strips agree closer than that.
@@ -148,6 +156,7 @@ class CloudParams:
             "rim_bulge_m",
             "edge_fattening_px",
             "window_fattening_px",
+            "hole_fattening_px",
             "far_background_ratio",
             "rest_gap_ratio",
             "rest_max_tilt_rad",
@@ -155,7 +164,12 @@ class CloudParams:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
-        for name in ("support_max_behind_fraction", "min_face_fraction", "min_inlier_fraction"):
+        for name in (
+            "support_max_behind_fraction",
+            "segment_max_behind_fraction",
+            "min_face_fraction",
+            "min_inlier_fraction",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be within [0, 1], got {getattr(self, name)}")
 
@@ -1387,18 +1401,18 @@ def _measured_fattening(
     return params.window_fattening_px, correlation
 
 
-def _far_behind(
-    depth: np.ndarray, intrinsics: Intrinsics, middle: np.ndarray, outward: np.ndarray, ratio: float
-) -> bool:
-    """Whether the background past a face's side lies far behind it: the median of the depths
-    8-30 px out in the image from the side's ``middle``, along the side's ``outward``
-    direction, at least ``ratio`` of the side's depth further, or no depth there at all
-    (nothing in range). 8 px is past a 9 x 9 window's fattened band; up to 30 px reaches past
-    the hole that an occlusion or the projector's shadow leaves, as wide as the disparity
-    jump (4-6 px for a table 40 mm behind at 0.3 m)."""
-    z = float(middle[2])
-    if z <= 0:
-        return False
+def _past_side(
+    depth: np.ndarray, intrinsics: Intrinsics, middle: np.ndarray, outward: np.ndarray
+) -> tuple[np.ndarray, float] | None:
+    """The depths (depth units, 0 where none) 8-30 px out in the image from a face's side's
+    ``middle`` along the side's ``outward`` direction (those inside the image), and the
+    cosine of that image direction with +x; None when the side lies behind the camera,
+    faces along the ray or has no such pixel in the image. 8 px is past a 9 x 9 window's
+    fattened band; up to 30 px reaches past the hole that an occlusion or the projector's
+    shadow leaves, as wide as the disparity jump (4-6 px for a table 40 mm behind at 0.3 m),
+    as the scan lines' ``past_ends_m`` reads it (scans._PAST_STEPS_PX)."""
+    if float(middle[2]) <= 0:
+        return None
 
     def pixel(p: np.ndarray) -> tuple[float, float]:
         u = intrinsics.ppx + intrinsics.fx * p[0] / p[2]
@@ -1409,18 +1423,56 @@ def _far_behind(
     du, dv = u1 - u0, v1 - v0
     norm = math.hypot(du, dv)
     if norm == 0:
-        return False
+        return None
     steps = np.arange(8.0, 31.0, 2.0)
     u = np.rint(u0 + steps * du / norm).astype(np.intp)
     v = np.rint(v0 + steps * dv / norm).astype(np.intp)
     inside = (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
     if not inside.any():
+        return None
+    return depth[v[inside], u[inside]], du / norm
+
+
+def _far_behind(
+    depth: np.ndarray, intrinsics: Intrinsics, middle: np.ndarray, outward: np.ndarray, ratio: float
+) -> bool:
+    """Whether the background past a face's side lies far behind it: the median of the depths
+    past it (_past_side) at least ``ratio`` of the side's depth further, or no depth there at
+    all (nothing in range)."""
+    past = _past_side(depth, intrinsics, middle, outward)
+    if past is None:
         return False
-    values = depth[v[inside], u[inside]]
-    values = values[values > 0]
+    values = past[0][past[0] > 0]
     if not len(values):
         return True
-    return float(np.median(values)) * intrinsics.depth_scale >= z * (1.0 + ratio)
+    return float(np.median(values)) * intrinsics.depth_scale >= float(middle[2]) * (1.0 + ratio)
+
+
+def _table_near(middle: np.ndarray, table: tuple[np.ndarray, float] | None, ratio: float) -> bool:
+    """Whether the supporting plane (``table``: unit normal away from the camera, offset)
+    meets the ray through a face's side's ``middle`` within ``ratio`` of the side's depth
+    behind it: the background just past the side (a lying box's long sides, the table 40 mm
+    below them)."""
+    if table is None:
+        return False
+    normal, offset = table
+    facing = float(normal @ middle)
+    if facing <= 0:
+        return False
+    return -offset / facing <= 1.0 + ratio
+
+
+def _hole_past(
+    depth: np.ndarray, intrinsics: Intrinsics, middle: np.ndarray, outward: np.ndarray
+) -> bool:
+    """Whether a face's side faces +x in the image (within 60 degrees) and the image holds no
+    depth past it (_past_side), as the four-line method's ``laser._hole_past_edge`` asks of
+    its lines' ends. The second imager sits along +x: its shadow band lies on a near
+    object's other side, and past a side facing +x both imagers see the background, which
+    lpc's noise model always gives depth; a block matcher leaves none there on most frames
+    where neither the lines nor the residuals show its fattening."""
+    past = _past_side(depth, intrinsics, middle, outward)
+    return past is not None and past[1] > 0.5 and not np.any(past[0] > 0)
 
 
 def _canonical_axis(axis: np.ndarray) -> np.ndarray:
@@ -1469,6 +1521,21 @@ def _resting_width(
     )
 
 
+def _behind_support(segment: np.ndarray, support: np.ndarray, params: CloudParams) -> bool:
+    """Whether more than ``segment_max_behind_fraction`` of ``segment`` lies more than
+    ``support_threshold_m`` behind the plane through ``support``, as seen from the camera.
+    Nothing to grasp reaches through its table: the plane is an object's face, the largest
+    plane of a frame whose table a block matcher's texture check left unmatched (13 % of the
+    pixels had depth on a lying box's frames at BM 7), and the segment is a stray stretch of
+    mismatches that straddles the face's plane."""
+    plane = _support_refit(support)
+    if plane is None:
+        return False
+    normal, offset = plane
+    behind = np.count_nonzero(segment @ normal + offset > params.support_threshold_m)
+    return behind > params.segment_max_behind_fraction * len(segment)
+
+
 def reconstruct_cloud(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -1509,12 +1576,15 @@ def reconstruct_cloud(
             break
         removed.append(left[mask])
         keep[left[mask]] = False
-    # If removing the plane left nothing to grasp, the plane was the object: put it back.
+    # If removing the plane left nothing to grasp, or only something behind it, the plane was
+    # the object: put it back.
     while True:
         rest = cloud[keep]
         labels = grid_clusters(rest, params.cluster_cell_m)
         found = nearest_segment(rest, labels, params.min_segment_points, params.pierce_tolerance_m)
-        if found is not None or not removed:
+        if not removed:
+            break
+        if found is not None and not _behind_support(rest[found], cloud[removed[-1]], params):
             break
         keep[removed.pop()] = True
     extra["support_points"] = float(used - keep.sum())
@@ -1582,10 +1652,38 @@ def reconstruct_cloud(
             trimmed = partial(_far_behind, depth, intrinsics, ratio=ratio)
         # A matcher made the frame whether or not its window is trimmed (window_fattening_px 0).
         matched = fattening > 0 or correlation is not None
+    holes: list[bool] = []
+    if extra.get("fattening_px") == 0.0 and trimmed is None and params.hole_fattening_px > 0:
+        # Neither the lines nor the residuals show a matcher: a block matcher's hole past a
+        # side facing +x may (_hole_past); the geometry untrimmed, its sides asked on the way.
+        def asked(middle: np.ndarray, outward: np.ndarray) -> bool:
+            holes.append(_hole_past(depth, intrinsics, middle, outward))
+            return False
+
+        trimmed = asked
+        params = replace(params, edge_fattening_px=params.hole_fattening_px)
     width, axis, center = _cuboid_geometry(
         segment, whole, fit, pierced, params, pixel_rad, support=support, trimmed=trimmed,
         matched=matched,
     )  # fmt: skip
+    if any(holes):
+        extra["fattening_px"] = params.hole_fattening_px
+        table = _support_refit(support) if len(support) >= 3 else None
+        ratio = params.far_background_ratio
+
+        def far(middle: np.ndarray, outward: np.ndarray) -> bool:
+            # A block matcher's missing depth tells no far background: the table may lie there,
+            # and where no table was found (left unmatched, as on BM 7's lying box) nothing does.
+            return (
+                table is not None
+                and _far_behind(depth, intrinsics, middle, outward, ratio)
+                and not _table_near(middle, table, ratio)
+            )
+
+        width, axis, center = _cuboid_geometry(
+            segment, whole, fit, pierced, params, pixel_rad, support=support, trimmed=far,
+            matched=matched,
+        )  # fmt: skip
     axis = _canonical_axis(axis)
     extra["cuboid_faces"] = float(len(fit.faces))
     return Reconstruction(
