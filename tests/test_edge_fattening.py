@@ -67,15 +67,15 @@ def test_cloud_takes_the_measured_fattening_off_the_width(fatten_px: int) -> Non
 
 
 def test_a_face_without_fattening_keeps_its_width() -> None:
-    # Nothing lies behind this face: its right edge has no depth past it, which the four-line
-    # method takes for a block matcher's hole (hole_fattening_px, tests/test_box_bm.py).
+    # Nothing lies behind this face: its right edge has no depth past it, which both methods
+    # take for a block matcher's hole (hole_fattening_px, tests/test_box_bm.py).
     depth, _ = _slanted_face(0)
     lines = cut_scan_lines(depth, INTRINSICS)
     aware = reconstruct_laser(lines, LaserParams(hole_fattening_px=0.0), seed=1)
     blind = reconstruct_laser(lines, LaserParams(measure_fattening=False), seed=1)
     assert aware.extra["fattening_px"] == 0.0
     assert aware.grasp_width_m == blind.grasp_width_m
-    cloud = reconstruct_cloud(depth, INTRINSICS, seed=1)
+    cloud = reconstruct_cloud(depth, INTRINSICS, CloudParams(hole_fattening_px=0.0), seed=1)
     assert cloud.extra["fattening_px"] == 0.0
     assert (
         cloud.grasp_width_m
