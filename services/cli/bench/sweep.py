@@ -136,36 +136,67 @@ SETTINGS: dict[str, Setting] = {
         "BM 7, uniqueness 5, texture threshold 20",
         matcher={"kind": "bm", "block_size": 7, "uniqueness": 5, "texture_threshold": 20},
     ),
-    # Held out from every helper of stop 33: only the lead's before -> after runs on them.
-    "fresh-light": Setting(
-        "fresh",
+    # Held out from every helper of stop 33 (then its "fresh" group); studied from stop 34.
+    "light4": Setting(
+        "untuned",
         "SGBM 7, four times the room light, albedo 0.6, a fourth dot pattern",
         rig={"ambient": 0.32, "albedo": 0.6, "pattern_seed": 3},
     ),
-    "fresh-hh5": Setting(
-        "fresh",
+    "hh5": Setting(
+        "untuned",
         "SGBM 5, HH mode, P1 x 1.5, P2 x 3, uniqueness 12, 0.05 dots/px²",
         rig={"dot_density": 0.05},
         matcher={"block_size": 5, "sgbm_mode": "hh", "uniqueness": 12},
         smoothness=(1.5, 3.0),
     ),
-    "fresh-soft9": Setting(
-        "fresh",
+    "soft9": Setting(
+        "untuned",
         "SGBM 9, P1 and P2 / 2, uniqueness 5, speckle range 16, texture check 3",
         matcher={"block_size": 9, "uniqueness": 5, "speckle_range": 16, "min_texture": 3.0},
         smoothness=(0.5, 0.5),
     ),
-    "fresh-bm9": Setting(
-        "fresh",
+    "bm9-p4": Setting(
+        "untuned",
         "BM 9, uniqueness 15, texture threshold 5, a fifth dot pattern, optics 0.7 px",
         rig={"pattern_seed": 4, "blur_sigma_px": 0.7},
         matcher={"kind": "bm", "block_size": 9, "uniqueness": 15, "texture_threshold": 5},
     ),
-    "fresh-shot": Setting(
-        "fresh",
+    "shot": Setting(
+        "untuned",
         "SGBM 7, 2.5 times the shot noise, 80 % of the signal, dots 0.8 px, left-right 2 px",
         rig={"electrons_per_dn": 4.0, "gain_dn": 260.0, "dot_sigma_px": 0.8},
         matcher={"disp12_max_diff": 2},
+    ),
+    # Held out from every helper of stop 34: only the lead's before -> after runs on them.
+    "fresh-sparse": Setting(
+        "fresh",
+        "SGBM 7, 0.035 dots/px² of uneven brightness, speckle window 50 and range 4",
+        rig={"dot_density": 0.035, "dot_brightness": (0.3, 1.0), "pattern_seed": 5},
+        matcher={"speckle_window": 50, "speckle_range": 4},
+    ),
+    "fresh-bm5t": Setting(
+        "fresh",
+        "BM 5, texture threshold 30, uniqueness 8, optics 0.6 px, a sixth dot pattern",
+        rig={"pattern_seed": 6, "blur_sigma_px": 0.6},
+        matcher={"kind": "bm", "block_size": 5, "texture_threshold": 30, "uniqueness": 8},
+    ),
+    "fresh-base40": Setting(
+        "fresh",
+        "SGBM 7, 40 mm baseline, projector off-centre, twice the room light",
+        rig={"baseline_m": 0.04, "projector_x_m": 0.01, "ambient": 0.16},
+    ),
+    "fresh-3way5": Setting(
+        "fresh",
+        "SGBM 5, 3-way mode, P1 and P2 x 2, IR 2x supersampled, read noise 1.5",
+        rig={"supersample": 2, "read_noise_dn": 1.5},
+        matcher={"block_size": 5, "sgbm_mode": "3way"},
+        smoothness=(2.0, 2.0),
+    ),
+    "fresh-hh9": Setting(
+        "fresh",
+        "SGBM 9, HH mode, uniqueness 8, no left-right check, dots 0.5 px, albedo 0.5",
+        rig={"dot_sigma_px": 0.5, "albedo": 0.5},
+        matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 8, "disp12_max_diff": -1},
     ),
 }
 
