@@ -490,13 +490,13 @@ def _runs(
         return [idx]
     # The inliers either side of each gap, and their squared distance, in Python floats:
     # a line has a few gaps, and numpy's calls on arrays that short cost more than the sums
-    # (the same sums as squared_norms, in the same order).
-    before, after = idx.take(skip), idx.take(skip + 1)
-    ends, starts = points.take(before, axis=0).tolist(), points.take(after, axis=0).tolist()
+    # (the same sums as squared_norms, in the same order). Both ends' points in one gather.
+    gaps, inlying = skip.tolist(), idx.tolist()
+    before, after = [inlying[at] for at in gaps], [inlying[at + 1] for at in gaps]
+    ends = points.take(before + after, axis=0).tolist()
     longest, gap2 = params.max_outlier_run + 1, params.segment_gap_m**2
     split = []  # (position in idx, inlier before, inlier after, squared distance)
-    for at, i, j, p, q in zip(skip.tolist(), before.tolist(), after.tolist(), ends, starts,
-                              strict=True):  # fmt: skip
+    for at, i, j, p, q in zip(gaps, before, after, ends, ends[len(gaps) :], strict=False):
         dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
         dist2 = dx * dx + dy * dy + dz * dz
         if j - i > longest or dist2 > gap2:
