@@ -578,13 +578,17 @@ def _joins(i: int, j: int, sz: np.ndarray, params: LaserParams) -> bool:
 def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_margin: float) -> str:
     """The model whose pierced run covers most of the segment; a richer model (circle over
     line, ellipse over circle) must cover more by its margin."""
-    fraction = {m: len(runs.get(m, _EMPTY_RUN)) / n for m in MODELS}
-    best = "line"
-    if fraction["circle"] > fraction["line"] + margin:
-        best = "circle"
-    if fraction["ellipse"] > fraction[best] + (ellipse_margin if best == "circle" else margin):
-        best = "ellipse"
-    return best if fraction[best] > 0 else "none"
+    # Plain locals, not a dict of fractions: this runs for every line and model a frame.
+    get = runs.get
+    line = len(get("line", _EMPTY_RUN)) / n
+    circle = len(get("circle", _EMPTY_RUN)) / n
+    ellipse = len(get("ellipse", _EMPTY_RUN)) / n
+    best, top = "line", line
+    if circle > line + margin:
+        best, top = "circle", circle
+    if ellipse > top + (ellipse_margin if best == "circle" else margin):
+        best, top = "ellipse", ellipse
+    return best if top > 0 else "none"
 
 
 def _fit_batch(
@@ -747,7 +751,8 @@ def _fit_lines_models(
                 if simpler != "none":
                     margin = ellipse_margin if simpler == "circle" else params.model_margin
                     goal = len(pierced[k][simpler]) + margin * n
-            if lazy and any(len(r) >= n * (1.0 - params.model_margin) for r in pierced[k].values()):
+            full = n * (1.0 - params.model_margin)
+            if lazy and any(len(r) >= full for r in pierced[k].values()):
                 ln.fits[model] = fit.FailedFit(_COVERED)
                 all_runs[k][model], pierced[k][model] = [], _EMPTY_RUN
             else:
