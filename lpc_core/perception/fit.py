@@ -874,8 +874,9 @@ def _column(values: list[float]) -> np.ndarray:
 def _columns(rows: Iterable[Sequence[float]]) -> tuple[np.ndarray, ...]:
     """Per-line parameter tuples as one ``(L, 1)`` column per parameter (views of one array:
     one conversion instead of one per parameter)."""
-    table = np.array(list(rows), dtype=np.float64)
-    return tuple(table.T[:, :, None])
+    columns = np.array(list(rows), dtype=np.float64).T[:, :, None]
+    # Indexed, not iterated: iterating an array ends on a formatted IndexError.
+    return tuple(columns[k] for k in range(columns.shape[0]))
 
 
 def _best_columns(best: list[Best | None], width: int) -> tuple[np.ndarray, ...]:
@@ -891,10 +892,10 @@ def _line_scorer(seg: Segments, threshold: float) -> Scorer:
     basis_all = seg.basis("line")  # (L, 3, W): x, y, 1
 
     def score(idx: np.ndarray, rows: np.ndarray | None) -> list[Best | None]:
-        x, y, basis = on_rows(rows, seg.x, seg.y, basis_all)
-        g = idx + seg.offsets(x.shape[0])
-        px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 2)
-        x0, y0, x1, y1 = px[:, :, 0], py[:, :, 0], px[:, :, 1], py[:, :, 1]
+        (basis,) = on_rows(rows, basis_all)
+        # Both points' coordinates in one gather, p[axis (x, y), point, line, trial].
+        p = basis.take(idx.transpose(2, 0, 1) + seg.gather_offsets("line", idx.shape[0]))
+        x0, y0, x1, y1 = p[0, 0], p[1, 0], p[0, 1], p[1, 1]
         # The line through p0 and p1, (y0 - y1, x1 - x0, x0 y1 - x1 y0) = (-e_y, e_x, e x p0):
         # |e x (p - p0)| = |e| * distance, for every hypothesis and point in one product.
         coef = np.empty((*x0.shape, 3))
@@ -1047,25 +1048,35 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
     t2 = threshold * threshold
 
     def score(idx: np.ndarray, rows: np.ndarray | None) -> list[Best | None]:
-        x, y, basis = on_rows(rows, seg.x, seg.y, basis_all)
-        g = idx + seg.offsets(x.shape[0])
-        px, py = x.ravel()[g], y.ravel()[g]  # (L, T, 3)
-        # Circumcentre relative to the first point; b, e the other two points' offsets.
-        dx, dy = px[:, :, 1:] - px[:, :, :1], py[:, :, 1:] - py[:, :, :1]
-        sq = dx * dx + dy * dy
-        bx, ex, by, ey = dx[:, :, 0], dx[:, :, 1], dy[:, :, 0], dy[:, :, 1]
-        bb, ee = sq[:, :, 0], sq[:, :, 1]
+        (basis,) = on_rows(rows, basis_all)
+        # The samples' coordinates in one gather, p[axis (x, y), point, line, trial]: (L, T)
+        # blocks on the leading axes keep every operation below on contiguous rows (numpy's
+        # strided views of small arrays cost more than the calls they save).
+        p = basis.take(idx.transpose(2, 0, 1) + seg.gather_offsets("circle", idx.shape[0]))
+        # Circumcentre relative to the first point; b, e the other two points' offsets:
+        # d = [[bx, ex], [by, ey]], sq = [bb, ee] their squared lengths.
+        d = p[:, 1:] - p[:, :1]
+        dd = d * d
+        sq = dd[0] + dd[1]
+        # Indexed, not unpacked: iterating an array ends on a formatted IndexError.
+        bx, ex, by, ey = d[0, 0], d[0, 1], d[1, 0], d[1, 1]
+        bb, ee = sq[0], sq[1]
         cross = 2.0 * (bx * ey - by * ex)
+        # [[by ee, ey bb], [bx ee, ex bb]], flattened: the centre's numerators are its middle
+        # pair less its outer pair, (ey bb - by ee, bx ee - ex bb).
+        m = (d[::-1] * sq[::-1]).reshape(4, *cross.shape)
         with np.errstate(all="ignore"):
-            ux = (ey * bb - by * ee) / cross
-            uy = (bx * ee - ex * bb) / cross
-            r2 = ux * ux + uy * uy
+            u = m[1:3] - m[::3]
+            u /= cross  # (ux, uy)
+            uu = u * u
+            r2 = uu[0] + uu[1]
             # Collinear or repeated points give cross ~ 0, so r2 huge, inf or nan: the radius
             # limits reject them (nan fails every comparison).
             ok = (r2 >= lo2) & (r2 <= hi2)
             if unbounded:
                 ok &= np.abs(cross) > 1e-12 * (bb + ee)
-            cx, cy, r = px[:, :, 0] + ux, py[:, :, 0] + uy, np.sqrt(r2)
+            c, r = p[:, 0] + u, np.sqrt(r2)
+            cx, cy = c[0], c[1]
             # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt
             # for the test, and rho^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
             if r_lo >= threshold:  # then r - t >= 0 on every valid row
@@ -1081,7 +1092,8 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
             np.multiply(cx, minus_two_scale, out=coef[:, :, 0])
             np.multiply(cy, minus_two_scale, out=coef[:, :, 1])
             coef[:, :, 2] = scale
-            np.multiply(cx * cx + cy * cy - mid, scale, out=coef[:, :, 3])
+            cc = c * c
+            np.multiply(cc[0] + cc[1] - mid, scale, out=coef[:, :, 3])
             q = coef @ basis  # (L, T, W): (rho^2 - mid) / half, NaN on padding
             inl = np.abs(q) <= 1.0
 

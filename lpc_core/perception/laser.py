@@ -490,13 +490,13 @@ def _runs(
         return [idx]
     # The inliers either side of each gap, and their squared distance, in Python floats:
     # a line has a few gaps, and numpy's calls on arrays that short cost more than the sums
-    # (the same sums as squared_norms, in the same order).
-    before, after = idx.take(skip), idx.take(skip + 1)
-    ends, starts = points.take(before, axis=0).tolist(), points.take(after, axis=0).tolist()
+    # (the same sums as squared_norms, in the same order). Both ends' points in one gather.
+    gaps, inlying = skip.tolist(), idx.tolist()
+    before, after = [inlying[at] for at in gaps], [inlying[at + 1] for at in gaps]
+    ends = points.take(before + after, axis=0).tolist()
     longest, gap2 = params.max_outlier_run + 1, params.segment_gap_m**2
     split = []  # (position in idx, inlier before, inlier after, squared distance)
-    for at, i, j, p, q in zip(skip.tolist(), before.tolist(), after.tolist(), ends, starts,
-                              strict=True):  # fmt: skip
+    for at, i, j, p, q in zip(gaps, before, after, ends, ends[len(gaps) :], strict=False):
         dx, dy, dz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
         dist2 = dx * dx + dy * dy + dz * dz
         if j - i > longest or dist2 > gap2:
@@ -578,13 +578,17 @@ def _joins(i: int, j: int, sz: np.ndarray, params: LaserParams) -> bool:
 def _choose_model(runs: dict[str, np.ndarray], n: int, margin: float, ellipse_margin: float) -> str:
     """The model whose pierced run covers most of the segment; a richer model (circle over
     line, ellipse over circle) must cover more by its margin."""
-    fraction = {m: len(runs.get(m, _EMPTY_RUN)) / n for m in MODELS}
-    best = "line"
-    if fraction["circle"] > fraction["line"] + margin:
-        best = "circle"
-    if fraction["ellipse"] > fraction[best] + (ellipse_margin if best == "circle" else margin):
-        best = "ellipse"
-    return best if fraction[best] > 0 else "none"
+    # Plain locals, not a dict of fractions: this runs for every line and model a frame.
+    get = runs.get
+    line = len(get("line", _EMPTY_RUN)) / n
+    circle = len(get("circle", _EMPTY_RUN)) / n
+    ellipse = len(get("ellipse", _EMPTY_RUN)) / n
+    best, top = "line", line
+    if circle > line + margin:
+        best, top = "circle", circle
+    if ellipse > top + (ellipse_margin if best == "circle" else margin):
+        best, top = "ellipse", ellipse
+    return best if top > 0 else "none"
 
 
 def _fit_batch(
@@ -747,7 +751,8 @@ def _fit_lines_models(
                 if simpler != "none":
                     margin = ellipse_margin if simpler == "circle" else params.model_margin
                     goal = len(pierced[k][simpler]) + margin * n
-            if lazy and any(len(r) >= n * (1.0 - params.model_margin) for r in pierced[k].values()):
+            full = n * (1.0 - params.model_margin)
+            if lazy and any(len(r) >= full for r in pierced[k].values()):
                 ln.fits[model] = fit.FailedFit(_COVERED)
                 all_runs[k][model], pierced[k][model] = [], _EMPTY_RUN
             else:

@@ -145,7 +145,20 @@ class Segments:
         Each scan line's points in its plane, metres (validated as by ``fit_line``).
     """
 
-    __slots__ = ("_bases", "count", "mean", "n", "ox", "oy", "points", "valid", "width", "x", "y")
+    __slots__ = (
+        "_bases",
+        "_gathers",
+        "count",
+        "mean",
+        "n",
+        "ox",
+        "oy",
+        "points",
+        "valid",
+        "width",
+        "x",
+        "y",
+    )
 
     def __init__(self, points: Sequence[np.ndarray], *, validated: bool = False) -> None:
         pts = list(points) if validated else [as_points(p) for p in points]
@@ -160,10 +173,13 @@ class Segments:
         with np.errstate(all="ignore"):
             mean = np.add.reduce(raw, axis=2) / np.maximum(np.array(n, dtype=np.float64), 1.0)
             centred = np.where(valid, raw - mean[:, :, None], np.nan)
-        self.x, self.y = centred
-        self.ox, self.oy = np.where(valid, raw, np.nan)
+        # Indexed, not unpacked: iterating an array ends on a formatted IndexError.
+        self.x, self.y = centred[0], centred[1]
+        given = np.where(valid, raw, np.nan)
+        self.ox, self.oy = given[0], given[1]
         self.mean = mean.T.tolist()
         self._bases: dict[str, np.ndarray] = {}
+        self._gathers: dict[tuple[str, int], np.ndarray] = {}
 
     def take(self, rows: Sequence[int]) -> Segments:
         """The lines ``rows`` only, sharing this batch's centring."""
@@ -178,6 +194,7 @@ class Segments:
         out._bases = {
             k: v.take(idx, axis=0) for k, v in self._bases.items() if not k.startswith("offsets")
         }
+        out._gathers = {}
         return out
 
     def offsets(self, count: int) -> np.ndarray:
@@ -186,6 +203,18 @@ class Segments:
         found = self._bases.get(key)
         if found is None:
             found = self._bases[key] = (np.arange(count) * self.width)[:, None, None]
+        return found
+
+    def gather_offsets(self, name: str, count: int) -> np.ndarray:
+        """``(2, 1, count, 1)`` flat offsets of ``count`` lines' ``x`` and ``y`` rows in
+        ``basis(name)``: added to ``(k, L, T)`` sample indices, one ``take`` gathers the
+        samples' coordinates as ``(2, k, L, T)``."""
+        key = (name, count)
+        found = self._gathers.get(key)
+        if found is None:
+            stride = self.basis(name).shape[1] * self.width
+            lines = (np.arange(count) * stride)[:, None]
+            found = self._gathers[key] = lines + np.array([0, self.width])[:, None, None, None]
         return found
 
     def basis(self, name: str) -> np.ndarray:
@@ -311,7 +340,7 @@ def pick_rows(
     # Counting through uint8 -> uint16 skips numpy's bool -> int64 cast (half the cost here).
     counts = np.add.reduce(inl.view(np.uint8), axis=2, dtype=np.uint16)
     top = np.maximum.reduce(counts, axis=1)  # counts.max(axis=1) without its Python wrapper
-    tl, tt = np.nonzero(counts == top[:, None])
+    tl, tt = (counts == top[:, None]).nonzero()  # the method: no Python wrapper
     tops = top.tolist()
     sums = residual_sums(tl, tt).tolist()
     out: list[tuple[int, int, float]] = [(0, 0, math.inf)] * len(tops)
