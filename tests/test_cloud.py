@@ -17,6 +17,7 @@ from lpc_core.perception.cloud import (
     SphereModel,
     _camera_facing,
     _column_counts,
+    _facing_passes,
     _support_refit,
     crop_points,
     estimate_normals,
@@ -699,6 +700,18 @@ def test_camera_facing_keeps_its_margin_on_an_unpulled_rim() -> None:
     moved = _camera_facing(points, start, PARAMS, 1 / INTR.fx)
     assert moved.radius == fixed.radius
     assert abs(1000 * (moved.radius - 0.03)) < 0.3
+
+
+def test_facing_passes_resumed_after_the_margin_passes_match_a_fresh_run() -> None:
+    """_round_facing resumes the rim band's run from the margin-only run's two passes instead
+    of making them again: the radius comes out bit for bit as a fresh run's."""
+    points, start = _pulled_can(0.003, 3.5)
+    pixel_rad = 1 / INTR.fx
+    fixed, passes = _facing_passes(points, start, CloudParams(rim_band_px=0.0), pixel_rad)
+    assert passes == 2
+    resumed, total = _facing_passes(points, fixed, PARAMS, pixel_rad, passes)
+    assert total > passes  # the band moved in past the pulled rim
+    assert resumed.radius == _camera_facing(points, start, PARAMS, pixel_rad).radius
 
 
 @pytest.mark.parametrize("rows", [1, 30, 254, 255, 256, 384, 510, 511, 766])

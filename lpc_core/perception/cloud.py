@@ -1080,9 +1080,22 @@ def _camera_facing(
     at least ``silhouette_margin_px`` inside its silhouette: the part that faces the camera,
     which edge fattening and the steep rim do not reach. Twice, since fattened points widen
     the first fit's silhouette. The model as it was when too few points remain."""
+    return _facing_passes(points, model, params, pixel_rad)[0]
+
+
+def _facing_passes(
+    points: np.ndarray,
+    model: SphereModel | CylinderModel,
+    params: CloudParams,
+    pixel_rad: float,
+    passes: int = 0,
+) -> tuple[SphereModel | CylinderModel, int]:
+    """_camera_facing's fit, and the refits it made counting the ``passes`` already made on
+    ``model`` (its margin still ``silhouette_margin_px``): two such passes resume with the
+    rim band's."""
     margin = params.silhouette_margin_px * pixel_rad
     if margin <= 0:
-        return model
+        return model, passes
     sphere = isinstance(model, SphereModel)
     solid: SphereSolid | CylinderSolid
     if sphere:
@@ -1091,7 +1104,6 @@ def _camera_facing(
         solid = CylinderSolid(point=model.center, axis=model.axis, radius=model.radius)
     need = max(10, len(points) // 8)
     band = params.rim_band_px * pixel_rad
-    passes = 0
     while True:
         residuals = solid.residuals(points)
         inside = solid.silhouette_distance(points)
@@ -1121,8 +1133,8 @@ def _camera_facing(
         solid = refit
         passes += 1
     if isinstance(solid, SphereSolid):
-        return SphereModel(solid.center, solid.radius)
-    return CylinderModel(solid.point, solid.axis, solid.radius)
+        return SphereModel(solid.center, solid.radius), passes
+    return CylinderModel(solid.point, solid.axis, solid.radius), passes
 
 
 def _round_facing(
@@ -1136,12 +1148,14 @@ def _round_facing(
     only where a window matcher made the frame and every rim has its background far behind
     (_far_rims), where the matcher pulls the rim toward the camera."""
     pixel_rad = 1.0 / intrinsics.fx
-    fixed = _camera_facing(points, model, replace(params, rim_band_px=0.0), pixel_rad)
-    if params.rim_band_px <= 0 or not _far_rims(depth, intrinsics, fixed, params):
+    fixed, passes = _facing_passes(points, model, replace(params, rim_band_px=0.0), pixel_rad)
+    # Fewer than two passes: the rim band's run would have stopped where this one did.
+    if params.rim_band_px <= 0 or passes < 2 or not _far_rims(depth, intrinsics, fixed, params):
         return fixed
     if not _window_matched(depth, intrinsics, params):
         return fixed
-    return _camera_facing(points, model, params, pixel_rad)
+    # The band's run makes the same two passes first: resume from them.
+    return _facing_passes(points, fixed, params, pixel_rad, passes)[0]
 
 
 def _far_rims(
