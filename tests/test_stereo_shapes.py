@@ -806,3 +806,22 @@ def test_a_jar_cap_whose_table_holds_runs_past_the_disc_is_scored_as_a_disc() ->
     assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
     error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
     assert abs(error) < 1.0, error
+
+
+def test_a_jar_cap_a_cylinder_lies_along_rests_on_the_plane_beside_it() -> None:
+    """SGBM 9 with half the smoothness and uniqueness 5 (the sweep's soft9), the jar cap from
+    the front, trial 0 frame 0: the support search found no plane, the disc's table search a
+    plane 11 degrees off the table on which the band stands 15 mm below it, and the free
+    cylinder won, 53 degrees off the truth's wrist angle (the bench's angle spread 20 degrees,
+    its limit 15). The planes beside the runs were searched only where no cylinder won; the
+    table among them holds the disc (0.78 of the runs): within a degree, 60 mm wide."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _setting_frame("soft9", "jar_cap", 0, 0, "front")
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 1.0, error
+    assert result.grasp_width_m is not None
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003, result.grasp_width_m
