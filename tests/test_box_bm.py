@@ -79,3 +79,31 @@ def test_hole_fattening_off_keeps_the_fattened_sides() -> None:
     blind = reconstruct_laser(fattened, LaserParams(hole_fattening_px=0.0), seed=0)
     assert blind.extra["fattening_px"] == 0.0
     assert _width_error_px(blind) > 3.0
+
+
+def test_a_far_side_compares_its_occluding_seeds_by_their_edges(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """BM (block 5), the upright box, trial 0 frame 0: a side with the room behind it holds a
+    seed of a whole window's share 3.7 mm beyond one of 0.38 of it, 2.65 mm between their
+    edges (each seed's own trim taken off), 3.2 mm apart allowed. Compared as they lay, the
+    farther was dropped, then the nearer, and the side went through a hole's seed 4 mm
+    inside: 7.4 mm narrow. Compared by their edges (``laser._beyond_seed``) both stay and
+    the side goes through their median: 1.2 mm narrow, the axis as it was."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception import laser
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(kind="bm", block_size=5))
+    (view,) = lv.views("functional", 1, 1, 0, names=["cuboid_upright"], sensor=sensor)
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    result = reconstruct_laser(lines, seed=view.seq)
+    monkeypatch.setattr(laser, "_beyond_seed", lambda seed, inner, far: seed[0] - inner[0])
+    before = reconstruct_laser(lines, seed=view.seq)
+    assert result.shape == before.shape == "cuboid"
+    assert abs(result.wrist_angle_rad - before.wrist_angle_rad) < 1e-9
+    truth = view.truth.grasp_width_m
+    assert before.grasp_width_m - truth < -0.007
+    assert abs(result.grasp_width_m - truth) < 0.0015
