@@ -685,23 +685,29 @@ def test_a_round_resting_on_a_support_behind_its_rims_keeps_its_fit_under_a_wind
     assert abs(error_mm) < 3.0, (error_mm, before_mm)
 
 
+def _disc_angle_error(view: View, result: Reconstruction) -> float:
+    """The wrist angle error in degrees of ``result``, which must be a disc lying flat (a
+    cylinder along the table's normal)."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    return float(error)
+
+
 def _jar_cap_front_disc(
     trial: int, frame: int, **matcher: object
 ) -> tuple[View, Reconstruction, float]:
     """The jar cap seen from the front on SGBM 7 (``matcher``: other settings), read as a disc
     lying flat (a cylinder along the table's normal): its view, result and wrist angle error
     in degrees."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
     view, result = _bench_frame(
         "jar_cap", trial, frame, suite="irregular", detail="front", kind="sgbm", block_size=7,
         **matcher,
     )  # fmt: skip
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
-    return view, result, float(error)
+    return view, result, _disc_angle_error(view, result)
 
 
 def test_a_jar_cap_whose_table_the_matcher_smeared_still_lies_flat_on_it() -> None:
@@ -798,13 +804,8 @@ def test_a_jar_cap_whose_table_holds_runs_past_the_disc_is_scored_as_a_disc() ->
     off the truth's wrist angle (the bench's angle spread 38.6 degrees, its limit 15). Scored
     as the disc is judged wherever the RANSAC circle makes no disc, a circle through three
     samples holds 0.61: within a degree."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
     view, result = _setting_frame("hh5", "jar_cap", 0, 0, "front")
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    error = _disc_angle_error(view, result)
     assert abs(error) < 1.0, error
 
 
@@ -815,13 +816,8 @@ def test_a_jar_cap_a_cylinder_lies_along_rests_on_the_plane_beside_it() -> None:
     cylinder won, 53 degrees off the truth's wrist angle (the bench's angle spread 20 degrees,
     its limit 15). The planes beside the runs were searched only where no cylinder won; the
     table among them holds the disc (0.78 of the runs): within a degree, 60 mm wide."""
-    from lpc_core.perception.reconstruction import wrap_half_turn
-
     view, result = _setting_frame("soft9", "jar_cap", 0, 0, "front")
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert "disc_axis" in result.extra
-    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
-    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    error = _disc_angle_error(view, result)
     assert abs(error) < 1.0, error
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003, result.grasp_width_m
