@@ -191,18 +191,16 @@ class Segments:
         out.valid, out.x, out.y = (a.take(idx, axis=0) for a in (self.valid, self.x, self.y))
         out.ox, out.oy = self.ox.take(idx, axis=0), self.oy.take(idx, axis=0)
         out.mean = [self.mean[r] for r in rows]
-        out._bases = {
-            k: v.take(idx, axis=0) for k, v in self._bases.items() if not k.startswith("offsets")
-        }
-        out._gathers = {}
+        out._bases = {k: v.take(idx, axis=0) for k, v in self._bases.items()}
+        out._gathers = {}  # offsets depend on the lines' count only: rebuilt on demand
         return out
 
     def offsets(self, count: int) -> np.ndarray:
         """Flat offsets of ``count`` rows, to gather ``(L, T, k)`` sample indices at once."""
-        key = f"offsets{count}"
-        found = self._bases.get(key)
+        key = ("rows", count)
+        found = self._gathers.get(key)
         if found is None:
-            found = self._bases[key] = (np.arange(count) * self.width)[:, None, None]
+            found = self._gathers[key] = (np.arange(count) * self.width)[:, None, None]
         return found
 
     def gather_offsets(self, name: str, count: int) -> np.ndarray:
