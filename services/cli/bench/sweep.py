@@ -167,36 +167,73 @@ SETTINGS: dict[str, Setting] = {
         rig={"electrons_per_dn": 4.0, "gain_dn": 260.0, "dot_sigma_px": 0.8},
         matcher={"disp12_max_diff": 2},
     ),
-    # Held out from every helper of stop 34: only the lead's before -> after runs on them.
-    "fresh-sparse": Setting(
-        "fresh",
+    # Held out from every helper of stop 34 (then its "fresh" group); studied from stop 35.
+    "sparse35": Setting(
+        "untuned",
         "SGBM 7, 0.035 dots/px² of uneven brightness, speckle window 50 and range 4",
         rig={"dot_density": 0.035, "dot_brightness": (0.3, 1.0), "pattern_seed": 5},
         matcher={"speckle_window": 50, "speckle_range": 4},
     ),
-    "fresh-bm5t": Setting(
-        "fresh",
+    "bm5-t30": Setting(
+        "untuned",
         "BM 5, texture threshold 30, uniqueness 8, optics 0.6 px, a sixth dot pattern",
         rig={"pattern_seed": 6, "blur_sigma_px": 0.6},
         matcher={"kind": "bm", "block_size": 5, "texture_threshold": 30, "uniqueness": 8},
     ),
-    "fresh-base40": Setting(
-        "fresh",
+    "base40": Setting(
+        "untuned",
         "SGBM 7, 40 mm baseline, projector off-centre, twice the room light",
         rig={"baseline_m": 0.04, "projector_x_m": 0.01, "ambient": 0.16},
     ),
-    "fresh-3way5": Setting(
-        "fresh",
+    "3way5-ss": Setting(
+        "untuned",
         "SGBM 5, 3-way mode, P1 and P2 x 2, IR 2x supersampled, read noise 1.5",
         rig={"supersample": 2, "read_noise_dn": 1.5},
         matcher={"block_size": 5, "sgbm_mode": "3way"},
         smoothness=(2.0, 2.0),
     ),
-    "fresh-hh9": Setting(
-        "fresh",
+    "hh9-nolr": Setting(
+        "untuned",
         "SGBM 9, HH mode, uniqueness 8, no left-right check, dots 0.5 px, albedo 0.5",
         rig={"dot_sigma_px": 0.5, "albedo": 0.5},
         matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 8, "disp12_max_diff": -1},
+    ),
+    # Held out from every helper of stop 35: only the lead's before -> after runs on them.
+    "fresh-bm7t": Setting(
+        "fresh",
+        "BM 7, uniqueness 12, texture threshold 20, prefilter cap 31, a seventh dot pattern",
+        rig={"pattern_seed": 7},
+        matcher={
+            "kind": "bm",
+            "block_size": 7,
+            "uniqueness": 12,
+            "texture_threshold": 20,
+            "pre_filter_cap": 31,
+        },
+    ),
+    "fresh-proj35": Setting(
+        "fresh",
+        "SGBM 7, projector 35 mm from the left imager, dots 0.7 px, three times the room light",
+        rig={"projector_x_m": 0.035, "dot_sigma_px": 0.7, "ambient": 0.24},
+    ),
+    "fresh-dense5": Setting(
+        "fresh",
+        "SGBM 5, 0.08 dots/px² of even brightness, uniqueness 15, speckle window 200, range 1",
+        rig={"dot_density": 0.08, "dot_brightness": (0.8, 1.0)},
+        matcher={"block_size": 5, "uniqueness": 15, "speckle_window": 200, "speckle_range": 1},
+    ),
+    "fresh-hh7": Setting(
+        "fresh",
+        "SGBM 7, HH mode, P1 / 2, P2 x 4, 1.7 times the shot noise, optics 0.8 px",
+        rig={"electrons_per_dn": 6.0, "blur_sigma_px": 0.8},
+        matcher={"sgbm_mode": "hh"},
+        smoothness=(0.5, 4.0),
+    ),
+    "fresh-3way9": Setting(
+        "fresh",
+        "SGBM 9, 3-way mode, albedo 0.4, read noise 2, an eighth dot pattern, texture check 8",
+        rig={"albedo": 0.4, "read_noise_dn": 2.0, "pattern_seed": 8},
+        matcher={"block_size": 9, "sgbm_mode": "3way", "min_texture": 8.0},
     ),
 }
 
