@@ -139,6 +139,11 @@ def json_schema(message_type: type[Message]) -> dict[str, Any]:
 Check = Callable[[Any], bool]
 
 
+def _finite_float(v: Any) -> bool:
+    """A float field's check (one function: a struct's check tests such fields inline)."""
+    return not isinstance(v, float) or math.isfinite(v)
+
+
 @functools.cache
 def _finite_check(message_type: type) -> Check:
     """A check that every float in a message of ``message_type`` is finite, built once per type
@@ -152,10 +157,12 @@ def _check_of(t: msgspec.inspect.Type) -> Check | None:
     values of other types, so a union's checks can all run on its value."""
     mi = msgspec.inspect
     if isinstance(t, mi.FloatType):
-        return lambda v: not isinstance(v, float) or math.isfinite(v)
+        return _finite_float
     if isinstance(t, mi.UnionType):
         parts = [c for c in map(_check_of, t.types) if c is not None]
-        return (lambda v: all(c(v) for c in parts)) if parts else None
+        if not parts:
+            return None
+        return parts[0] if len(parts) == 1 else _all_of(parts)
     if isinstance(t, mi.ListType | mi.VarTupleType | mi.SetType | mi.FrozenSetType):
         if isinstance(t.item_type, mi.FloatType):
             return lambda v: not isinstance(v, list | tuple) or all(map(math.isfinite, v))
@@ -181,17 +188,48 @@ def _check_of(t: msgspec.inspect.Type) -> Check | None:
         )
     if isinstance(t, mi.StructType):
         fields = [(f.name, c) for f in t.fields if (c := _check_of(f.type)) is not None]
-        cls = t.cls
-        return (
-            (lambda v: not isinstance(v, cls) or all(c(getattr(v, n)) for n, c in fields))
-            if fields
-            else None
-        )
+        return _struct_check(t.cls, fields) if fields else None
     if isinstance(t, mi.IntType | mi.StrType | mi.BytesType | mi.BoolType | mi.NoneType):
         return None
     if isinstance(t, mi.LiteralType | mi.EnumType):
         return None
     return lambda v: _first_non_finite(v) is None  # anything else: the generic walk
+
+
+def _all_of(parts: list[Check]) -> Check:
+    """A union's check: every part's, in a loop (as ``_struct_check``)."""
+
+    def check(v: Any) -> bool:
+        for part in parts:  # noqa: SIM110 - all() over a generator is the cost saved
+            if not part(v):
+                return False
+        return True
+
+    return check
+
+
+def _struct_check(cls: type, fields: list[tuple[str, Check]]) -> Check:
+    """A struct's check: loops, not ``all`` over a generator, whose frame and a call per field
+    cost more than the tests (a reconstruction 14.8 -> 5.9 us, scan lines 10.2 -> 2.4 us; the
+    same booleans on every recorded message with a NaN or an infinity put in a float of it).
+    Plain float fields are tested inline, the rest through their own checks."""
+    floats = tuple(n for n, c in fields if c is _finite_float)
+    others = tuple((n, c) for n, c in fields if c is not _finite_float)
+    isfinite = math.isfinite
+
+    def check(v: Any) -> bool:
+        if not isinstance(v, cls):
+            return True
+        for name in floats:
+            x = getattr(v, name)
+            if isinstance(x, float) and not isfinite(x):
+                return False
+        for name, field_check in others:  # noqa: SIM110 - as above
+            if not field_check(getattr(v, name)):
+                return False
+        return True
+
+    return check
 
 
 def _first_non_finite(value: Any, path: str = "") -> str | None:

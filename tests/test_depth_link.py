@@ -4,6 +4,7 @@ stream, and bytes that are not a record are skipped and reported once per run.""
 from __future__ import annotations
 
 import struct
+import tracemalloc
 
 import numpy as np
 
@@ -68,3 +69,22 @@ def test_depth_link_a_truncated_record_is_reported_at_the_end() -> None:
     assert parser.pending == len(record) - 5
     assert parser.flush() == Rejected(len(record) - 5, "a truncated record")
     assert parser.pending == 0
+
+
+def test_depth_link_whole_records_are_decoded_where_they_lie() -> None:
+    # A 200 KB frame arriving in one piece is decoded from the piece, not copied into the
+    # parser's buffer first: one copy of the depth (the decoded frame's), not two.
+    depth = np.arange(240 * 424, dtype=np.uint16).reshape(240, 424)
+    frame = DeviceFrame(seq=5, t_ns=1, depth=to_wire(depth))
+    record = encode(frame)
+    piece = memoryview(bytearray(record + encode(_frame(6))[:10]))  # and a partial record
+    parser = LinkParser()
+    tracemalloc.start()
+    try:
+        out = parser.feed(piece)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert out == [frame]
+    assert parser.pending == 10
+    assert peak < 1.2 * len(record), peak  # main: 2.0 (buffer and frame)

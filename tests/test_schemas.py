@@ -117,6 +117,55 @@ def test_decode_rejects_non_finite(bad: float) -> None:
         decode("lpc/emg", payload)
 
 
+def _floats_poisoned(value: object, bad: float) -> list[object]:
+    """Copies of ``value``, one for each float in it, with that float set to ``bad``."""
+    if isinstance(value, float):
+        return [bad]
+    out: list[object] = []
+    if isinstance(value, msgspec.Struct):
+        for name in value.__struct_fields__:
+            for item in _floats_poisoned(getattr(value, name), bad):
+                out.append(msgspec.structs.replace(value, **{name: item}))
+    elif isinstance(value, list | tuple):
+        for i, element in enumerate(value):
+            for item in _floats_poisoned(element, bad):
+                out.append(type(value)([*value[:i], item, *value[i + 1 :]]))
+    elif isinstance(value, dict):
+        for k, element in value.items():
+            out += [{**value, k: item} for item in _floats_poisoned(element, bad)]
+    return out
+
+
+@pytest.mark.parametrize("key", sorted(EXAMPLES))
+def test_finite_check_finds_every_float(key: str) -> None:
+    # The check built per type agrees with the generic walk wherever a float sits.
+    from schemas.registry import _finite_check, _first_non_finite
+
+    message = EXAMPLES[key]
+    check = _finite_check(type(message))
+    assert check(message)
+    poisoned = [
+        p for bad in (math.nan, math.inf, -math.inf) for p in _floats_poisoned(message, bad)
+    ]
+    assert len(poisoned) == 3 * len(_floats_poisoned(message, 0.0))
+    for p in poisoned:
+        assert _first_non_finite(p) is not None
+        assert not check(p)
+
+
+def test_finite_check_reaches_floats_in_lists_and_optional_fields() -> None:
+    from schemas.registry import _finite_check
+
+    rich = msgspec.structs.replace(
+        EXAMPLES["lpc/reconstruction"], center_m=[0.0, 0.01, 0.2], axis=[0.0, 1.0, 0.0]
+    )
+    check = _finite_check(Reconstruction)
+    assert check(rich)
+    poisoned = _floats_poisoned(rich, math.nan)
+    assert len(poisoned) == 2 + 3 + 3 + 2  # width, angle, centre, axis, confidence, compute_ms
+    assert not any(check(p) for p in poisoned)
+
+
 def test_decode_rejects_oversized_payload() -> None:
     with pytest.raises(BadMessage, match="exceeds"):
         decode("lpc/emg", b"\x00" * (64 * 1024 + 1))

@@ -1,28 +1,8 @@
-"""Step-function state is immutable: ``evolve`` makes the changed copy."""
+"""Step-function state is immutable: ``evolve`` (``lpc_core.perception.state``, the lowest
+layer, whose steps use it too) makes the changed copy."""
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from lpc_core.perception.state import evolve
 
-T = TypeVar("T")
-_set_attribute = object.__setattr__
-
-
-def evolve(record: T, **changes: Any) -> T:
-    """A copy of the frozen dataclass ``record`` with ``changes`` applied.
-
-    ``dataclasses.replace`` without re-running ``__init__`` and ``__post_init__``: those check
-    parameters, and a state update never needs them, while a controller step makes several
-    copies (``dataclasses.replace`` took ~10 us each, a third of the controller's time in a
-    replay). Parameters still change through ``dataclasses.replace``, which checks them.
-    """
-    fields = record.__dict__
-    values = fields.copy()
-    values.update(changes)
-    # An unknown name adds a key: the length tells, without a set difference on every copy.
-    if len(values) != len(fields):
-        unknown = changes.keys() - fields.keys()
-        raise TypeError(f"{type(record).__name__} has no field(s) {sorted(unknown)}")
-    copy = object.__new__(type(record))
-    _set_attribute(copy, "__dict__", values)  # a frozen dataclass refuses plain assignment
-    return copy
+__all__ = ["evolve"]

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Generic, TypeVar
 
@@ -33,6 +33,7 @@ from lpc_core.perception.laser import LaserParams, reconstruct_laser
 from lpc_core.perception.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
 from lpc_core.perception.reconstruction import Reconstruction as CoreReconstruction
 from lpc_core.perception.scans import ScanLines as CoreScanLines
+from lpc_core.perception.state import evolve
 from lpc_core.perception.window import WindowParams, WindowResult, WindowState, window_step
 from schemas import (
     DepthFrame,
@@ -245,7 +246,7 @@ def release_step(
 ) -> tuple[ReconstructState, list[Reconstruction | GraspTarget]]:
     """A frame's reconstruction, made here or by a worker process, through the window."""
     window, target = window_message(state.window, message)
-    return replace(state, window=window), [message, target]
+    return evolve(state, window=window), [message, target]
 
 
 def reconstruct(state: ReconstructState, message: ScanLines | DepthFrame) -> Reconstruction:
@@ -333,7 +334,7 @@ Output = Submit[Any] | Release | Dropped
 def frame_arrived(state: PoolState, seq: int, job: Any) -> tuple[PoolState, list[Output]]:
     """A frame arrives: run it, let it wait, or drop the oldest waiting frame for it."""
     if seq <= state.last_seq:
-        return replace(state, dropped=state.dropped + 1), [Dropped(seq, "out of order")]
+        return evolve(state, dropped=state.dropped + 1), [Dropped(seq, "out of order")]
     outputs: list[Output] = []
     running, pending, waiting = state.running, state.pending, (*state.waiting, seq)
     dropped = state.dropped
@@ -347,7 +348,7 @@ def frame_arrived(state: PoolState, seq: int, job: Any) -> tuple[PoolState, list
             waiting = tuple(s for s in waiting if s != old)
             dropped += 1
             outputs.append(Dropped(old, "the pool fell behind"))
-    state = replace(
+    state = evolve(
         state, running=running, pending=pending, waiting=waiting, last_seq=seq, dropped=dropped
     )
     # Dropping a waiting frame may unblock results that were held behind it.
@@ -366,7 +367,7 @@ def frame_done(state: PoolState, seq: int, result: Any) -> tuple[PoolState, list
         (next_seq, job), pending = pending[0], pending[1:]
         running = running | {next_seq}
         outputs.append(Submit(next_seq, job))
-    return _release(replace(state, running=running, pending=pending, done=done), outputs)
+    return _release(evolve(state, running=running, pending=pending, done=done), outputs)
 
 
 def _release(state: PoolState, outputs: list[Output]) -> tuple[PoolState, list[Output]]:
@@ -374,7 +375,7 @@ def _release(state: PoolState, outputs: list[Output]) -> tuple[PoolState, list[O
     while waiting and waiting[0] in done:
         seq, waiting = waiting[0], waiting[1:]
         outputs.append(Release(seq, done.pop(seq)))
-    return replace(state, waiting=waiting, done=MappingProxyType(done)), outputs
+    return evolve(state, waiting=waiting, done=MappingProxyType(done)), outputs
 
 
 __all__ = [

@@ -41,9 +41,10 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from lpc_core.perception.state import evolve
 from schemas import Health
 
 # A frame passes when the credit reaches this: frames a little early (jitter) are not shed.
@@ -156,15 +157,15 @@ def _frame(state: ShedState, now_ns: int) -> tuple[ShedState, Gate | RateChange 
         since = max(state.last_increase_ns, state.last_report_ns + p.stale_ns)
         state = _increase(state, since, now_ns)
     if not state.shedding:
-        return replace(state, credit=1.0, last_frame_ns=now_ns), Gate.PUBLISH
+        return evolve(state, credit=1.0, last_frame_ns=now_ns), Gate.PUBLISH
     elapsed_ns = 0 if state.last_frame_ns is None else max(0, now_ns - state.last_frame_ns)
     # Capped at one frame and one camera period's share (no burst after a pause): capping at
     # one frame lost the remainder of every passed frame, which kept 90/k Hz of a 90 Hz camera
     # (30 Hz for any rate in 28.5-42.7 Hz, 18 Hz in 17.1-21.3 Hz).
     credit = min(state.credit + state.rate * elapsed_ns / 1e9, 1.0 + state.rate / p.max_rate_hz)
     if credit >= _CREDIT_TO_PASS:
-        return replace(state, credit=credit - 1.0, last_frame_ns=now_ns), Gate.PUBLISH
-    state = replace(state, credit=credit, last_frame_ns=now_ns, shed_frames=state.shed_frames + 1)
+        return evolve(state, credit=credit - 1.0, last_frame_ns=now_ns), Gate.PUBLISH
+    state = evolve(state, credit=credit, last_frame_ns=now_ns, shed_frames=state.shed_frames + 1)
     return state, Gate.SHED
 
 
@@ -181,7 +182,7 @@ def _report(
     fraction = 0.0 if fresh else (late - previous.late_ticks) / (ticks - previous.ticks)
     reports = dict(state.reports)
     reports[health.service] = TickCount(ticks, late, now_ns, fraction > p.late_above)
-    state = replace(state, reports=MappingProxyType(reports), last_report_ns=now_ns)
+    state = evolve(state, reports=MappingProxyType(reports), last_report_ns=now_ns)
     if previous is None or fresh:
         return state, None  # the first report, or the service restarted: a new baseline
     before = state.rate
@@ -190,11 +191,11 @@ def _report(
             # One late window alone, or one that saw the rate before the last decrease.
             return state, None
         rate = max(p.min_rate_hz, before * p.decrease)
-        state = replace(state, rate_hz=rate, last_decrease_ns=now_ns, last_increase_ns=now_ns)
+        state = evolve(state, rate_hz=rate, last_decrease_ns=now_ns, last_increase_ns=now_ns)
     elif fraction < p.clean_below:
         state = _increase(state, max(state.last_increase_ns, previous.seen_ns), now_ns)
     else:
-        state = replace(state, last_increase_ns=now_ns)  # hold
+        state = evolve(state, last_increase_ns=now_ns)  # hold
     if state.rate == before:
         return state, None
     return state, RateChange(before, state.rate, fraction, health.service)
@@ -205,4 +206,4 @@ def _increase(state: ShedState, since_ns: int, now_ns: int) -> ShedState:
     seconds = min(max(0, now_ns - since_ns) / 1e9, 2.0)  # no leap after a long silence
     step_hz = max(p.increase_hz_per_s, p.increase_share_per_s * state.rate)
     rate = min(p.max_rate_hz, state.rate + step_hz * seconds)
-    return replace(state, rate_hz=rate, last_increase_ns=now_ns)
+    return evolve(state, rate_hz=rate, last_increase_ns=now_ns)
