@@ -69,7 +69,10 @@ class ScanLines:
     ``capture_count`` is the number of valid points in the whole capture volume (what the
     full-cloud method would see), or -1 when not counted. ``past_ends_m`` (L, 2): per line,
     the depth the image holds just past its first and last point (``past_line_ends``), 0
-    where it holds none (as in a depth image); None when not measured.
+    where it holds none (as in a depth image); None when not measured. ``far_past_m`` (L, 2,
+    3): per line, the point of the first pixel past its first and last point whose depth
+    lies beyond the capture volume (``far_past_ends``), zeros where none does within
+    ``_FAR_STEPS_PX``; None when not measured.
     """
 
     angles_rad: np.ndarray
@@ -78,6 +81,7 @@ class ScanLines:
     min_points: int = 10
     capture_count: int = -1
     past_ends_m: np.ndarray | None = None
+    far_past_m: np.ndarray | None = None
 
     def plane_coords(self, i: int) -> np.ndarray:
         """(N_i, 2) in-plane coordinates (s, z) of line ``i``."""
@@ -232,6 +236,9 @@ class _Geometry:
     angles_rad: np.ndarray  # read-only, shared by every ScanLines of this geometry
     d_row: np.ndarray  # _past_offsets of the angles
     d_col: np.ndarray
+    far_row: np.ndarray  # _past_offsets of the angles at _FAR_STEPS_PX
+    far_col: np.ndarray
+    rays: tuple[np.ndarray, np.ndarray]  # Intrinsics.pixel_rays
 
 
 @lru_cache(maxsize=16)
@@ -239,9 +246,11 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     angles = params.angles_rad
     angles.setflags(write=False)
     d_row, d_col = _past_offsets(intrinsics, tuple(angles.tolist()))
+    far_row, far_col = _past_offsets(intrinsics, tuple(angles.tolist()), far=True)
     return _Geometry(
-        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col
-    )
+        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col,
+        far_row, far_col, intrinsics.pixel_rays(),
+    )  # fmt: skip
 
 
 def _check_depth(depth: object, intrinsics: Intrinsics) -> np.ndarray:
@@ -288,6 +297,7 @@ def cut_scan_lines(
     bounds = [0, *itertools.accumulate(counts)]
     pixels = tab.flat_index[keep]
     past = _past_ends(depth, intrinsics, geometry.d_row, geometry.d_col, pixels, bounds)
+    far = _far_past_ends(depth, intrinsics, geometry, pixels, bounds, params.z_limits_m[1])
     capture_count = -1
     if count_capture:
         win = geometry.window
@@ -303,6 +313,7 @@ def cut_scan_lines(
         min_points=params.min_points,
         capture_count=capture_count,
         past_ends_m=past,
+        far_past_m=far,
     )
 
 
@@ -310,6 +321,10 @@ def cut_scan_lines(
 # window's fattened band, 30 px past the hole an occlusion or the projector's shadow leaves
 # (as the full-cloud method's cloud._far_behind reads the background past a face's side).
 _PAST_STEPS_PX = np.arange(8.0, 31.0, 2.0)
+# Pixels past a line's end walked one at a time for the first that shows the background
+# beyond the capture volume: past a 9 x 9 window's fattened band and the widest hole an
+# occlusion left beside a round on the stereo sweep (4-35 px).
+_FAR_STEPS_PX = np.arange(1.0, 41.0)
 
 
 def past_line_ends(
@@ -375,19 +390,62 @@ def _past_ends(
     return out
 
 
+def _far_past_ends(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    geometry: _Geometry,
+    pixels: np.ndarray,
+    bounds: list[int],
+    far_m: float,
+) -> np.ndarray:
+    """(L, 2, 3): per line, the point of the first pixel within ``_FAR_STEPS_PX`` past its
+    first and last point along it whose depth lies beyond ``far_m`` (the capture volume's
+    far limit), zeros where none does (or the line has no point).
+
+    The lines hold every pixel of the capture volume along them, so this is the first
+    background seen past a line's end beyond what the line holds: an object's silhouette
+    lies between the line's last sample on it and that pixel (a matcher fattens an edge
+    outward over the background, or leaves a hole beside it, and does not carry the far
+    background's depth onto the object)."""
+    count = len(bounds) - 1
+    out = np.zeros((count, 2, 3))
+    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    if not filled:
+        return out
+    width, height = intrinsics.width, intrinsics.height
+    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
+    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
+    row, col = np.divmod(ends, width)
+    r, c = row[:, None] + geometry.far_row[lines], col[:, None] + geometry.far_col[lines]
+    inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+    r, c = np.where(inside, r, 0), np.where(inside, c, 0)
+    z = np.where(inside, depth[r, c], 0) * intrinsics.depth_scale
+    beyond = z > far_m
+    found = beyond.any(axis=1)
+    first = beyond.argmax(axis=1)
+    k = np.arange(len(ends))
+    rr, cc, zz = r[k, first], c[k, first], z[k, first]
+    xs, ys = geometry.rays
+    points = np.stack([zz * xs[rr, cc], zz * ys[rr, cc], zz], axis=1) * found[:, None]
+    out[filled] = points.reshape(-1, 2, 3)
+    return out
+
+
 @lru_cache(maxsize=16)
 def _past_offsets(
-    intrinsics: Intrinsics, angles_rad: tuple[float, ...]
+    intrinsics: Intrinsics, angles_rad: tuple[float, ...], far: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """(2L, steps) row and column offsets of the pixels past each line's first end (row 2i,
-    walking back along the line) and last end (row 2i + 1, walking on)."""
+    walking back along the line) and last end (row 2i + 1, walking on): ``_PAST_STEPS_PX``
+    past it, or ``_FAR_STEPS_PX`` where ``far``."""
+    steps = _FAR_STEPS_PX if far else _PAST_STEPS_PX
     angles = np.asarray(angles_rad, dtype=np.float64)
     du, dv = intrinsics.fx * np.cos(angles), intrinsics.fy * np.sin(angles)
     norm = np.hypot(du, dv)
     sign = np.tile([-1.0, 1.0], len(angles))
     du, dv = np.repeat(du / norm, 2) * sign, np.repeat(dv / norm, 2) * sign
-    d_row = np.rint(dv[:, None] * _PAST_STEPS_PX).astype(np.int64)
-    d_col = np.rint(du[:, None] * _PAST_STEPS_PX).astype(np.int64)
+    d_row = np.rint(dv[:, None] * steps).astype(np.int64)
+    d_col = np.rint(du[:, None] * steps).astype(np.int64)
     d_row.setflags(write=False)
     d_col.setflags(write=False)
     return d_row, d_col
