@@ -238,7 +238,8 @@ class _Geometry:
     d_col: np.ndarray
     far_row: np.ndarray  # _past_offsets of the angles at _FAR_STEPS_PX
     far_col: np.ndarray
-    rays: tuple[np.ndarray, np.ndarray]  # Intrinsics.pixel_rays
+    far_flat: np.ndarray  # the same as flat pixel offsets
+    far_units: int  # the deepest depth (units) inside the capture volume's far limit
 
 
 @lru_cache(maxsize=16)
@@ -247,9 +248,17 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     angles.setflags(write=False)
     d_row, d_col = _past_offsets(intrinsics, tuple(angles.tolist()))
     far_row, far_col = _past_offsets(intrinsics, tuple(angles.tolist()), far=True)
+    far_flat = far_row * intrinsics.width + far_col
+    far_flat.setflags(write=False)
+    # In units, as the depth image holds it: z = units * depth_scale lies beyond the far limit
+    # exactly where units exceed this.
+    scale, far_m = intrinsics.depth_scale, params.z_limits_m[1]
+    far_units = math.floor(far_m / scale)
+    far_units += (far_units + 1) * scale <= far_m
+    far_units -= far_units * scale > far_m
     return _Geometry(
         _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col,
-        far_row, far_col, intrinsics.pixel_rays(),
+        far_row, far_col, far_flat, int(far_units),
     )  # fmt: skip
 
 
@@ -297,7 +306,7 @@ def cut_scan_lines(
     bounds = [0, *itertools.accumulate(counts)]
     pixels = tab.flat_index[keep]
     past = _past_ends(depth, intrinsics, geometry.d_row, geometry.d_col, pixels, bounds)
-    far = _far_past_ends(depth, intrinsics, geometry, pixels, bounds, params.z_limits_m[1])
+    far = _far_past_ends(depth, intrinsics, geometry, pixels, bounds)
     capture_count = -1
     if count_capture:
         win = geometry.window
@@ -396,11 +405,10 @@ def _far_past_ends(
     geometry: _Geometry,
     pixels: np.ndarray,
     bounds: list[int],
-    far_m: float,
 ) -> np.ndarray:
     """(L, 2, 3): per line, the point of the first pixel within ``_FAR_STEPS_PX`` past its
-    first and last point along it whose depth lies beyond ``far_m`` (the capture volume's
-    far limit), zeros where none does (or the line has no point).
+    first and last point along it whose depth lies beyond the capture volume's far limit
+    (``geometry.far_units``), zeros where none does (or the line has no point).
 
     The lines hold every pixel of the capture volume along them, so this is the first
     background seen past a line's end beyond what the line holds: an object's silhouette
@@ -415,19 +423,28 @@ def _far_past_ends(
     width, height = intrinsics.width, intrinsics.height
     ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
     lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
-    row, col = np.divmod(ends, width)
-    r, c = row[:, None] + geometry.far_row[lines], col[:, None] + geometry.far_col[lines]
-    inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-    r, c = np.where(inside, r, 0), np.where(inside, c, 0)
-    z = np.where(inside, depth[r, c], 0) * intrinsics.depth_scale
-    beyond = z > far_m
-    found = beyond.any(axis=1)
-    first = beyond.argmax(axis=1)
-    k = np.arange(len(ends))
-    rr, cc, zz = r[k, first], c[k, first], z[k, first]
-    xs, ys = geometry.rays
-    points = np.stack([zz * xs[rr, cc], zz * ys[rr, cc], zz], axis=1) * found[:, None]
-    out[filled] = points.reshape(-1, 2, 3)
+    offsets = geometry.far_flat if len(filled) == count else geometry.far_flat[lines]
+    flat = ends[:, None] + offsets
+    reach = int(_FAR_STEPS_PX[-1]) + 1
+    if all(
+        reach <= r < height - reach and reach <= c < width - reach
+        for r, c in (divmod(e, width) for e in ends.tolist())
+    ):
+        values = depth.reshape(-1)[flat]
+    else:
+        row, col = np.divmod(ends, width)
+        r, c = row[:, None] + geometry.far_row[lines], col[:, None] + geometry.far_col[lines]
+        inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+        values = np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0)
+    beyond = values > geometry.far_units
+    # A handful of ends: their points in Python floats (numpy's per-call cost dominates).
+    fx, fy, ppx, ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
+    rows = out.reshape(-1, 3)
+    for k in np.flatnonzero(beyond.any(axis=1)).tolist():
+        step = int(beyond[k].argmax())
+        r, c = divmod(int(flat[k, step]), width)
+        z = float(values[k, step]) * intrinsics.depth_scale
+        rows[2 * filled[k // 2] + k % 2] = (z * (c - ppx) / fx, z * (r - ppy) / fy, z)
     return out
 
 
