@@ -330,6 +330,7 @@ def cut_scan_lines(
 # window's fattened band, 30 px past the hole an occlusion or the projector's shadow leaves
 # (as the full-cloud method's cloud._far_behind reads the background past a face's side).
 _PAST_STEPS_PX = np.arange(8.0, 31.0, 2.0)
+_NO_INDICES = np.zeros((0, 0), dtype=np.int64)
 # Pixels past a line's end walked one at a time for the first that shows the background
 # beyond the capture volume: past a 9 x 9 window's fattened band and the widest hole an
 # occlusion left beside a round on the stereo sweep (4-35 px).
@@ -357,6 +358,44 @@ def past_line_ends(
     return _past_ends(depth, intrinsics, d_row, d_col, pixels, bounds)
 
 
+def _pixels_past_ends(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    d_row: np.ndarray,
+    d_col: np.ndarray,
+    d_flat: np.ndarray | None,
+    pixels: np.ndarray,
+    bounds: list[int],
+    reach: int,
+) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """The lines with a point, and past each of their two ends (rows in ``_past_offsets``'
+    order) the flat indices of the pixels at the offsets ``d_row``, ``d_col`` (``d_flat``:
+    the same as flat offsets, where given; ``reach`` the largest) and their depth units, 0
+    outside the image."""
+    count = len(bounds) - 1
+    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    if not filled:
+        return filled, _NO_INDICES, _NO_INDICES
+    width, height = intrinsics.width, intrinsics.height
+    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
+    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
+    if d_flat is None:
+        offsets = d_row[lines] * width + d_col[lines]
+    else:
+        offsets = d_flat if len(filled) == count else d_flat[lines]
+    flat = ends[:, None] + offsets
+    # A handful of ends: Python ints for the bounds check, numpy only for the gather.
+    if all(
+        reach <= r < height - reach and reach <= c < width - reach
+        for r, c in (divmod(e, width) for e in ends.tolist())
+    ):
+        return filled, flat, depth.reshape(-1)[flat]
+    row, col = np.divmod(ends, width)
+    r, c = row[:, None] + d_row[lines], col[:, None] + d_col[lines]
+    inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+    return filled, flat, np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0)
+
+
 def _past_ends(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -368,28 +407,14 @@ def _past_ends(
     """``past_line_ends`` with the lines' pixel offsets (``_past_offsets``) given."""
     count = len(bounds) - 1
     out = np.zeros((count, 2))
-    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    filled, _, values = _pixels_past_ends(
+        depth, intrinsics, d_row, d_col, None, pixels, bounds, int(_PAST_STEPS_PX[-1]) + 1
+    )
     if not filled:
         return out
-    width, height = intrinsics.width, intrinsics.height
-    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
-    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
-    flat = ends[:, None] + (d_row[lines] * width + d_col[lines])
-    # A handful of ends: Python ints for the bounds check, numpy only for the gather.
-    reach = int(_PAST_STEPS_PX[-1]) + 1
-    if all(
-        reach <= r < height - reach and reach <= c < width - reach
-        for r, c in (divmod(e, width) for e in ends.tolist())
-    ):
-        values = depth.reshape(-1)[flat].tolist()
-    else:
-        row, col = np.divmod(ends, width)
-        r, c = row[:, None] + d_row[lines], col[:, None] + d_col[lines]
-        inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-        values = np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0).tolist()
     scale = intrinsics.depth_scale
     medians = []
-    for row_values in values:
+    for row_values in values.tolist():
         # filter(None, ...) drops the 0s (no depth) in C, where a generator ran Python per
         # value: 8 ends of 12 pixels a frame.
         valid = sorted(filter(None, row_values))
@@ -417,25 +442,13 @@ def _far_past_ends(
     background's depth onto the object)."""
     count = len(bounds) - 1
     out = np.zeros((count, 2, 3))
-    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    filled, flat, values = _pixels_past_ends(
+        depth, intrinsics, geometry.far_row, geometry.far_col, geometry.far_flat, pixels, bounds,
+        int(_FAR_STEPS_PX[-1]) + 1,
+    )  # fmt: skip
     if not filled:
         return out
-    width, height = intrinsics.width, intrinsics.height
-    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
-    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
-    offsets = geometry.far_flat if len(filled) == count else geometry.far_flat[lines]
-    flat = ends[:, None] + offsets
-    reach = int(_FAR_STEPS_PX[-1]) + 1
-    if all(
-        reach <= r < height - reach and reach <= c < width - reach
-        for r, c in (divmod(e, width) for e in ends.tolist())
-    ):
-        values = depth.reshape(-1)[flat]
-    else:
-        row, col = np.divmod(ends, width)
-        r, c = row[:, None] + geometry.far_row[lines], col[:, None] + geometry.far_col[lines]
-        inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-        values = np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0)
+    width = intrinsics.width
     beyond = values > geometry.far_units
     # A handful of ends: their points in Python floats (numpy's per-call cost dominates).
     fx, fy, ppx, ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
