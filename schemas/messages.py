@@ -79,12 +79,16 @@ class ScanLine(Struct, frozen=True, kw_only=True):
 
     ``past_ends_m``: the median depth (metres) of the image 8-30 px past the line's first and
     last point along it (two floats), 0 where no pixel there has depth; None where not
-    measured (scans recorded before it was).
+    measured (scans recorded before it was). ``far_past_m``: the point (metres, camera frame)
+    of the first pixel past the line's first and last point along it whose depth lies beyond
+    the capture volume (six floats: the first end's x, y, z, then the last end's), zeros
+    where none does; None where not measured.
     """
 
     angle_deg: float
     points: NDArray
     past_ends_m: list[float] | None = None
+    far_past_m: list[float] | None = None
 
 
 class ScanLines(Message, frozen=True, kw_only=True, tag="scans"):

@@ -243,9 +243,10 @@ def test_scan_lines_from_message_reads_float32_lines_as_each_line_alone() -> Non
 
 
 def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_it() -> None:
-    """The scans step sends each line's depth past its ends (the 40 mm ball before the wall
-    at 0.26 m: the wall past every end); scans recorded before the field existed decode with
-    none, and their scan lines carry none."""
+    """The scans step sends each line's depth past its ends and the first pixel there that
+    shows the background beyond the capture volume (the 40 mm ball before the wall at 0.26
+    m: the wall past every end); scans recorded before the fields existed decode with none,
+    and their scan lines carry none."""
     frame = _depth_frame(3, "ball")
     scans = scans_step(ScansState(), frame, 0)[1]
     decoded = decode("lpc/scans", encode(scans))
@@ -253,6 +254,10 @@ def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_i
     past = scan_lines_from_message(decoded).past_ends_m
     assert past is not None and past.shape == (4, 2)
     assert np.allclose(past, 0.26, atol=0.003), past
+    # And the first pixel past each end that shows the wall beyond the capture volume.
+    far = scan_lines_from_message(decoded).far_past_m
+    assert far is not None and far.shape == (4, 2, 3)
+    assert np.allclose(far[:, :, 2], 0.26, atol=0.003), far
 
     class OldScanLine(msgspec.Struct, frozen=True, kw_only=True):
         angle_deg: float
@@ -277,7 +282,7 @@ def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_i
     from_old = decode("lpc/scans", msgspec.msgpack.encode(old))
     assert all(ln.past_ends_m is None for ln in from_old.lines)
     lines = scan_lines_from_message(from_old)
-    assert lines.past_ends_m is None
+    assert lines.past_ends_m is None and lines.far_past_m is None
     assert [p.tolist() for p in lines.points] == [
         p.tolist() for p in scan_lines_from_message(decoded).points
     ]

@@ -240,3 +240,23 @@ def test_residual_correlation_skips_steps_and_short_lines() -> None:
     assert residual_correlation(np.zeros(1), _slanted_line(step)) == 0.0
     assert residual_correlation(np.zeros(1), _slanted_line(np.zeros(19))) == 0.0
     assert residual_correlation(np.zeros(1), (np.empty((0, 3)),)) == 0.0
+
+
+def test_cut_finds_the_first_background_pixel_past_each_line_end() -> None:
+    # The 30 mm ball at 200 mm before a wall at 0.40 m: past every line's end the first pixel
+    # beyond the capture volume is the wall's, just outside the ball's silhouette (its ray
+    # within a pixel of the grazing ray, outside it).
+    scene = Scene(_ball(0.03).objects, _wall(0.40).support)
+    lines = cut_scan_lines(_render(scene), INTR)
+    far = lines.far_past_m
+    assert far is not None and far.shape == (4, 2, 3)
+    assert np.allclose(far[:, :, 2], 0.40, atol=0.0011), far
+    # The angle off the ball's centre (on the optical axis, 0.2 m away) of each point.
+    off = np.degrees(np.arctan2(np.hypot(far[:, :, 0], far[:, :, 1]), far[:, :, 2]))
+    grazing = math.degrees(math.asin(0.03 / 0.2))
+    pixel = math.degrees(1 / INTR.fx)
+    assert (off > grazing).all() and (off < grazing + pixel).all(), (off, grazing)
+    # Nothing behind the ball, or a wall inside the capture volume (on the lines
+    # themselves): no pixel past the ends shows the far background.
+    for scene in (_ball(0.03), Scene(_ball(0.03).objects, _wall(0.23).support)):
+        assert np.array_equal(cut_scan_lines(_render(scene), INTR).far_past_m, np.zeros((4, 2, 3)))

@@ -2791,6 +2791,10 @@ def _decide(
             if bound is not None and bound < 2 * solid.radius:
                 extra["silhouette_width_mm"] = 1000 * bound
                 solid = replace(solid, radius=bound / 2)
+            background = _background_bound(lines, solid, full, params, pixel_rad, scan_lines)
+            if background is not None:
+                extra["background_width_mm"] = 1000 * background
+                solid = replace(solid, radius=background / 2)
         axis = _canonical_axis(solid.axis)
         return Reconstruction(
             shape="cylinder",
@@ -3655,6 +3659,72 @@ def _silhouette_bound(
     if not _occluding_rims(lines, angle, residuals, params, pixel_rad, scan_lines, width):
         return None
     return width
+
+
+def _background_bound(
+    lines: list[LineModels],
+    solid: CylinderSolid,
+    full: CylinderSolid,
+    params: LaserParams,
+    pixel_rad: float,
+    scan_lines: ScanLinesLike | None,
+) -> float | None:
+    """The width of ``solid`` (along its axis, about its centre) whose silhouette lies at
+    most a pixel past the first background seen past either of the round's outermost
+    samples (by their view angles across its axis, among those within four inlier bands of
+    ``full``, the fit on every inlier); ``None`` where ``solid``'s silhouette lies within
+    that on both sides, or no background shows past them.
+
+    The background past a segment's end is the first of the line's own samples beyond it,
+    else the scans' ``far_past_m`` (the first pixel past the line whose depth lies beyond the
+    capture volume), that lies more than ``full``'s diameter behind the end: no surface of
+    the round can (as ``_smeared_past`` reads a far background). A matcher fattens an edge
+    outward over the background or leaves a hole beside it; it does not give the far
+    background's depth to a pixel whose window the round fills, so the round's silhouette
+    lies before that pixel, whatever its window, its smoothness or which side it occludes.
+    The pixel: its depth stands for its whole footprint. A fit the window flattened can lie
+    far beyond it where the rims do not bow out of it and the samples stop short of the
+    silhouette in holes, which neither ``_rim_free`` nor ``_silhouette_bound`` trims (the
+    60 mm can under BM 7-9 and SGBM 11: 11-20 mm wide, its silhouette 4-10 px past the
+    background on one side). Under lpc's noise model the background shows within half a
+    pixel of the silhouette, and the fit's silhouette within it.
+    """
+    far = getattr(scan_lines, "far_past_m", None)
+    samples = np.concatenate([ln.points for ln in lines])
+    angle = _across_view(solid, samples)
+    if angle is None:
+        return None
+    on = np.flatnonzero(full.residuals(samples) <= 4 * params.solid_threshold_m)
+    if len(on) == 0:
+        return None
+    foot = solid.point - float(solid.point @ solid.axis) * solid.axis
+    distance = float(np.linalg.norm(foot))
+    if distance <= solid.radius:
+        return None
+    half = math.asin(solid.radius / distance)
+    limit = half
+    for sign, (ln, k) in zip((-1.0, 1.0), _outermost_samples(lines, angle, on), strict=True):
+        last = len(ln.points) - 1
+        if k not in (0, last):
+            continue  # the segment goes on past the round: no rim there
+        side = 0 if k == 0 else 1
+        end = ln.points[k]
+        deeper = float(end[2]) + 2 * full.radius
+        beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
+        behind = np.flatnonzero(beyond[:, 2] > deeper)
+        if len(behind):
+            # The line's samples run outward from the segment: back from its first end.
+            seen = beyond[behind[-1] if side == 0 else behind[0]]
+        elif far is not None and ln.index < len(far) and far[ln.index][side][2] > deeper:
+            seen = far[ln.index][side]
+        else:
+            continue
+        past, at = sign * _across_view(solid, np.stack([seen, end]))
+        if past > at:
+            limit = min(limit, float(past) + pixel_rad)
+    if limit >= half:
+        return None
+    return 2 * distance * math.sin(limit)
 
 
 def _occluding_rims(

@@ -68,6 +68,12 @@ def _past_ends(lines: CoreScanLines) -> list[list[float] | None]:
     return lines.past_ends_m.tolist()
 
 
+def _far_past(lines: CoreScanLines) -> list[list[float] | None]:
+    if lines.far_past_m is None:
+        return [None] * len(lines.points)
+    return lines.far_past_m.reshape(len(lines.points), 6).tolist()
+
+
 def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[ScansState, ScanLines]:
     """Cut the four scan lines of one depth frame. ``t_ns`` stays the frame's capture time."""
     del now_ns  # capture time, not processing time, travels with the scans
@@ -83,10 +89,15 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
                 angle_deg=angle,
                 points=to_wire(points.astype(np.float32)),
                 past_ends_m=past,
+                far_past_m=far,
             )
             # The angles in degrees in one call (the same ufunc loop as four scalar calls).
-            for angle, points, past in zip(
-                np.degrees(lines.angles_rad).tolist(), lines.points, _past_ends(lines), strict=True
+            for angle, points, past, far in zip(
+                np.degrees(lines.angles_rad).tolist(),
+                lines.points,
+                _past_ends(lines),
+                _far_past(lines),
+                strict=True,
             )
         ],
         capture_points=int(getattr(lines, "capture_count", lines.total_points)),

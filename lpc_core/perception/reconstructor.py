@@ -82,12 +82,20 @@ def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
     past = [line.past_ends_m for line in message.lines]
     if any(p is not None and len(p) != 2 for p in past):
         raise ValueError("a scan line's past_ends_m must hold two depths, one per end")
+    far = [line.far_past_m for line in message.lines]
+    if any(f is not None and len(f) != 6 for f in far):
+        raise ValueError("a scan line's far_past_m must hold two points, one per end")
     return CoreScanLines(
         angles_rad=angles,
         points=tuple(points),
         pixels=(no_pixels,) * len(points),
         # Scans recorded before the depth past the lines' ends was measured have none.
         past_ends_m=None if any(p is None for p in past) else np.array(past, dtype=np.float64),
+        far_past_m=(
+            None
+            if any(f is None for f in far)
+            else np.array(far, dtype=np.float64).reshape(len(far), 2, 3)
+        ),
     )
 
 

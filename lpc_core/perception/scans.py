@@ -69,7 +69,10 @@ class ScanLines:
     ``capture_count`` is the number of valid points in the whole capture volume (what the
     full-cloud method would see), or -1 when not counted. ``past_ends_m`` (L, 2): per line,
     the depth the image holds just past its first and last point (``past_line_ends``), 0
-    where it holds none (as in a depth image); None when not measured.
+    where it holds none (as in a depth image); None when not measured. ``far_past_m`` (L, 2,
+    3): per line, the point of the first pixel past its first and last point whose depth
+    lies beyond the capture volume (``far_past_ends``), zeros where none does within
+    ``_FAR_STEPS_PX``; None when not measured.
     """
 
     angles_rad: np.ndarray
@@ -78,6 +81,7 @@ class ScanLines:
     min_points: int = 10
     capture_count: int = -1
     past_ends_m: np.ndarray | None = None
+    far_past_m: np.ndarray | None = None
 
     def plane_coords(self, i: int) -> np.ndarray:
         """(N_i, 2) in-plane coordinates (s, z) of line ``i``."""
@@ -232,6 +236,10 @@ class _Geometry:
     angles_rad: np.ndarray  # read-only, shared by every ScanLines of this geometry
     d_row: np.ndarray  # _past_offsets of the angles
     d_col: np.ndarray
+    far_row: np.ndarray  # _past_offsets of the angles at _FAR_STEPS_PX
+    far_col: np.ndarray
+    far_flat: np.ndarray  # the same as flat pixel offsets
+    far_units: int  # the deepest depth (units) inside the capture volume's far limit
 
 
 @lru_cache(maxsize=16)
@@ -239,9 +247,19 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     angles = params.angles_rad
     angles.setflags(write=False)
     d_row, d_col = _past_offsets(intrinsics, tuple(angles.tolist()))
+    far_row, far_col = _past_offsets(intrinsics, tuple(angles.tolist()), far=True)
+    far_flat = far_row * intrinsics.width + far_col
+    far_flat.setflags(write=False)
+    # In units, as the depth image holds it: z = units * depth_scale lies beyond the far limit
+    # exactly where units exceed this.
+    scale, far_m = intrinsics.depth_scale, params.z_limits_m[1]
+    far_units = math.floor(far_m / scale)
+    far_units += (far_units + 1) * scale <= far_m
+    far_units -= far_units * scale > far_m
     return _Geometry(
-        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col
-    )
+        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col,
+        far_row, far_col, far_flat, int(far_units),
+    )  # fmt: skip
 
 
 def _check_depth(depth: object, intrinsics: Intrinsics) -> np.ndarray:
@@ -288,6 +306,7 @@ def cut_scan_lines(
     bounds = [0, *itertools.accumulate(counts)]
     pixels = tab.flat_index[keep]
     past = _past_ends(depth, intrinsics, geometry.d_row, geometry.d_col, pixels, bounds)
+    far = _far_past_ends(depth, intrinsics, geometry, pixels, bounds)
     capture_count = -1
     if count_capture:
         win = geometry.window
@@ -303,6 +322,7 @@ def cut_scan_lines(
         min_points=params.min_points,
         capture_count=capture_count,
         past_ends_m=past,
+        far_past_m=far,
     )
 
 
@@ -310,6 +330,11 @@ def cut_scan_lines(
 # window's fattened band, 30 px past the hole an occlusion or the projector's shadow leaves
 # (as the full-cloud method's cloud._far_behind reads the background past a face's side).
 _PAST_STEPS_PX = np.arange(8.0, 31.0, 2.0)
+_NO_INDICES = np.zeros((0, 0), dtype=np.int64)
+# Pixels past a line's end walked one at a time for the first that shows the background
+# beyond the capture volume: past a 9 x 9 window's fattened band and the widest hole an
+# occlusion left beside a round on the stereo sweep (4-35 px).
+_FAR_STEPS_PX = np.arange(1.0, 41.0)
 
 
 def past_line_ends(
@@ -333,6 +358,44 @@ def past_line_ends(
     return _past_ends(depth, intrinsics, d_row, d_col, pixels, bounds)
 
 
+def _pixels_past_ends(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    d_row: np.ndarray,
+    d_col: np.ndarray,
+    d_flat: np.ndarray | None,
+    pixels: np.ndarray,
+    bounds: list[int],
+    reach: int,
+) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """The lines with a point, and past each of their two ends (rows in ``_past_offsets``'
+    order) the flat indices of the pixels at the offsets ``d_row``, ``d_col`` (``d_flat``:
+    the same as flat offsets, where given; ``reach`` the largest) and their depth units, 0
+    outside the image."""
+    count = len(bounds) - 1
+    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    if not filled:
+        return filled, _NO_INDICES, _NO_INDICES
+    width, height = intrinsics.width, intrinsics.height
+    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
+    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
+    if d_flat is None:
+        offsets = d_row[lines] * width + d_col[lines]
+    else:
+        offsets = d_flat if len(filled) == count else d_flat[lines]
+    flat = ends[:, None] + offsets
+    # A handful of ends: Python ints for the bounds check, numpy only for the gather.
+    if all(
+        reach <= r < height - reach and reach <= c < width - reach
+        for r, c in (divmod(e, width) for e in ends.tolist())
+    ):
+        return filled, flat, depth.reshape(-1)[flat]
+    row, col = np.divmod(ends, width)
+    r, c = row[:, None] + d_row[lines], col[:, None] + d_col[lines]
+    inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+    return filled, flat, np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0)
+
+
 def _past_ends(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -344,28 +407,14 @@ def _past_ends(
     """``past_line_ends`` with the lines' pixel offsets (``_past_offsets``) given."""
     count = len(bounds) - 1
     out = np.zeros((count, 2))
-    filled = [i for i in range(count) if bounds[i + 1] > bounds[i]]
+    filled, _, values = _pixels_past_ends(
+        depth, intrinsics, d_row, d_col, None, pixels, bounds, int(_PAST_STEPS_PX[-1]) + 1
+    )
     if not filled:
         return out
-    width, height = intrinsics.width, intrinsics.height
-    ends = pixels[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]]
-    lines = [k for i in filled for k in (2 * i, 2 * i + 1)]
-    flat = ends[:, None] + (d_row[lines] * width + d_col[lines])
-    # A handful of ends: Python ints for the bounds check, numpy only for the gather.
-    reach = int(_PAST_STEPS_PX[-1]) + 1
-    if all(
-        reach <= r < height - reach and reach <= c < width - reach
-        for r, c in (divmod(e, width) for e in ends.tolist())
-    ):
-        values = depth.reshape(-1)[flat].tolist()
-    else:
-        row, col = np.divmod(ends, width)
-        r, c = row[:, None] + d_row[lines], col[:, None] + d_col[lines]
-        inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-        values = np.where(inside, depth.reshape(-1)[np.where(inside, flat, 0)], 0).tolist()
     scale = intrinsics.depth_scale
     medians = []
-    for row_values in values:
+    for row_values in values.tolist():
         # filter(None, ...) drops the 0s (no depth) in C, where a generator ran Python per
         # value: 8 ends of 12 pixels a frame.
         valid = sorted(filter(None, row_values))
@@ -375,19 +424,58 @@ def _past_ends(
     return out
 
 
+def _far_past_ends(
+    depth: np.ndarray,
+    intrinsics: Intrinsics,
+    geometry: _Geometry,
+    pixels: np.ndarray,
+    bounds: list[int],
+) -> np.ndarray:
+    """(L, 2, 3): per line, the point of the first pixel within ``_FAR_STEPS_PX`` past its
+    first and last point along it whose depth lies beyond the capture volume's far limit
+    (``geometry.far_units``), zeros where none does (or the line has no point).
+
+    The lines hold every pixel of the capture volume along them, so this is the first
+    background seen past a line's end beyond what the line holds: an object's silhouette
+    lies between the line's last sample on it and that pixel (a matcher fattens an edge
+    outward over the background, or leaves a hole beside it, and does not carry the far
+    background's depth onto the object)."""
+    count = len(bounds) - 1
+    out = np.zeros((count, 2, 3))
+    filled, flat, values = _pixels_past_ends(
+        depth, intrinsics, geometry.far_row, geometry.far_col, geometry.far_flat, pixels, bounds,
+        int(_FAR_STEPS_PX[-1]) + 1,
+    )  # fmt: skip
+    if not filled:
+        return out
+    width = intrinsics.width
+    beyond = values > geometry.far_units
+    # A handful of ends: their points in Python floats (numpy's per-call cost dominates).
+    fx, fy, ppx, ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
+    rows = out.reshape(-1, 3)
+    for k in np.flatnonzero(beyond.any(axis=1)).tolist():
+        step = int(beyond[k].argmax())
+        r, c = divmod(int(flat[k, step]), width)
+        z = float(values[k, step]) * intrinsics.depth_scale
+        rows[2 * filled[k // 2] + k % 2] = (z * (c - ppx) / fx, z * (r - ppy) / fy, z)
+    return out
+
+
 @lru_cache(maxsize=16)
 def _past_offsets(
-    intrinsics: Intrinsics, angles_rad: tuple[float, ...]
+    intrinsics: Intrinsics, angles_rad: tuple[float, ...], far: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """(2L, steps) row and column offsets of the pixels past each line's first end (row 2i,
-    walking back along the line) and last end (row 2i + 1, walking on)."""
+    walking back along the line) and last end (row 2i + 1, walking on): ``_PAST_STEPS_PX``
+    past it, or ``_FAR_STEPS_PX`` where ``far``."""
+    steps = _FAR_STEPS_PX if far else _PAST_STEPS_PX
     angles = np.asarray(angles_rad, dtype=np.float64)
     du, dv = intrinsics.fx * np.cos(angles), intrinsics.fy * np.sin(angles)
     norm = np.hypot(du, dv)
     sign = np.tile([-1.0, 1.0], len(angles))
     du, dv = np.repeat(du / norm, 2) * sign, np.repeat(dv / norm, 2) * sign
-    d_row = np.rint(dv[:, None] * _PAST_STEPS_PX).astype(np.int64)
-    d_col = np.rint(du[:, None] * _PAST_STEPS_PX).astype(np.int64)
+    d_row = np.rint(dv[:, None] * steps).astype(np.int64)
+    d_col = np.rint(du[:, None] * steps).astype(np.int64)
     d_row.setflags(write=False)
     d_col.setflags(write=False)
     return d_row, d_col
