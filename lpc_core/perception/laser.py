@@ -1535,10 +1535,27 @@ def _min_area_direction(uv: np.ndarray) -> np.ndarray:
 
 
 def _seeds_direction(
-    uv: np.ndarray, cropped: np.ndarray, reach: np.ndarray | None, params: LaserParams
+    uv: np.ndarray,
+    cropped: np.ndarray,
+    reach: np.ndarray | None,
+    params: LaserParams,
+    *,
+    fattened: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The rectangle direction the seeds ``uv`` (in the face's plane, sorted around it) give,
-    and the one the disc test weighs (the count's, without the best pooled fit)."""
+    and the one the disc test weighs (the count's, without the best pooled fit).
+
+    Where the count gives no direction, or one that leaves a seed deep inside its sides
+    (``_unless_rounded``), the minimum-area rectangle's stands; with ``fattened`` (a
+    matcher's fattening measured in the frame), the best pooled fit from it
+    (``_best_pooled_fit``) where that holds the uncut seeds nearer the sides. The
+    minimum-area rectangle follows the seeds' outline: two of its corners lie on seeds, its
+    direction runs along the line between two of them, and a matcher moves each occluding
+    seed by its own fattening (0-14 px at SGBM 7) or smears one far past its side (the
+    upright box under SGBM without texture: 25 mm), which turns that line; the pooled fit
+    lets every seed vote (the upright box's angle 2.42 -> 2.29 degrees over the 39 study
+    settings; the laser angle of ten settings 0.01-0.34 degrees better, of five at most
+    0.02 worse)."""
     tol = params.edge_tolerance_m
     uncut = [p for p, c in zip(uv.tolist(), cropped.tolist(), strict=True) if not c]
     direction = _edge_direction(uv, cropped, tol, reach)
@@ -1553,10 +1570,17 @@ def _seeds_direction(
         classic = _scattered_direction(uv, cropped, count, tol, wide, best_fit=False)
     if direction is None or classic is None:
         direction = classic = _min_area_direction(uv)
-        return direction, classic
-    turned = classic is not direction
-    direction = _unless_rounded(uv, uncut, direction)
-    classic = _unless_rounded(uv, uncut, classic) if turned else direction
+        outline = True
+    else:
+        turned = classic is not direction
+        counted = direction
+        direction = _unless_rounded(uv, uncut, direction)
+        classic = _unless_rounded(uv, uncut, classic) if turned else direction
+        outline = direction is not counted
+    if fattened and outline:
+        pooled = _best_pooled_fit(uv, cropped, direction)
+        if pooled is not None:
+            direction = pooled
     return direction, classic
 
 
@@ -1641,7 +1665,8 @@ def _face_geometry(
         pts_all = pts
     else:
         reach = None if seeds.reach is None else seeds.reach[order]
-        direction, classic = _seeds_direction(uv, cropped, reach, params)
+        fattened = trim_px > 0 and pixel_rad > 0
+        direction, classic = _seeds_direction(uv, cropped, reach, params, fattened=fattened)
         valid = (~cropped).tolist()
         tol = params.edge_tolerance_m
         score = _rectangle_score(pts, valid, direction.tolist(), tol)
@@ -1654,7 +1679,9 @@ def _face_geometry(
             # fatten there) spreads them instead.
             trimmed = _unfattened_seeds(seeds, trim_px * pixel_rad).take(order, axis=0)
             t_uv = (trimmed - origin) @ to_plane
-            t_direction, t_classic = _seeds_direction(t_uv, cropped, reach, params)
+            t_direction, t_classic = _seeds_direction(
+                t_uv, cropped, reach, params, fattened=fattened
+            )
             if _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol) >= score and (
                 _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
             ):
