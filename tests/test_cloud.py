@@ -702,6 +702,36 @@ def test_an_upright_box_under_semi_global_matching_gets_its_axis_from_the_whole_
     assert abs(error) < 1.0
 
 
+def test_a_can_fitted_wider_than_its_points_counts_its_margin_from_them() -> None:
+    """SGBM 11, the upright 60 mm can, trial 0 frame 2: the rims a wide window pulled toward
+    the camera flattened the arc, and the fit (72.8 mm) kept its silhouette 2.4 and 8.2 px
+    beyond its points, so the 6 px margin from it kept the pulled rims. Wider than its
+    points on both sides by more than a voxel, the fit counts its margin from the points'
+    silhouette: 65.1 mm."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(matcher=Matcher(block_size=11))
+    views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (0, 2))
+    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert abs(1000 * (result.grasp_width_m - view.truth.grasp_width_m)) < 7.0
+
+
+def test_a_clean_can_fit_is_not_wider_than_its_points() -> None:
+    from lpc_core.perception.cloud import _wider_than_points
+
+    points, start = _pulled_can(0.0, 3.5)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert not _wider_than_points(points, fixed, PARAMS)
+    # The same points under a fit 2 mm too wide: its silhouette 5 px past them each side.
+    wide = CylinderModel(fixed.center + np.array([0.0, 0.0, 0.002]), fixed.axis, 0.032)
+    assert _wider_than_points(points, wide, PARAMS)
+
+
 def _pulled_can(pull_m: float, decay_px: float) -> tuple[np.ndarray, CylinderModel]:
     """A 30 mm can's camera-facing side at 0.25 m, its rims pulled out of the surface (toward
     the camera) by ``pull_m`` decaying over ``decay_px`` in from the silhouette, as a wide
