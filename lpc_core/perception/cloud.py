@@ -1089,25 +1089,31 @@ def _facing_passes(
     params: CloudParams,
     pixel_rad: float,
     passes: int = 0,
+    from_points: bool = False,
 ) -> tuple[SphereModel | CylinderModel, int]:
     """_camera_facing's fit, and the refits it made counting the ``passes`` already made on
     ``model`` (its margin still ``silhouette_margin_px``): two such passes resume with the
-    rim band's."""
+    rim band's. With ``from_points`` the margin counts from the silhouette the close points
+    show on each side (_points_silhouette) instead of the fit's."""
     margin = params.silhouette_margin_px * pixel_rad
     if margin <= 0:
         return model, passes
-    sphere = isinstance(model, SphereModel)
-    solid: SphereSolid | CylinderSolid
-    if sphere:
-        solid = SphereSolid(center=model.center, radius=model.radius)
-    else:
-        solid = CylinderSolid(point=model.center, axis=model.axis, radius=model.radius)
+    solid = _solid(model)
     need = max(10, len(points) // 8)
     band = params.rim_band_px * pixel_rad
     while True:
         residuals = solid.residuals(points)
-        inside = solid.silhouette_distance(points)
         close = residuals <= params.fit_threshold_m
+        if from_points:
+            inside, gaps = _points_silhouette(points, solid, close)
+            # The cap keeps a small round's fit on enough arc: the margin within the outer
+            # half of its half-width in view.
+            cap = max(0.0, _half_width(solid) / 2 - margin)
+            for side, gap in gaps:
+                if gap > 0:
+                    inside[side] -= min(cap, gap)
+        else:
+            inside = solid.silhouette_distance(points)
         if passes >= 2:
             # The fit's own rim band: points pulled toward the camera lie outside the solid.
             rim = close & (inside >= margin - band) & (inside < margin)
@@ -1150,12 +1156,74 @@ def _round_facing(
     pixel_rad = 1.0 / intrinsics.fx
     fixed, passes = _facing_passes(points, model, replace(params, rim_band_px=0.0), pixel_rad)
     # Fewer than two passes: the rim band's run would have stopped where this one did.
-    if params.rim_band_px <= 0 or passes < 2 or not _far_rims(depth, intrinsics, fixed, params):
+    if passes < 2 or not _far_rims(depth, intrinsics, fixed, params):
         return fixed
-    if not _window_matched(depth, intrinsics, params):
+    banded = params.rim_band_px > 0 and _window_matched(depth, intrinsics, params)
+    if _wider_than_points(points, fixed, params):
+        run = params if banded else replace(params, rim_band_px=0.0)
+        return _facing_passes(points, model, run, pixel_rad, from_points=True)[0]
+    if not banded:
         return fixed
     # The band's run makes the same two passes first: resume from them.
     return _facing_passes(points, fixed, params, pixel_rad, passes)[0]
+
+
+def _solid(model: SphereModel | CylinderModel) -> SphereSolid | CylinderSolid:
+    if isinstance(model, SphereModel):
+        return SphereSolid(center=model.center, radius=model.radius)
+    return CylinderSolid(point=model.center, axis=model.axis, radius=model.radius)
+
+
+def _half_width(solid: SphereSolid | CylinderSolid) -> float:
+    """The round's half-width in view (radians): asin(radius / range) of its centre (a
+    cylinder's: across its axis)."""
+    if isinstance(solid, SphereSolid):
+        reach = float(np.linalg.norm(solid.center))
+    else:
+        c = solid.point
+        reach = float(np.linalg.norm(c - (c @ solid.axis) * solid.axis))
+    return math.asin(min(1.0, solid.radius / reach)) if reach > 0 else 0.0
+
+
+def _points_silhouette(
+    points: np.ndarray, solid: SphereSolid | CylinderSolid, close: np.ndarray
+) -> tuple[np.ndarray, list[tuple[np.ndarray, float]]]:
+    """Each point's view angle in from the solid's silhouette, and on each side of the solid
+    in view (left and right of a cylinder's axis; of a sphere's centre) that side's points
+    with how far in the ``close`` points' own edge lies (their 2nd percentile; nan with fewer
+    than 10 close points there)."""
+    inside = solid.silhouette_distance(points)
+    if isinstance(solid, SphereSolid):
+        centre = solid.center
+        across = np.cross(centre, (0.0, 1.0, 0.0))
+    else:
+        centre = solid.point
+        across = np.cross(solid.axis, centre)
+    norm = float(np.linalg.norm(across))
+    if norm < 1e-9:
+        return inside, []
+    along = (points - centre) @ (across / norm)
+    gaps = []
+    for side in (along > 0, along <= 0):
+        edge = inside[side & close]
+        gaps.append((side, float(np.percentile(edge, 2)) if len(edge) >= 10 else math.nan))
+    return inside, gaps
+
+
+def _wider_than_points(
+    points: np.ndarray, model: SphereModel | CylinderModel, params: CloudParams
+) -> bool:
+    """Whether the fit's silhouette lies beyond its close points' on both sides by more than
+    a voxel in view (``voxel_m`` over the range): the grid alone leaves the points' edge up
+    to a voxel inside the true silhouette, and an occluded side (a matcher's left-right
+    check) only one side. Rims a window matcher pulled toward the camera flatten the arc and
+    widen the fit past both edges (SGBM 11's upright 60 mm can: 3-8 px each side at 64-78
+    mm); per-pixel noise, as lpc's noise model's, leaves them within a pixel."""
+    solid = _solid(model)
+    close = solid.residuals(points) <= params.fit_threshold_m
+    _, gaps = _points_silhouette(points, solid, close)
+    voxel = params.voxel_m / float(np.linalg.norm(model.center))
+    return len(gaps) == 2 and all(gap > voxel for _, gap in gaps)
 
 
 def _far_rims(
@@ -1550,6 +1618,31 @@ def _behind_support(segment: np.ndarray, support: np.ndarray, params: CloudParam
     return behind > params.segment_max_behind_fraction * len(segment)
 
 
+def _aimed_past(segment: np.ndarray, support: np.ndarray, params: CloudParams) -> bool:
+    """Whether the optical axis meets ``support`` and misses ``segment`` (neither comes within
+    ``pierce_tolerance_m`` of it, as nearest_segment asks), and the segment lies beside the
+    support's outline in view. The hand aims at what it grasps: where the axis meets the
+    plane taken for the table and no segment, and the segment hides none of the plane, that
+    plane is the object's face (BM 5 with texture threshold 30 left a lying box's table as
+    patches of about 100 points, the box's face the largest plane, and a patch beside it the
+    segment: 7-18 mm wide for 40). An object aimed beside on its table lies within the
+    table's outline, hiding part of it."""
+    tolerance = params.pierce_tolerance_m
+    if float(np.hypot(segment[:, 0], segment[:, 1]).min()) <= tolerance:
+        return False
+    if not np.any(np.hypot(support[:, 0], support[:, 1]) <= tolerance):
+        return False
+    # A segment in front of the plane's outline in view hides part of it, as a ball on its
+    # table does; one beside the outline does not rest on it.
+    view = support[:, :2] / support[:, 2:]
+    middle = np.median(segment[:, :2] / segment[:, 2:], axis=0)
+    try:
+        hull = ConvexHull(view)
+    except QhullError:
+        return False
+    return bool(np.max(hull.equations[:, :2] @ middle + hull.equations[:, 2]) > 0)
+
+
 def reconstruct_cloud(
     depth: np.ndarray,
     intrinsics: Intrinsics,
@@ -1598,7 +1691,11 @@ def reconstruct_cloud(
         found = nearest_segment(rest, labels, params.min_segment_points, params.pierce_tolerance_m)
         if not removed:
             break
-        if found is not None and not _behind_support(rest[found], cloud[removed[-1]], params):
+        if (
+            found is not None
+            and not _behind_support(rest[found], cloud[removed[-1]], params)
+            and not _aimed_past(rest[found], cloud[removed[-1]], params)
+        ):
             break
         keep[removed.pop()] = True
     extra["support_points"] = float(used - keep.sum())
