@@ -843,3 +843,26 @@ def test_a_jar_cap_a_cylinder_lies_along_rests_on_the_plane_beside_it() -> None:
     assert abs(error) < 1.0, error
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003, result.grasp_width_m
+
+
+@pytest.mark.parametrize(("setting", "before_deg"), [("bm9", 62.1), ("bm7-u5", 69.6)])
+def test_a_jar_cap_whose_hole_the_optical_axis_pierces_is_no_thin_box(
+    setting: str, before_deg: float
+) -> None:
+    """Block matching (BM 9; BM 7 with uniqueness 5), the jar cap from the front, trial 0
+    frame 0: a hole from 3 mm left of the optical axis to 7 mm right of it parted the
+    horizontal line, which kept the band's left half (22 mm of its 60 mm arc, straight within
+    the threshold), and every line was straight: a box 8-11 mm wide, ``before_deg`` off the
+    truth's wrist angle (the bench's angle spread 20-22 degrees, its limit 15). The segment
+    now spans the hole the axis pierces: the line is the band's arc, and the cap a round
+    within the paper's limits (18-22 degrees off from its rims, 44-48 mm wide)."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _setting_frame(setting, "jar_cap", 0, 0, "front")
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert result.lines[0].model == "circle"
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 25.0, (error, before_deg)
+    assert result.grasp_width_m is not None
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.020
