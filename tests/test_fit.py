@@ -558,3 +558,26 @@ def test_segments_take_keeps_each_lines_centring():
     assert sub.n == [len(arcs[2]), len(arcs[0])] and sub.mean == [seg.mean[2], seg.mean[0]]
     a, b = fit_circles(sub, THRESHOLD, seed=3)
     assert abs(a.radius - 0.035) < 1e-3 and abs(b.radius - 0.015) < 1e-3
+
+
+def test_batch_fits_keep_their_floating_point_errors_to_themselves() -> None:
+    """Degenerate samples (repeated and collinear points) and the padding of unequal lines
+    make NaN and inf inside the fits; the fits set one quiet error state for themselves, so
+    none of it reaches the caller as a warning (or an error, under ``-W error``)."""
+    s = np.linspace(-0.03, 0.03, 40)
+    flat = np.column_stack([s, np.full_like(s, 0.2)])  # collinear: no circle, no ellipse
+    t = np.linspace(np.pi + 0.6, 2 * np.pi - 0.6, 25)
+    arc = np.column_stack([0.02 * np.cos(t), 0.2 + 0.02 * np.sin(t)])
+    repeated = np.repeat(arc[::5], 5, axis=0)  # every point five times: repeated samples
+    lines = [flat, arc, repeated]
+    with np.errstate(all="raise"):
+        found = [
+            fit_lines(lines, 0.001, seed=3),
+            fit_circles(lines, 0.001, radius_limits=RADIUS_LIMITS_M, seed=3),
+            fit_ellipses(lines, 0.001, axis_limits=AXIS_LIMITS_M, seed=3),
+        ]
+        on_axis = EllipseModel(center=(0.0, 0.2), axis_lengths=(0.03, 0.01), theta=0.0)
+        distances = on_axis.residuals(np.array([[0.0, 0.2], [0.01, 0.2], [0.05, 0.2]]))
+    assert [bool(f[0]) for f in found] == [True, False, False]
+    assert found[1][1] and abs(found[1][1].radius - 0.02) < 1e-6
+    assert distances.tolist() == pytest.approx([0.01, 0.0093541, 0.02], abs=1e-6)

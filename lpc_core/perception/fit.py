@@ -105,6 +105,12 @@ ELLIPSE_TOP = 4
 ELLIPSE_GN_STEPS = 3
 
 
+# One floating-point error state for a whole fit, set by its function (``_QUIET``): NaN and
+# inf are how the scorers mark degenerate samples and padding, and a ``with np.errstate``
+# block costs about 12 000 instructions, where the scorers, the refits and the distances below
+# entered one about eight times a frame. The helpers they call run in their caller's state.
+_QUIET = np.errstate(all="ignore")
+
 # --------------------------------------------------------------------------- results
 
 
@@ -434,11 +440,10 @@ def _circle_kasa_batch(
         centres.append((mx + 0.5 * (cyy * cxz - cxy * cyz) / det,
                         my + 0.5 * (cxx * cyz - cxy * cxz) / det))  # fmt: skip
     cx, cy = _columns(centres)
-    with np.errstate(all="ignore"):
-        dx, dy = x - cx, y - cy
-        # Sums by add.reduce: ndarray.sum's Python wrapper costs more than these rows.
-        rho = np.where(inl, np.sqrt(dx * dx + dy * dy), 0.0)
-        r = np.add.reduce(rho, axis=1) / np.add.reduce(inl, axis=1)
+    dx, dy = x - cx, y - cy
+    # Sums by add.reduce: ndarray.sum's Python wrapper costs more than these rows.
+    rho = np.where(inl, np.sqrt(dx * dx + dy * dy), 0.0)
+    r = np.add.reduce(rho, axis=1) / np.add.reduce(inl, axis=1)
     out: list[tuple[float, float, float] | None] = []
     for (cxk, cyk), rk in zip(centres, r.tolist(), strict=True):
         circle = (cxk, cyk, rk)
@@ -578,9 +583,8 @@ def _ellipse_distance(
         z1 = np.where(on_axis, 1.0, z1)
     k0 = r0 * z0
     c0, c1 = k0 * k0, z1 * z1
-    with np.errstate(all="ignore"):
-        total = z0 * z0 + c1  # G(0) + 1
-        from_zero = total * (np.sqrt(total) - 1.0) / (z0 * z0 / r0 + c1)
+    total = z0 * z0 + c1  # G(0) + 1
+    from_zero = total * (np.sqrt(total) - 1.0) / (z0 * z0 / r0 + c1)
     # fmax: from_zero is NaN at the centre, where the safe start alone is used.
     s = np.fmax(np.maximum(z1 - 1.0, k0 - r0), from_zero)
     # fmax ignores NaN: padded entries of a batch of scan lines neither set nor block the stop.
@@ -599,9 +603,8 @@ def _ellipse_distance(
         # Inside the evolute the closest point leaves the axis.
         a2b2 = a * a - b * b
         inside = y0 * a < a2b2
-        with np.errstate(all="ignore"):
-            x0 = a * a * y0 / np.where(inside, a2b2, 1.0)
-            x1 = b * np.sqrt(np.maximum(1.0 - (x0 / a) ** 2, 0.0))
+        x0 = a * a * y0 / np.where(inside, a2b2, 1.0)
+        x1 = b * np.sqrt(np.maximum(1.0 - (x0 / a) ** 2, 0.0))
         d_axis = np.where(inside, np.hypot(x0 - y0, x1), np.abs(y0 - a))
         d = np.where(on_axis, d_axis, d)
     return d
@@ -612,7 +615,8 @@ def _ellipse_residuals(
 ) -> np.ndarray:
     c, s = math.cos(theta), math.sin(theta)
     dx, dy = x - cx, y - cy
-    return _ellipse_distance(dx * c + dy * s, dy * c - dx * s, a, b)
+    with np.errstate(all="ignore"):
+        return _ellipse_distance(dx * c + dy * s, dy * c - dx * s, a, b)
 
 
 def _eig3(m: list[list[float]]) -> list[tuple[float, list[float]]]:
@@ -905,8 +909,7 @@ def _line_scorer(seg: Segments, threshold: float) -> Scorer:
         length = np.hypot(coef[:, :, 0], coef[:, :, 1])
         # Unit normals, so the product below is the distance itself and the test is against a
         # scalar; repeated points (length 0) give NaN, which is never an inlier.
-        with np.errstate(all="ignore"):
-            coef /= length[:, :, None]
+        coef /= length[:, :, None]
         dist = np.abs(coef @ basis)  # (L, T, W); NaN on padding, never an inlier
         inl = dist <= threshold
 
@@ -924,6 +927,7 @@ def _line_scorer(seg: Segments, threshold: float) -> Scorer:
     return score
 
 
+@_QUIET
 def _fit_lines(
     seg: Segments,
     threshold: float,
@@ -1065,43 +1069,41 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
         # [[by ee, ey bb], [bx ee, ex bb]], flattened: the centre's numerators are its middle
         # pair less its outer pair, (ey bb - by ee, bx ee - ex bb).
         m = (d[::-1] * sq[::-1]).reshape(4, *cross.shape)
-        with np.errstate(all="ignore"):
-            u = m[1:3] - m[::3]
-            u /= cross  # (ux, uy)
-            uu = u * u
-            r2 = uu[0] + uu[1]
-            # Collinear or repeated points give cross ~ 0, so r2 huge, inf or nan: the radius
-            # limits reject them (nan fails every comparison).
-            ok = (r2 >= lo2) & (r2 <= hi2)
-            if unbounded:
-                ok &= np.abs(cross) > 1e-12 * (bb + ee)
-            c, r = p[:, 0] + u, np.sqrt(r2)
-            cx, cy = c[0], c[1]
-            # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt
-            # for the test, and rho^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
-            if r_lo >= threshold:  # then r - t >= 0 on every valid row
-                mid, half = r2 + t2, 2.0 * threshold * r
-            else:
-                rlo, rhi = np.maximum(r - threshold, 0.0), r + threshold
-                mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
-            # [-2cx, -2cy, 1, |c|^2 - mid] / half: the test is then |product| <= 1 against a
-            # scalar; rejected hypotheses get NaN, which is never an inlier.
-            scale = np.where(ok, 1.0 / half, np.nan)
-            coef = np.empty((*cx.shape, 4))
-            minus_two_scale = -2.0 * scale
-            np.multiply(cx, minus_two_scale, out=coef[:, :, 0])
-            np.multiply(cy, minus_two_scale, out=coef[:, :, 1])
-            coef[:, :, 2] = scale
-            cc = c * c
-            np.multiply(cc[0] + cc[1] - mid, scale, out=coef[:, :, 3])
-            q = coef @ basis  # (L, T, W): (rho^2 - mid) / half, NaN on padding
-            inl = np.abs(q) <= 1.0
+        u = m[1:3] - m[::3]
+        u /= cross  # (ux, uy)
+        uu = u * u
+        r2 = uu[0] + uu[1]
+        # Collinear or repeated points give cross ~ 0, so r2 huge, inf or nan: the radius
+        # limits reject them (nan fails every comparison).
+        ok = (r2 >= lo2) & (r2 <= hi2)
+        if unbounded:
+            ok &= np.abs(cross) > 1e-12 * (bb + ee)
+        c, r = p[:, 0] + u, np.sqrt(r2)
+        cx, cy = c[0], c[1]
+        # Inlier iff (r - t)^2 <= rho^2 <= (r + t)^2, i.e. |rho^2 - mid| <= half: no sqrt
+        # for the test, and rho^2 - mid = [-2cx, -2cy, 1, |c|^2 - mid] . basis.
+        if r_lo >= threshold:  # then r - t >= 0 on every valid row
+            mid, half = r2 + t2, 2.0 * threshold * r
+        else:
+            rlo, rhi = np.maximum(r - threshold, 0.0), r + threshold
+            mid, half = 0.5 * (rlo * rlo + rhi * rhi), 0.5 * (rhi * rhi - rlo * rlo)
+        # [-2cx, -2cy, 1, |c|^2 - mid] / half: the test is then |product| <= 1 against a
+        # scalar; rejected hypotheses get NaN, which is never an inlier.
+        scale = np.where(ok, 1.0 / half, np.nan)
+        coef = np.empty((*cx.shape, 4))
+        minus_two_scale = -2.0 * scale
+        np.multiply(cx, minus_two_scale, out=coef[:, :, 0])
+        np.multiply(cy, minus_two_scale, out=coef[:, :, 1])
+        coef[:, :, 2] = scale
+        cc = c * c
+        np.multiply(cc[0] + cc[1] - mid, scale, out=coef[:, :, 3])
+        q = coef @ basis  # (L, T, W): (rho^2 - mid) / half, NaN on padding
+        inl = np.abs(q) <= 1.0
 
         def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:
             # |rho - r| over the inliers, rho = sqrt(q half + mid).
-            with np.errstate(all="ignore"):
-                rho2 = q[rl, rt] * half[rl, rt, None] + mid[rl, rt, None]
-                d = np.abs(np.sqrt(np.maximum(rho2, 0.0)) - r[rl, rt, None])
+            rho2 = q[rl, rt] * half[rl, rt, None] + mid[rl, rt, None]
+            d = np.abs(np.sqrt(np.maximum(rho2, 0.0)) - r[rl, rt, None])
             return np.add.reduce(np.where(inl[rl, rt], d, 0.0), axis=1)
 
         picks = pick_rows(inl, residual_sums)
@@ -1115,6 +1117,7 @@ def _circle_scorer(seg: Segments, threshold: float, limits: tuple[float, float])
     return score
 
 
+@_QUIET
 def _fit_circles(
     seg: Segments,
     threshold: float,
@@ -1281,12 +1284,11 @@ def _sampson_ratio(conic: np.ndarray, mono: np.ndarray) -> np.ndarray:
     free of the conic's scale. NaN where the gradient vanishes or the point is padding.
     """
     f, gx, gy = np.matmul(conic, mono)  # F, t dF/dx, t dF/dy: three contiguous blocks
-    with np.errstate(all="ignore"):
-        np.multiply(f, f, out=f)
-        np.multiply(gx, gx, out=gx)
-        np.multiply(gy, gy, out=gy)
-        np.add(gx, gy, out=gx)
-        return np.divide(f, gx, out=f)
+    np.multiply(f, f, out=f)
+    np.multiply(gx, gx, out=gx)
+    np.multiply(gy, gy, out=gy)
+    np.add(gx, gy, out=gx)
+    return np.divide(f, gx, out=f)
 
 
 def _monomials(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -1311,22 +1313,18 @@ def _monomials(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
 def _ellipse_ok(conic: np.ndarray, lo: float | np.ndarray, hi: float | np.ndarray) -> np.ndarray:
     """Which conics ``(6, ...)`` are real ellipses with semi-axes within ``[lo, hi]``."""
     A, B, C, D, E, F = conic
-    with np.errstate(all="ignore"):
-        det = 4.0 * A * C - B * B
-        # F at the centre, F(c) = F - (C D^2 - B D E + A E^2) / det, times det.
-        f_det = F * det - (C * D * D - B * D * E + A * E * E)
-        m = A + C
-        h = np.hypot(A - C, B)
-        # Eigenvalues (m -+ h)/2 share m's sign when det = m^2 - h^2 > 0, and the semi-axes
-        # are a^2 = -2 F(c) / (m - h), b^2 = -2 F(c) / (m + h) once the sign is m's.
-        g = -2.0 * f_det * np.sign(m)  # = 2 |F(c)| det when the conic is a real ellipse
-        am = np.abs(m)
-        return (
-            (det > 0.0)
-            & (g > 0.0)
-            & (g >= lo * lo * det * (am + h))
-            & (g <= hi * hi * det * (am - h))
-        )
+    det = 4.0 * A * C - B * B
+    # F at the centre, F(c) = F - (C D^2 - B D E + A E^2) / det, times det.
+    f_det = F * det - (C * D * D - B * D * E + A * E * E)
+    m = A + C
+    h = np.hypot(A - C, B)
+    # Eigenvalues (m -+ h)/2 share m's sign when det = m^2 - h^2 > 0, and the semi-axes
+    # are a^2 = -2 F(c) / (m - h), b^2 = -2 F(c) / (m + h) once the sign is m's.
+    g = -2.0 * f_det * np.sign(m)  # = 2 |F(c)| det when the conic is a real ellipse
+    am = np.abs(m)
+    return (
+        (det > 0.0) & (g > 0.0) & (g >= lo * lo * det * (am + h)) & (g <= hi * hi * det * (am - h))
+    )
 
 
 class _EllipseFrame:
@@ -1384,8 +1382,7 @@ def _ellipse_scorer(frame: _EllipseFrame) -> Scorer:
             sub, full = sub[:, rows], full[:, rows]
         count, trials = idx.shape[0], idx.shape[1]
         g = (idx + f.seg.offsets(count)).reshape(-1, 5)
-        with np.errstate(all="ignore"):
-            conic = _five_point_conics(x.ravel()[g], y.ravel()[g]).reshape(6, count, trials)
+        conic = _five_point_conics(x.ravel()[g], y.ravel()[g]).reshape(6, count, trials)
         ok = _ellipse_ok(conic, lo, hi)  # (L, T)
         conic = np.ascontiguousarray(conic.transpose(1, 2, 0))  # (L, T, 6)
         # MSAC's truncated cost, in units of each line's threshold squared; padding adds 1 to
@@ -1413,6 +1410,7 @@ def _ellipse_scorer(frame: _EllipseFrame) -> Scorer:
     return score
 
 
+@_QUIET
 def _fit_ellipses(
     seg: Segments,
     threshold: float,
@@ -1424,8 +1422,7 @@ def _fit_ellipses(
     goals: Sequence[float] | None = None,
 ) -> list[EllipseFit | FailedFit]:
     out: list[Any] = _too_few(seg.n, 5, "an ellipse")
-    with np.errstate(all="ignore"):
-        spread = np.where(seg.valid, seg.x * seg.x + seg.y * seg.y, 0.0).sum(axis=1).tolist()
+    spread = np.where(seg.valid, seg.x * seg.x + seg.y * seg.y, 0.0).sum(axis=1).tolist()
     rows = []
     for r, m in enumerate(seg.n):
         if m < 5:

@@ -11,6 +11,7 @@ falsy ``FailedSolid`` carrying the reason.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol, Self
 
@@ -353,19 +354,20 @@ class CylinderSolid:
                 s0, s1, s2, s3, s4 = _solve(h, -jtr)
             except np.linalg.LinAlgError:
                 break
-            c, d, e1, e2, radius = state
-            dn = [d[i] + e1[i] * s2 + e2[i] * s3 for i in range(3)]
-            k = 1.0 / math.sqrt(dn[0] * dn[0] + dn[1] * dn[1] + dn[2] * dn[2])
-            dn = [v * k for v in dn]
+            (cx, cy, cz), (dx, dy, dz), (ax, ay, az), (bx, by, bz), radius = state
+            # Component by component, not comprehensions: each of those is a function call,
+            # and a frame takes two to four steps of one to three cylinders.
+            dx, dy, dz = dx + ax * s2 + bx * s3, dy + ay * s2 + by * s3, dz + az * s2 + bz * s3
+            k = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx, dy, dz = dx * k, dy * k, dz * k
             # Re-orthonormalise the previous basis against the new axis (continuous, no branch).
-            dot = e1[0] * dn[0] + e1[1] * dn[1] + e1[2] * dn[2]
-            f1 = [e1[i] - dot * dn[i] for i in range(3)]
-            k = 1.0 / math.sqrt(f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2])
-            f1 = [v * k for v in f1]
-            f2 = [dn[1] * f1[2] - dn[2] * f1[1], dn[2] * f1[0] - dn[0] * f1[2],
-                  dn[0] * f1[1] - dn[1] * f1[0]]  # fmt: skip
-            cn = [c[i] + e1[i] * s0 + e2[i] * s1 for i in range(3)]
-            new_state = (cn, dn, f1, f2, radius + s4)
+            dot = ax * dx + ay * dy + az * dz
+            fx, fy, fz = ax - dot * dx, ay - dot * dy, az - dot * dz
+            k = 1.0 / math.sqrt(fx * fx + fy * fy + fz * fz)
+            fx, fy, fz = fx * k, fy * k, fz * k
+            f2 = (dy * fz - dz * fy, dz * fx - dx * fz, dx * fy - dy * fx)
+            cn = (cx + ax * s0 + bx * s1, cy + ay * s0 + by * s1, cz + az * s0 + bz * s1)
+            new_state = (cn, (dx, dy, dz), (fx, fy, fz), f2, radius + s4)
             new_cost, new_jtj, new_jtr = _cylinder_normal_equations(rows, *new_state)
             if new_cost < cost:
                 state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
@@ -462,7 +464,7 @@ def _tangent_angle(points: np.ndarray, centre: np.ndarray, radius: float) -> np.
 
 
 def _cylinder_normal_equations(
-    rows: np.ndarray, c: list[float], d: list[float], e1: _Vec3, e2: _Vec3, radius: float
+    rows: np.ndarray, c: Sequence[float], d: Sequence[float], e1: _Vec3, e2: _Vec3, radius: float
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Cost, J^T J and J^T r of the orthogonal residuals |q| - r of the points ``rows``
     (3, N).
@@ -476,7 +478,11 @@ def _cylinder_normal_equations(
     proj = m @ rows
     proj -= (m @ np.array(c))[:, None]
     t, qb = proj[0], proj[1:]
-    rho = np.sqrt(qb[0] * qb[0] + qb[1] * qb[1])
+    # |q| from both squares in one product (the same sums as qb[0]^2 + qb[1]^2), rooted in
+    # place: numpy's per-call cost outweighs the arithmetic at a frame's few hundred points.
+    rho = qb * qb
+    rho = np.add(rho[0], rho[1])
+    np.sqrt(rho, out=rho)
     # [J | r] as rows: J'J, J'r and r'r from one product.
     aug = np.empty((6, rows.shape[1]))
     np.divide(qb, -np.maximum(rho, 1e-12), out=aug[:2])
