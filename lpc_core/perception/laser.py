@@ -4154,8 +4154,9 @@ def _lying_disc(
     explain ``min_solid_fraction`` of the runs, within the radius limits, with the camera
     outside it. A round lying on its side stands its diameter high, a ball too: neither is
     a disc. ``sizes``, the runs' lengths in ``clean``, let the band's lower rim that a
-    matcher smeared behind the table lie below it (``_smeared_below``). ``scored``: where the
-    RANSAC circle makes no disc, the circles through three samples are scored as discs."""
+    matcher smeared behind the table lie below it (``_smeared_below``). ``scored``: the
+    circles through three samples are scored as discs instead, for a support whose RANSAC
+    circle made none (the caller's unscored call returned ``None``)."""
     normal = support.normal
     d = clean - support.point
     height = d @ normal
@@ -4180,16 +4181,17 @@ def _lying_disc(
     uv = d @ np.column_stack([e1, e2])
     # The camera (the origin) sees the outside of the disc.
     camera = -support.point @ np.column_stack([e1, e2])
-    circle = fit.fit_circle(uv, thr, radius_limits=(lo, hi), seed=_support_rng())
     shares = None
-    if circle:
-        centres, radii = np.array([circle.center]), np.array([circle.radius])
-        shares = _disc_shares(uv, height, centres, radii, camera, params)
-    # The RANSAC circle makes no disc where it explains too few of the runs as well as none
-    # (HH SGBM 5, the jar cap from the front, trial 0 frame 0: a run on the table in front,
-    # 16 of the 69 samples, left its 42 mm circle 0.48; a circle through three, 0.61).
-    short = shares is None or np.count_nonzero(shares[0]) < params.min_solid_fraction * n
-    if scored and short:
+    if not scored:
+        circle = fit.fit_circle(uv, thr, radius_limits=(lo, hi), seed=_support_rng())
+        if circle:
+            centres, radii = np.array([circle.center]), np.array([circle.radius])
+            shares = _disc_shares(uv, height, centres, radii, camera, params)
+    else:
+        # The RANSAC circle makes no disc where it explains too few of the runs as well as
+        # none (HH SGBM 5, the jar cap from the front, trial 0 frame 0: a run on the table in
+        # front, 16 of the 69 samples, left its 42 mm circle 0.48; a circle through three,
+        # 0.61); the caller's unscored call on this support found that already.
         # The circle with most samples on it need not be the disc's: the top face's samples
         # near its front rim lie on a chord, on small circles with a band (the jar cap from
         # the front under blurrier optics and HH mode, trial 0 frame 0: 10.6 and 7.8 mm
