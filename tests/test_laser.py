@@ -650,7 +650,7 @@ def test_beyond_edges_drops_a_fall_on_the_occlusion_side_unless_both_ends_fall()
     on the rows (the functional boxes' -x sides 9 mm out, median, where such a walk set them,
     13 smooth settings). A diagonal line whose walk heads -x drops it; one heading +x keeps
     it; and so does a line whose other end falls away as well (the soap bar's rounded sides,
-    7.8 -> 9.4 mm width MAE had they been dropped too)."""
+    7.8 -> 9.4 mm width MAE had they been dropped too), and a frame that shows no fattening."""
     params = replace(LaserParams(), edge_fattening_px=3.0)
     for degrees, kept in ((135.0, 0), (225.0, 0), (45.0, 1), (315.0, 1)):
         line, face = _face_then_flat(math.radians(degrees))
@@ -659,6 +659,9 @@ def test_beyond_edges_drops_a_fall_on_the_occlusion_side_unless_both_ends_fall()
     line, face = _face_then_flat(math.radians(135.0))
     beyond, _ = _beyond_edges([_rounded_before(line, face)], face, params)
     assert len(beyond) == 2
+    # No fattening measured (lpc's noise model fills nothing): the fall is kept.
+    beyond, _ = _beyond_edges([line], face, replace(params, edge_fattening_px=0.0))
+    assert len(beyond) == 1
     # On its own, the fall at the first end heads +x: kept, and the fill at the last dropped.
     line, face = _face_then_flat(math.radians(135.0), flat=0)
     line = replace(line, points=line.points[:20], sz=line.sz[:20])
