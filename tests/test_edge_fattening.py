@@ -317,8 +317,9 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     behind, 3.3-6.2 mm past: the end with the nearer background fattens no less. Requiring
     every edge far, the side went through that farthest seed; with half of them far
     (``laser._FAR_EDGES``) it goes through the median of its seeds' edges: those four frames
-    come out 1.1-3.3 mm narrower (6.6, 11.6, 12.7, 4.7 -> 3.8, 9.1, 9.4, 3.6 mm too wide),
-    the others and every axis as they were."""
+    come out 1.1-4.5 mm narrower (6.6, 11.6, 12.7, 4.7 -> 3.8, 7.1, 9.4, 3.6 mm too wide),
+    the others and every axis as they were (width MAE 6.1 -> 5.0 mm; 6.5 -> 5.3 before the
+    fill past trial 1 frame 0's -x side was dropped, 4.3 -> -0.6 mm: _occlusion_side_fill)."""
     # Without the fattened seeds' trims taken back before the face's direction is counted,
     # which turn these frames' boxes nearer their axis with and without the rule alike.
     monkeypatch.setattr(laser, "_unfattened_seeds", lambda seeds, _: seeds.points.copy())
@@ -326,8 +327,8 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     narrower = [b - e for e, b in zip(errors, before, strict=True)]
     assert sum(d > 0.001 for d in narrower) >= 4, narrower
     assert min(narrower) > -1e-9, narrower
-    assert np.mean(np.abs(before)) > 0.0065, before
-    assert np.mean(np.abs(errors)) < 0.006, errors
+    assert np.mean(np.abs(before)) > 0.006, before
+    assert np.mean(np.abs(errors)) < 0.0052, errors
 
 
 def _box_width_errors(
