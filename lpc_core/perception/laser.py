@@ -3657,12 +3657,21 @@ def _flat_fit(full: CylinderSolid, first: float, last: float, pixel_rad: float) 
     """Whether ``full``'s silhouette lies ``_FLAT_FIT_PX`` or more beyond the samples on both
     sides, ``first`` and ``last`` their extreme view angles across its axis (``_across_view``;
     infinite on a side whose segments go on, which shows no silhouette)."""
-    foot = full.point - float(full.point @ full.axis) * full.axis
-    distance = float(np.linalg.norm(foot))
-    if distance <= full.radius or not (math.isfinite(first) and math.isfinite(last)):
+    view = _axis_in_view(full)
+    if view is None or not (math.isfinite(first) and math.isfinite(last)):
         return False
-    half = math.asin(full.radius / distance)
+    half = view[1]
     return min(first + half, half - last) >= _FLAT_FIT_PX * pixel_rad
+
+
+def _axis_in_view(solid: CylinderSolid) -> tuple[float, float] | None:
+    """The distance from the camera to ``solid``'s axis and the half-angle its silhouette
+    subtends across the axis; ``None`` where the camera lies within the round."""
+    foot = solid.point - float(solid.point @ solid.axis) * solid.axis
+    distance = float(np.linalg.norm(foot))
+    if distance <= solid.radius:
+        return None
+    return distance, math.asin(solid.radius / distance)
 
 
 # The samples at a segment's end that must step one pixel at a time for it to end at a rim.
@@ -3787,11 +3796,10 @@ def _background_bound(
     on = np.flatnonzero(full.residuals(samples) <= 4 * params.solid_threshold_m)
     if len(on) == 0:
         return None
-    foot = solid.point - float(solid.point @ solid.axis) * solid.axis
-    distance = float(np.linalg.norm(foot))
-    if distance <= solid.radius:
+    view = _axis_in_view(solid)
+    if view is None:
         return None
-    half = math.asin(solid.radius / distance)
+    distance, half = view
     limit = half
     for sign, (ln, k) in zip((-1.0, 1.0), _outermost_samples(lines, angle, on), strict=True):
         last = len(ln.points) - 1
