@@ -198,9 +198,9 @@ SETTINGS: dict[str, Setting] = {
         rig={"dot_sigma_px": 0.5, "albedo": 0.5},
         matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 8, "disp12_max_diff": -1},
     ),
-    # Held out from every helper of stop 35: only the lead's before -> after runs on them.
-    "fresh-bm7t": Setting(
-        "fresh",
+    # Held out from every helper of stop 35 (then its "fresh" group); studied from stop 36.
+    "bm7-t20": Setting(
+        "untuned",
         "BM 7, uniqueness 12, texture threshold 20, prefilter cap 31, a seventh dot pattern",
         rig={"pattern_seed": 7},
         matcher={
@@ -211,29 +211,60 @@ SETTINGS: dict[str, Setting] = {
             "pre_filter_cap": 31,
         },
     ),
-    "fresh-proj35": Setting(
-        "fresh",
+    "proj35": Setting(
+        "untuned",
         "SGBM 7, projector 35 mm from the left imager, dots 0.7 px, three times the room light",
         rig={"projector_x_m": 0.035, "dot_sigma_px": 0.7, "ambient": 0.24},
     ),
-    "fresh-dense5": Setting(
-        "fresh",
+    "dense5": Setting(
+        "untuned",
         "SGBM 5, 0.08 dots/px² of even brightness, uniqueness 15, speckle window 200, range 1",
         rig={"dot_density": 0.08, "dot_brightness": (0.8, 1.0)},
         matcher={"block_size": 5, "uniqueness": 15, "speckle_window": 200, "speckle_range": 1},
     ),
-    "fresh-hh7": Setting(
-        "fresh",
+    "hh7-p2x4": Setting(
+        "untuned",
         "SGBM 7, HH mode, P1 / 2, P2 x 4, 1.7 times the shot noise, optics 0.8 px",
         rig={"electrons_per_dn": 6.0, "blur_sigma_px": 0.8},
         matcher={"sgbm_mode": "hh"},
         smoothness=(0.5, 4.0),
     ),
-    "fresh-3way9": Setting(
-        "fresh",
+    "3way9-dark": Setting(
+        "untuned",
         "SGBM 9, 3-way mode, albedo 0.4, read noise 2, an eighth dot pattern, texture check 8",
         rig={"albedo": 0.4, "read_noise_dn": 2.0, "pattern_seed": 8},
         matcher={"block_size": 9, "sgbm_mode": "3way", "min_texture": 8.0},
+    ),
+    # Held out from every helper of stop 36: only the lead's before -> after runs on them.
+    "fresh-bm9s": Setting(
+        "fresh",
+        "BM 9, uniqueness 10, speckle window 150 and range 1, 0.045 dots/px², a ninth pattern",
+        rig={"dot_density": 0.045, "pattern_seed": 9},
+        matcher={"kind": "bm", "block_size": 9, "speckle_window": 150, "speckle_range": 1},
+    ),
+    "fresh-base60": Setting(
+        "fresh",
+        "SGBM 7, 60 mm baseline, projector 20 mm from the left imager, albedo 0.65",
+        rig={"baseline_m": 0.06, "projector_x_m": 0.02, "albedo": 0.65},
+    ),
+    "fresh-hh5d": Setting(
+        "fresh",
+        "SGBM 5, HH mode, dots 0.45 px, 60 % of the signal, read noise 2.5",
+        rig={"dot_sigma_px": 0.45, "gain_dn": 190.0, "read_noise_dn": 2.5},
+        matcher={"block_size": 5, "sgbm_mode": "hh"},
+    ),
+    "fresh-p2x3": Setting(
+        "fresh",
+        "SGBM 9, P2 x 3, uniqueness 5, left-right 3 px, 2.5 times the room light",
+        rig={"ambient": 0.2},
+        matcher={"block_size": 9, "uniqueness": 5, "disp12_max_diff": 3},
+        smoothness=(1.0, 3.0),
+    ),
+    "fresh-3way7s": Setting(
+        "fresh",
+        "SGBM 7, 3-way, IR 2x supersampled, 0.03 dots/px², twice the shot noise, a tenth pattern",
+        rig={"supersample": 2, "dot_density": 0.03, "electrons_per_dn": 5.0, "pattern_seed": 10},
+        matcher={"sgbm_mode": "3way"},
     ),
 }
 
