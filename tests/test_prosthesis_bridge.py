@@ -127,6 +127,28 @@ def test_driver_carries_emg_from_the_hand(channel: str) -> None:
         assert status is not None and status.emg[:3] == (12.0, 800.0, 3.0)
 
 
+def test_driver_poll_reads_a_whole_status_cycle_in_one_call(channel: str) -> None:
+    """``recv(timeout=0)`` (``HandLink.poll``, the loop's reader) reads on through a cycle's
+    EMG frames to its status while the bus holds frames: one call a cycle, then ``None``
+    (main: ``None`` after the first EMG frame, the status only at the third call)."""
+    device = can.Bus(interface="virtual", channel=channel)
+    with LpcHand(channel=channel) as driver:
+        emg = tuple(float(v) for v in range(100, 108))
+        sent = HandStatus(wrist_angle_deg=-20.0, aperture_mm=61.0, emg=emg, counter=9)
+        frames = cp.encode_status(sent)
+        assert len(frames) == 3  # two EMG frames, then the status
+        for frame in frames:
+            device.send(
+                can.Message(
+                    arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False
+                )
+            )
+        got = driver.recv(timeout=0.0)
+        assert driver.recv(timeout=0.0) is None
+    device.shutdown()
+    assert got is not None and (got.aperture_mm, got.emg, got.counter) == (61.0, emg, 9)
+
+
 def test_open_hand_unknown_profile_or_interface_is_unavailable(channel: str) -> None:
     with pytest.raises(DeviceUnavailable, match="unknown hand profile"):
         open_hand("michelangelo", channel=channel)

@@ -198,7 +198,10 @@ class HandDriver:
                 continue
             if status is not None:
                 return status
-            if deadline is not None and time.monotonic() >= deadline:
+            # A poll (timeout 0, the loop's reader) reads on through the frames the bus holds
+            # (a cycle's EMG frames, then its status): returning here after the first one
+            # ran the loop's reader again for the rest, a second pass a cycle.
+            if timeout != 0 and deadline is not None and time.monotonic() >= deadline:
                 return None
 
     def fileno(self) -> int | None:
