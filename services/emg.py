@@ -44,33 +44,29 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 async def _simulated_user(bus: Bus, args: argparse.Namespace) -> None:
     out = bus.publisher("lpc/emg")
     user = UserState(seed=args.seed, user=UserParams(exercise_wrist=not args.no_wrist))
-
-    async def watch(key: str) -> None:
-        nonlocal user
-        async for message in bus.subscribe(key):
-            user, _ = user_step(user, message, bus.clock.now_ns())
-
-    watchers = [
-        asyncio.create_task(watch(k))
+    # What the person perceives is read when the tick fires, all of it, in the order it
+    # arrived and at the time it did: a task per topic woken per message (the hand's status,
+    # the cue: about 200 task steps a second) changed nothing until the next tick.
+    perceived = [
+        bus.subscribe(k, latest=False)
         for k in ("lpc/controller/state", "lpc/prosthesis/state", "lpc/aim/cue")
     ]
-    try:
-        # On the clock's 10 ms grid, as the controller's ticks are: one wake-up of the control
-        # loop for both.
-        t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
-        while True:
-            t_ns += PERIOD_NS
-            await bus.clock.sleep_until(t_ns)
-            user, samples = user_step(user, Tick(t_ns), t_ns)
-            for sample in samples:
-                out.put(sample)
-            behind = bus.clock.now_ns() - t_ns
-            if behind > 20 * PERIOD_NS:  # stalled for 200 ms: skip ahead, do not burst
-                bus.health.counters["skipped_samples"] += behind // PERIOD_NS
-                t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
-    finally:
-        for task in watchers:
-            task.cancel()
+    # On the clock's 10 ms grid, as the controller's ticks are: one wake-up of the control
+    # loop for both.
+    t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
+    while True:
+        t_ns += PERIOD_NS
+        await bus.clock.sleep_until(t_ns)
+        messages = [got for sub in perceived for got in sub.take_queued()]
+        for _, message, received_ns in sorted(messages, key=lambda got: got[2]):
+            user, _ = user_step(user, message, received_ns)
+        user, samples = user_step(user, Tick(t_ns), t_ns)
+        for sample in samples:
+            out.put(sample)
+        behind = bus.clock.now_ns() - t_ns
+        if behind > 20 * PERIOD_NS:  # stalled for 200 ms: skip ahead, do not burst
+            bus.health.counters["skipped_samples"] += behind // PERIOD_NS
+            t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
 
 
 async def _device(bus: Bus, args: argparse.Namespace) -> None:

@@ -378,19 +378,39 @@ class Subscription:
                 self._ready.clear()
                 await self._ready.wait()
                 self._resumed_ns = time.monotonic_ns()
-            key, payload, received_ns = self._queue.popleft()
-            stream = self._bus.health.received[key]
-            stream.count += 1
-            stream.stamps.append(received_ns)
-            if not self._decode:
-                return key, payload, received_ns
-            try:
-                if self._router is not None:
-                    return key, self._router.decode(key, payload), received_ns
-                return key, topic_for_key(key).decode(payload, key), received_ns
-            except (BadMessage, KeyError) as exc:
-                stream.rejected += 1
-                self._bus.reject(key, str(exc))
+            got = self._take()
+            if got is not None:
+                return got
+
+    def take_queued(self) -> list[tuple[str, Any, int]]:
+        """Every sample queued now, as ``receive`` returns them, without waiting: for a
+        service that reads an input when its own timer fires, not in a task woken per sample.
+        Samples waiting in the router's inbox are handed over first."""
+        if self._router is not None:
+            self._router.hand_over_now()
+        taken = []
+        while self._queue:
+            got = self._take()
+            if got is not None:
+                taken.append(got)
+        return taken
+
+    def _take(self) -> tuple[str, Any, int] | None:
+        # The oldest queued sample, counted and decoded; a bad one is counted and reported.
+        key, payload, received_ns = self._queue.popleft()
+        stream = self._bus.health.received[key]
+        stream.count += 1
+        stream.stamps.append(received_ns)
+        if not self._decode:
+            return key, payload, received_ns
+        try:
+            if self._router is not None:
+                return key, self._router.decode(key, payload), received_ns
+            return key, topic_for_key(key).decode(payload, key), received_ns
+        except (BadMessage, KeyError) as exc:
+            stream.rejected += 1
+            self._bus.reject(key, str(exc))
+            return None
 
     @property
     def queued(self) -> int:

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import argparse
+import asyncio
 import collections
 import itertools
 import threading
 import time
 
 import numpy as np
+import pytest
 import zenoh
 
 from lpc_core.control.emg import EmgProfile, Gesture, detect
@@ -22,6 +25,8 @@ from schemas import (
     decode,
     encode,
 )
+from services import emg
+from services.runtime import Bus, Router, zenoh_config
 from tests.conftest import spawn_service, wait_for
 
 
@@ -169,3 +174,54 @@ def test_emg_service_sim_user_answers_the_ready_pulse(
         process.wait(timeout=10)
         listen.close()
     assert process.returncode == 0
+
+
+def test_emg_service_sim_user_perceives_at_its_tick_in_one_task(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The simulated user takes what it perceives (the hand's status, the cue, the controller's
+    state) when its 10 ms tick fires, every message in the order it arrived and at the time it
+    did, before the tick's sample: one task for the service, none woken per message (main: a
+    task per topic, four in all)."""
+    stepped: list[tuple[str, int, int]] = []
+
+    def user_step(state, message, now_ns):  # type: ignore[no-untyped-def]
+        stepped.append((type(message).__name__, getattr(message, "seq", -1), now_ns))
+        return real(state, message, now_ns)
+
+    real = emg.user_step
+    monkeypatch.setattr(emg, "user_step", user_step)
+
+    async def main() -> int:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        bus = Bus(session, "emg", loop=loop, router=router, quiet=True)
+        before = len(asyncio.all_tasks())
+        service = asyncio.create_task(
+            emg.serve(bus, argparse.Namespace(source="sim", seed=0, no_wrist=False))
+        )
+        await asyncio.sleep(0.03)
+        tasks = len(asyncio.all_tasks()) - before
+        for seq in range(1, 6):  # as the hand's bridge would, between two ticks
+            state = ProsthesisState(
+                seq=seq, t_ns=time.time_ns(), wrist_angle_deg=0.0, aperture_mm=90.0 - seq
+            )
+            router.deliver("lpc/prosthesis/state", encode(state))
+        cue = AimCue(seq=1, t_ns=time.time_ns(), frame_seq=1, state="on_target")
+        router.deliver("lpc/aim/cue", encode(cue))
+        await asyncio.sleep(0.03)
+        service.cancel()
+        await asyncio.gather(service, return_exceptions=True)
+        bus.close()
+        router.close()
+        session.close()
+        return tasks
+
+    assert asyncio.run(main()) == 1
+    perceived = [(kind, seq) for kind, seq, _ in stepped if kind != "Tick"]
+    assert perceived == [("ProsthesisState", s) for s in range(1, 6)] + [("AimCue", 1)]
+    first = next(i for i, (kind, _, _) in enumerate(stepped) if kind != "Tick")
+    assert stepped[first + 6][0] == "Tick"  # all six before the next tick's sample
+    times = [t for _, _, t in stepped[first : first + 6]]
+    assert times == sorted(times) and times[-1] <= stepped[first + 6][2] + 10_000_000

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import select
 import threading
 import time
 from pathlib import Path
@@ -17,8 +18,8 @@ from lpc_core.devices import can_protocol as cp
 from lpc_core.devices.hand import HandCommand, HandStatus
 from schemas import ProsthesisCommand, decode, encode
 from services.drivers.errors import DeviceUnavailable, DriverError, OperationError
-from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand
-from services.drivers.hand_sim import PERIOD_S, SimulatedHand, _next_tick
+from services.drivers.hand import BACKENDS, HandLink, LpcHand, open_hand, serial_port_url
+from services.drivers.hand_sim import PERIOD_S, SimulatedHand, _next_tick, open_pty_bus
 from tests.conftest import spawn_service, wait_for
 
 _channels = itertools.count()
@@ -126,6 +127,28 @@ def test_driver_carries_emg_from_the_hand(channel: str) -> None:
         assert status is not None and status.emg[:3] == (12.0, 800.0, 3.0)
 
 
+def test_driver_poll_reads_a_whole_status_cycle_in_one_call(channel: str) -> None:
+    """``recv(timeout=0)`` (``HandLink.poll``, the loop's reader) reads on through a cycle's
+    EMG frames to its status while the bus holds frames: one call a cycle, then ``None``
+    (main: ``None`` after the first EMG frame, the status only at the third call)."""
+    device = can.Bus(interface="virtual", channel=channel)
+    with LpcHand(channel=channel) as driver:
+        emg = tuple(float(v) for v in range(100, 108))
+        sent = HandStatus(wrist_angle_deg=-20.0, aperture_mm=61.0, emg=emg, counter=9)
+        frames = cp.encode_status(sent)
+        assert len(frames) == 3  # two EMG frames, then the status
+        for frame in frames:
+            device.send(
+                can.Message(
+                    arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False
+                )
+            )
+        got = driver.recv(timeout=0.0)
+        assert driver.recv(timeout=0.0) is None
+    device.shutdown()
+    assert got is not None and (got.aperture_mm, got.emg, got.counter) == (61.0, emg, 9)
+
+
 def test_open_hand_unknown_profile_or_interface_is_unavailable(channel: str) -> None:
     with pytest.raises(DeviceUnavailable, match="unknown hand profile"):
         open_hand("michelangelo", channel=channel)
@@ -137,6 +160,38 @@ def test_open_hand_missing_socketcan_device_is_a_driver_error() -> None:
     # No such interface (or no AF_CAN in this kernel): a DriverError, never a python-can error.
     with pytest.raises(DriverError, match="socketcan:lpc-no-such-can"):
         open_hand("lpc", interface="socketcan", channel="lpc-no-such-can")
+
+
+def test_driver_reads_the_serial_bus_without_a_select_per_field(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """python-can's serial bus reads a frame in six reads; on pyserial's default port each
+    selects first. The driver's port (``serial_port_url``) reads without: no select at all for
+    a status frame and the empty read after it, the same status."""
+    device, path = open_pty_bus()
+    driver = LpcHand(interface="serial", channel=path)
+    try:
+        sent = HandStatus(wrist_angle_deg=12.0, aperture_mm=55.0, grip_force_pct=3.0, counter=7)
+        for frame in cp.encode_status(sent):
+            message = can.Message(
+                arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False
+            )
+            device.send(message)
+        assert select.select([driver.fileno()], [], [], 2.0)[0]
+        time.sleep(0.01)  # the pty hands the writes over on a kernel worker
+        selects = []
+        real = select.select
+        monkeypatch.setattr(select, "select", lambda *a: selects.append(a) or real(*a))
+        got = driver.recv(timeout=0.0)
+        assert driver.recv(timeout=0.0) is None
+    finally:
+        driver.shutdown()
+        device.shutdown()
+    assert got is not None
+    assert (got.wrist_angle_deg, got.aperture_mm, got.counter) == (12.0, 55.0, 7)
+    assert selects == []  # pyserial's default port: 7 (one per read)
+    assert serial_port_url("/dev/pts/3") == "alt:///dev/pts/3?class=VTIMESerial"
+    assert serial_port_url("socket://localhost:1") == "socket://localhost:1"
 
 
 def test_simulated_hand_stops_on_its_own_watchdog(channel: str) -> None:

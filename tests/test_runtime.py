@@ -295,6 +295,39 @@ def test_newest_takes_the_last_sample_without_waking_the_loop(endpoint: str) -> 
     asyncio.run(main())
 
 
+def test_take_queued_returns_every_queued_sample_without_waiting(endpoint: str) -> None:
+    """``take_queued`` gives what ``receive`` would, all at once: every sample queued, in
+    order, with its receive time, those still in the router's inbox (another thread's)
+    included; a bad payload is counted as rejected and left out; then nothing."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        bus = Bus(session, "emg", loop=loop, router=router, quiet=True)
+        sub = bus.subscribe("lpc/emg", latest=False)
+        assert sub.take_queued() == []
+        for seq in range(3):
+            router.deliver("lpc/emg", encode(EmgSample(seq=seq, t_ns=seq + 1, channels=[0.0])))
+        router.deliver("lpc/emg", b"not msgpack")
+        late = encode(EmgSample(seq=3, t_ns=4, channels=[0.0]))
+        thread = threading.Thread(target=router.deliver, args=("lpc/emg", late))
+        thread.start()
+        thread.join()  # queued in the router's inbox, not yet handed over
+        taken = sub.take_queued()
+        assert [m.seq for _, m, _ in taken] == [0, 1, 2, 3]
+        stamps = [t for _, _, t in taken]
+        assert stamps == sorted(stamps) and all(key == "lpc/emg" for key, _, _ in taken)
+        stream = bus.health.received["lpc/emg"]
+        assert (stream.count, stream.rejected) == (5, 1)
+        assert sub.take_queued() == []
+        bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())
+
+
 def test_health_latency_quantiles_by_partition_equal_the_sorted_ones() -> None:
     """With numpy loaded the health's p50/p99 come from a partition, not a sort: the same
     Python floats as ``_quantile`` on the sorted samples, ties and short streams included."""

@@ -93,6 +93,23 @@ def open_can_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
     return can.Bus(interface=interface, channel=channel, **kwargs)
 
 
+def serial_port_url(path: str) -> str:
+    """The pyserial URL a driver's python-can serial bus opens for a terminal it reads
+    without waiting (a serial device, a pty's slave): on POSIX pyserial's ``VTIMESerial``
+    (``alt://PATH?class=VTIMESerial``, pyserial's own handler), which reads with one ``read``
+    where its default port selects first. python-can reads a frame in six reads (start, stamp,
+    length, id, data, end): twelve system calls a frame, six with it; each releases the GIL,
+    which the bridge's loop then waits to take back behind the thread that forwards the
+    commands. With no timeout (VMIN and VTIME 0) both return what the line holds at once. Not
+    for a pty's master (``open_pty_bus``), whose reads no VMIN/VTIME governs: they would wait.
+    A URL, or a platform without it, is left as it is."""
+    import serial  # python-can's serial bus imports it anyway; a virtual bus need not
+
+    if "://" in path or not hasattr(serial, "VTIMESerial"):
+        return path
+    return f"alt://{path}?class=VTIMESerial"
+
+
 class HandDriver:
     """Base class: opening, sending frames, receiving with timeout and filtering, shutdown.
 
@@ -118,6 +135,8 @@ class HandDriver:
         self.last_error = ""
         self._closed = False
         config = {"bitrate": bitrate} if interface not in ("virtual", "socketcan") else {}
+        if interface == "serial" and "timeout" not in kwargs:  # read without waiting
+            channel = serial_port_url(channel)
         try:
             self._bus = open_can_bus(
                 interface, channel, receive_own_messages=False, **config, **kwargs
@@ -125,9 +144,9 @@ class HandDriver:
         except (can.CanInterfaceNotImplementedError, ImportError) as exc:
             raise DeviceUnavailable(f"CAN interface {interface!r} is not available: {exc}") from exc
         except can.CanInitializationError as exc:
-            raise InitialisationError(f"cannot open {interface}:{channel}: {exc}") from exc
+            raise InitialisationError(f"cannot open {interface}:{self.channel}: {exc}") from exc
         except (OSError, ValueError) as exc:
-            raise DeviceUnavailable(f"cannot open {interface}:{channel}: {exc}") from exc
+            raise DeviceUnavailable(f"cannot open {interface}:{self.channel}: {exc}") from exc
 
     # ------------------------------------------------------------------ interface
 
@@ -179,7 +198,10 @@ class HandDriver:
                 continue
             if status is not None:
                 return status
-            if deadline is not None and time.monotonic() >= deadline:
+            # A poll (timeout 0, the loop's reader) reads on through the frames the bus holds
+            # (a cycle's EMG frames, then its status): returning here after the first one
+            # ran the loop's reader again for the rest, a second pass a cycle.
+            if timeout != 0 and deadline is not None and time.monotonic() >= deadline:
                 return None
 
     def fileno(self) -> int | None:
