@@ -984,33 +984,45 @@ def _min_area_rectangle(uv: np.ndarray) -> np.ndarray:
 
 
 # The turns of a face's direction searched from the smallest rectangle's (see
-# _straightest_sides): every degree over +-15, then every tenth of one over +-1 around the best.
+# _straightest_sides): every degree over a quarter turn (a rectangle's sides repeat every 90),
+# then every tenth of one over +-1 around the best.
 _SIDE_TURNS_RAD = (
-    np.radians(np.arange(-15.0, 15.5, 1.0)),
+    np.radians(np.arange(-45.0, 45.0, 1.0)),
     np.radians(np.arange(-1.0, 1.05, 0.1)),
 )
+# The turns of ``side`` along which the points that are a strip's extreme take part (see
+# _straightest_sides): every direction lies within 7.5 degrees of one of them or of its normal.
+_EXTREME_TURNS_RAD = np.radians(np.arange(0.0, 90.0, 15.0))
 
 
 def _straightest_sides(
     uv: np.ndarray, side: np.ndarray, strip_m: float, fine_m: float
 ) -> np.ndarray:
-    """Unit direction, near ``side``, along which the face's points ``uv`` (2-D) have the
-    straightest sides: cut in strips ``strip_m`` wide along each side, the median absolute
-    deviation of the strips' extremes (each side's), summed over the four sides, is smallest.
+    """Unit direction along which the face's points ``uv`` (2-D) have the straightest sides:
+    cut in strips ``strip_m`` wide along each side, the median absolute deviation of the
+    strips' extremes (each side's), summed over the four sides, is smallest. The search
+    starts from ``side`` and covers every direction.
 
     A stereo matcher fattens an occluding edge by an amount that varies along it (3-15 px at
     SGBM 7 where the background is far and dim), and the smallest rectangle around the points
     turns to follow the stretches that reach furthest: the full cloud's upright box was
     3.1-3.8 degrees off its axis at SGBM 5-9 (up to 9.5), and 0.7-0.8 on the exact depth of the
     same poses. Those stretches lie beyond the median strip of their side, whose deviation
-    leaves them out. Only the points that are a strip's extreme along ``side`` (strips
-    ``fine_m`` wide) take part: a turn of up to 16 degrees hardly makes another one extreme."""
-    a, b = uv @ side, uv @ np.array([-side[1], side[0]])
+    leaves them out. Under a strong smoothness term (SGBM 7 with P1 x 3, P2 x 6) the face's
+    depth fills the dim background and the occluded band beside it in blotches up to 100 mm
+    across, and the smallest rectangle turned the upright box 18-38 degrees on 6 of 10
+    frames: further than any turn near it reaches. Only the points that are a strip's extreme
+    (strips ``fine_m`` wide) along one of six directions 15 degrees apart take part: a turn of
+    up to 7.5 degrees hardly makes another one extreme."""
     keep = np.zeros(len(uv), dtype=bool)
-    for across, along in ((a, b), (b, a)):
-        lows, highs = _strip_extremes(across[:, None], along[:, None], fine_m)
-        keep[lows] = True
-        keep[highs] = True
+    start = math.atan2(side[1], side[0]) + _EXTREME_TURNS_RAD
+    for angle in start:
+        direction = np.array([math.cos(angle), math.sin(angle)])
+        a, b = uv @ direction, uv @ np.array([-direction[1], direction[0]])
+        for across, along in ((a, b), (b, a)):
+            lows, highs = _strip_extremes(across[:, None], along[:, None], fine_m)
+            keep[lows] = True
+            keep[highs] = True
     edge = uv[keep]
     best = math.atan2(side[1], side[0])
     for turns in _SIDE_TURNS_RAD:
@@ -1320,7 +1332,8 @@ def _cuboid_geometry(
     further out than the rest, the median stretch bounds it (``_strip_sides``), and it moves
     in by ``edge_fattening_px`` (stereo matching's fattening lies on the face's own plane
     there), if ``trimmed`` (given the side's middle and its outward direction, both 3-D) says
-    so or is None.
+    so or is None. Where a matcher made the frame, a side standing on the supporting plane
+    goes out to the line the two planes meet on (``_contact_lines``).
     """
     face, face_points, index = pierced
     others = [f.normal for i, f in enumerate(fit.faces) if i != index]
@@ -1360,14 +1373,10 @@ def _cuboid_geometry(
         if i != index:
             met |= inliers
     o1, o2 = points[met] @ e1, points[met] @ e2
+    standing = _on_support(face, (e1, e2), extremes, support, near)
     occluding = [
         not np.any(np.abs(o - edge) <= near) and not on_support
-        for edge, o, on_support in zip(
-            extremes,
-            (o1, o1, o2, o2),
-            _on_support(face, (e1, e2), extremes, support, near),
-            strict=True,
-        )
+        for edge, o, on_support in zip(extremes, (o1, o1, o2, o2), standing, strict=True)
     ]
     strip_m, tolerance = 2 * params.voxel_m, params.side_tolerance_m
     strips = (*_strip_sides(s1, s2, strip_m, tolerance), *_strip_sides(s2, s1, strip_m, tolerance))
@@ -1375,6 +1384,19 @@ def _cuboid_geometry(
         strip if free else edge
         for strip, edge, free in zip(strips, extremes, occluding, strict=True)
     )
+    if matched and any(standing):
+        # A matcher's window straddles the crease where the face meets its table: the points
+        # within about half a window of it lie off both planes, and the face stops short of
+        # the line the two planes meet on (2-3 mm at SGBM 5-11, the lying box 37 mm for 40).
+        # A side standing on the table goes out to that line, if it lies no further out than
+        # twice the reach within which the table's points stood on the side.
+        lines = _contact_lines(face, (e1, e2), (lo1, hi1, lo2, hi2), support)
+        lo1, hi1, lo2, hi2 = (
+            line if on and line is not None and 0 < (line - edge) * out <= 2 * near else edge
+            for edge, line, on, out in zip(
+                (lo1, hi1, lo2, hi2), lines, standing, (-1, 1, -1, 1), strict=True
+            )
+        )
     if params.edge_fattening_px > 0 and pixel_rad > 0:
         # Only the fattening within fit_threshold_m of a slanted face was counted as its own.
         z = float(np.median(face_whole[:, 2]))
@@ -1406,6 +1428,40 @@ def _cuboid_geometry(
     if extent1 >= extent2:
         return extent2, e1, center
     return extent1, e2, center
+
+
+# A side runs along the line where the face's plane meets its table's within this angle.
+_CONTACT_PARALLEL_RAD = math.radians(5.0)
+
+
+def _contact_lines(
+    face: PlaneModel,
+    basis: tuple[np.ndarray, np.ndarray],
+    sides: tuple[float, float, float, float],
+    support: np.ndarray | None,
+) -> list[float | None]:
+    """Where the line on which the face's plane meets the supporting plane (refitted to
+    ``support``) crosses the middle of the face's nearer side that it runs along (within
+    ``_CONTACT_PARALLEL_RAD``), per side ``(lo1, hi1, lo2, hi2)`` along the in-plane
+    ``basis``; None for the others, and for all where the planes are near parallel."""
+    out: list[float | None] = [None] * 4
+    table = _support_refit(support) if support is not None and len(support) >= 3 else None
+    if table is None:
+        return out
+    normal, offset = table
+    a1, a2 = float(normal @ basis[0]), float(normal @ basis[1])
+    c = float(normal @ (-face.offset * face.normal)) + offset
+    slope = math.hypot(a1, a2)
+    if slope < math.sin(math.pi / 6):
+        # Within 30 degrees of the table's plane (a lying box's top) the face stands on no side.
+        return out
+    for k, (a, b) in enumerate(((a1, a2), (a2, a1))):
+        if abs(b) <= math.sin(_CONTACT_PARALLEL_RAD) * slope:
+            lo, hi = sides[2 * k : 2 * k + 2]
+            middle = (sides[2 - 2 * k] + sides[3 - 2 * k]) / 2
+            line = -(b * middle + c) / a
+            out[2 * k + (abs(line - hi) < abs(line - lo))] = line
+    return out
 
 
 def _on_support(
