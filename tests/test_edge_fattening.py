@@ -303,8 +303,11 @@ def test_a_box_side_with_the_room_behind_it_goes_through_its_seeds_median(
     )  # fmt: skip
     # Trial 1 frames 0, 2 and 4: -3.4, -4.3, -4.1 mm before. (Trial 0 frame 1, +4.8 mm with
     # neither rule, is mended before the median by the tapering ends, ``laser._ramp_ends``.)
+    # (Trial 0's runs no longer stop at a matcher's excursion off the face's plane,
+    # ``laser._across_excursions``: its frames came out 0.5-3.1 mm off before the median, and
+    # the mean 2.3 mm, not 3.)
     assert sum(abs(e) < 0.002 < abs(b) for e, b in zip(errors, before, strict=True)) >= 3
-    assert np.mean(np.abs(before)) > 0.003, before
+    assert np.mean(np.abs(before)) > 0.002, before
     assert np.mean(np.abs(errors)) < 0.0025, errors
 
 
