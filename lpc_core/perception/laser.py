@@ -3787,6 +3787,16 @@ def _background_bound(
     60 mm can under BM 7-9 and SGBM 11: 11-20 mm wide, its silhouette 4-10 px past the
     background on one side). Under lpc's noise model the background shows within half a
     pixel of the silhouette, and the fit's silhouette within it.
+
+    Other segments' ends near a rim (``_near_rim_ends``) bound it too, with
+    ``_NEAR_RIM_SLACK_PX``: a cylinder's silhouette lies at one view angle across its axis
+    all along it, so every line crossing a rim meets it there, and where the outermost sample
+    lies in a window's fattening another line may show the background nearer (the 50 mm
+    bottle tilted right: samples 3.3 px past the true silhouette on each side, median). Not
+    a pixel past: on the side that faces the second imager (+x), where the background beside
+    the round is seen by both and matched, a window may give the rim's last pixels its depth,
+    and that background lay up to 3 px inside the true silhouette (p1 of such ends, stereo
+    sweep; lpc's noise model 1.1 px); on the occluded side it lay 10 or more pixels past.
     """
     far = getattr(scan_lines, "far_past_m", None)
     samples = np.concatenate([ln.points for ln in lines])
@@ -3801,7 +3811,14 @@ def _background_bound(
         return None
     distance, half = view
     limit = half
-    for sign, (ln, k) in zip((-1.0, 1.0), _outermost_samples(lines, angle, on), strict=True):
+    outermost = _outermost_samples(lines, angle, on)
+    ends = [(sign, ln, k, pixel_rad) for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True)]
+    slack = _NEAR_RIM_SLACK_PX * pixel_rad
+    ends += [
+        (sign, ln, k, slack)
+        for sign, ln, k in _near_rim_ends(lines, samples, angle, on, full, outermost, pixel_rad)
+    ]
+    for sign, ln, k, allowance in ends:
         last = len(ln.points) - 1
         if k not in (0, last):
             continue  # the segment goes on past the round: no rim there
@@ -3819,10 +3836,75 @@ def _background_bound(
             continue
         past, at = sign * _across_view(solid, np.stack([seen, end]))
         if past > at:
-            limit = min(limit, float(past) + pixel_rad)
+            limit = min(limit, float(past) + allowance)
     if limit >= half:
         return None
     return 2 * distance * math.sin(limit)
+
+
+# How far inside a round's outermost sample on a side (pixels across its axis) another
+# segment's end still meets that rim: twice the band a matcher bows a rim out by.
+_NEAR_RIM_PX = 2 * _RIM_PX
+# How far past the background seen beyond such an end the silhouette may lie (pixels).
+_NEAR_RIM_SLACK_PX = 2.0
+
+
+def _near_rim_ends(
+    lines: list[LineModels],
+    samples: np.ndarray,
+    angle: np.ndarray,
+    on: np.ndarray,
+    full: CylinderSolid,
+    outermost: list[tuple[LineModels, int]],
+    pixel_rad: float,
+) -> list[tuple[float, LineModels, int]]:
+    """The side (-1 or +1 by ``angle``, the view angles across the axis of ``samples``, the
+    lines' points laid end to end), line and index of every segment end among ``on`` (the
+    samples on the round) but the ``outermost`` two within ``_NEAR_RIM_PX`` of its side's
+    outermost sample, on a side whose outermost sample ends its segment in a matcher's
+    fattening (``_fattened_end``: a plateau, then the rim), and not at either of the round's
+    ends along its axis: within ``_RIM_PX`` (of the end's pixel footprint) of the farthest
+    sample on the round along ``full``'s axis.
+
+    Where the outermost sample ends at the rim itself, the background past it bounds the
+    silhouette already, and other lines' ends a few pixels in belong to an object only
+    roughly a cylinder as often (lpc's noise model, which fattens nothing: the horse toy
+    49-55 mm cut to 40-50, the banana 38.1 -> 36.9 mm).
+
+    A line that leaves the round over its end (an upright can's top rim) ends inside the
+    silhouette, a few pixels in where it leaves near a side, and the background past it says
+    nothing of the width (lpc's noise model: such ends 7-15 px inside, which cut the 60 mm
+    can to 44-56 mm); every sample on the top rim lies at the round's end along its axis."""
+    if len(on) == 0:
+        return []
+    sizes = [len(ln.points) for ln in lines]
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    on_round = np.zeros(len(angle), dtype=bool)
+    on_round[on] = True
+    edge = {-1.0: float(angle[on].min()), 1.0: float(angle[on].max())}
+    for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True):
+        last = len(ln.points) - 1
+        z = ln.sz[:, 1]
+        if k not in (0, last) or _fattened_end(z, k, 1 if k == 0 else -1) == k:
+            del edge[sign]  # that side's outermost sample ends at the rim, or the round goes on
+    if not edge:
+        return []
+    along = samples @ full.axis
+    lowest, highest = float(along[on].min()), float(along[on].max())
+    found = []
+    for ln, start in zip(lines, starts.tolist(), strict=True):
+        for k in (0, len(ln.points) - 1):
+            i = start + k
+            if not on_round[i] or any(o is ln and j == k for o, j in outermost):
+                continue
+            sign = 1.0 if angle[i] > 0 else -1.0
+            if sign not in edge or sign * (edge[sign] - angle[i]) > _NEAR_RIM_PX * pixel_rad:
+                continue
+            footprint = _RIM_PX * pixel_rad * float(ln.points[k][2])
+            if not lowest + footprint < along[i] < highest - footprint:
+                continue  # over the round's end
+            found.append((sign, ln, k))
+    return found
 
 
 def _occluding_rims(
