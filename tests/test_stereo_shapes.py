@@ -888,3 +888,23 @@ def test_a_hexagonal_prism_whose_crease_seeds_make_an_arc_is_no_disc(
     assert abs(error) < 2.0, error
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.008, result.grasp_width_m
+
+
+def test_a_banana_whose_crest_stands_above_a_circle_on_its_side_is_no_disc() -> None:
+    """SGBM 5 in HH mode with a stiffer smoothness (the sweep's hh5), the banana, trial 1
+    frame 1: the RANSAC circle on the table found follows the banana's side, 80 mm across,
+    its band up to 35.5 mm high, and took 0.60 of the runs from the free cylinder's 0.93: a
+    disc 54 mm wide, 90 degrees off the banana (the bench's angle spread 28 degrees, its limit
+    15). Seven samples beyond the circle stand 1.7-3.0 mm above its band and top: the banana's
+    crest, which no disc lying on the table holds (laser._disc_shares). The free cylinder
+    stands: 8 degrees off, 39 mm wide (the truth 36)."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _setting_frame("hh5", "banana", 1, 1, "")
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" not in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 10.0, error
+    assert result.grasp_width_m is not None
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.005, result.grasp_width_m

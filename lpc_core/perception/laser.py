@@ -4319,6 +4319,15 @@ def _disc_shares(
     # the circle spread 13 mm in height. The lines run onto the top past the band's upper
     # rim (the cap from 20-25 degrees above: 0.2-0.4 of the runs).
     ok &= (count < 3) | ((2 * held >= count) & (held <= np.count_nonzero(explained, axis=1)))
+    # Nothing of a disc lying on the table stands higher than its band and its top: samples
+    # outside its circle that do are a taller solid's, whose side the circle follows (the
+    # banana lying under HH SGBM 5, trial 1 frame 1: a circle 80 mm across on its side, its
+    # band up to 35.5 mm above the table, and 7 samples beyond it 1.7-3.0 mm higher still,
+    # the banana's crest; a disc 90 degrees off its axis). A few, as a segment goes on.
+    rim = np.max(np.where(explained | inside, height, -np.inf), axis=1)
+    with np.errstate(invalid="ignore"):
+        above = (rho > radii[:, None] + thr) & (height > rim[:, None] + thr)
+    ok &= np.count_nonzero(above, axis=1) < _ROUND_GOES_ON
     if not scored:
         return (explained | on_top) & ok[:, None]
     # The band ends at the top's rim: none of it stands higher. A round lying on its side or
