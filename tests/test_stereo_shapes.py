@@ -908,3 +908,20 @@ def test_a_banana_whose_crest_stands_above_a_circle_on_its_side_is_no_disc() -> 
     assert abs(error) < 10.0, error
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.005, result.grasp_width_m
+
+
+@pytest.mark.parametrize(("frame", "before_deg"), [(1, -39.5), (2, -39.0)])
+def test_a_jar_cap_whose_rims_turn_its_axis_lies_flat_on_the_table_found(
+    frame: int, before_deg: float
+) -> None:
+    """SGBM 7 with sparse dots on a 35 mm baseline (the sweep's sparse35), the jar cap from
+    the front, trial 1: its lines cover too little of a ball's chord, and the cylinder took
+    its axis from the band's rims (laser._rim_axis), ``before_deg`` off the truth's wrist
+    angle; the disc search was not asked. The support search finds the table, and the disc
+    lying flat on it holds the runs: within 2 degrees (the rims stand where the search finds
+    no table, as under BM 7 with uniqueness 5)."""
+    view, result = _setting_frame("sparse35", "jar_cap", 1, frame, "front")
+    error = _disc_angle_error(view, result)
+    assert abs(error) < 2.0, (error, before_deg)
+    view, result = _setting_frame("bm7-u5", "jar_cap", 0, 2, "front")
+    assert "rim_axis" in result.extra and "disc_axis" not in result.extra

@@ -2766,22 +2766,30 @@ def _decide(
     # 0.74-0.82 of the runs, 16-83 degrees off its axis; the disc 0.70-0.77, within a degree).
     lost = shape != "cylinder" and candidates[shape].score < params.min_solid_fraction
     rival = "cylinder" in candidates and (lost or shape == "cuboid")
-    if (shape == "cylinder" and "rim_axis" not in extra) or rival:
+    if shape == "cylinder" or rival:
         support, supported = _support_plane(lines, params), True
         sizes = [len(ln.run) for ln in lines]
         disc = _lying_disc(clean, support, params, sizes) if support is not None else None
         table = None
-        if disc is None:
+        # A band's rims (_rim_axis) lie 15-20 mm apart and a few samples place them: the
+        # table the support search found pins a lying disc's axis better (the jar cap from the
+        # front under sparse dots on a 35 mm baseline, trial 1 frames 1-2: the rims 39
+        # degrees off the truth's wrist angle, the disc on the table within 1.5). A table the
+        # searches below only guess does not (BM 7 with uniqueness 5, trial 0 frame 2: a plane
+        # beside, its normal 65 degrees off the cap's axis, held a disc 8 mm tall, 71 degrees
+        # off; the rims within 3): those are for the other rounds.
+        guess = "rim_axis" not in extra
+        if disc is None and guess:
             # A matcher smears the band's lower rim down behind the table, which then hides
             # the table from the support search (see _DISC_SUPPORT).
             table = _support_plane(lines, params, _DISC_SUPPORT, _DISC_SUPPORT_LINE_POINTS)
             disc = _lying_disc(clean, table, params, sizes) if table is not None else None
-        if disc is None:
+        if disc is None and guess:
             # Both searches may take a plane across the cap's top face for the table, or
             # find none, and a free cylinder then wins along the band (soft SGBM 9, the jar
             # cap from the front, trial 0 frame 0: 53 degrees off; the table beside, 0.78).
             disc = _disc_on_plane_beside(lines, clean, params, sizes)
-        for plane in (support, table) if disc is None else ():
+        for plane in (support, table) if disc is None and guess else ():
             # Last, as a wrong table's scored circles may just reach the share a disc needs
             # (SGBM 7 with the OpenCV sample's smoothness, the jar cap from the front, trial 0
             # frame 4: 0.61 on a plane 25 degrees off the table, 0.79 on the table).
