@@ -905,3 +905,62 @@ def test_a_jar_cap_whose_hole_the_optical_axis_pierces_is_no_thin_box(
     assert abs(error) < 25.0, (error, before_deg)
     assert result.grasp_width_m is not None
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.020
+
+
+@pytest.mark.parametrize(("setting", "frame"), [("base40", 3), ("3way5-ss", 3), ("3way5-ss", 4)])
+def test_a_hexagonal_prism_whose_crease_seeds_make_an_arc_is_no_disc(
+    setting: str, frame: int
+) -> None:
+    """SGBM 7 on a 40 mm baseline (base40) and 3-way SGBM 5 supersampled (3way5-ss), the
+    hexagonal prism, trial 1: four of the side face's six uncut seeds lie where the lines
+    leave it at the crease, smoothed into an arc, and the circle through the six held them
+    within 0.5-1.2 mm RMS, under half the rectangle's residual: a disc 43-44 mm wide, 38-42
+    degrees off the prism's axis (the bench's angle spread 18 degrees, its limit 15). The two
+    seeds the capture volume cut lie on the face 41-54 mm from that circle's centre, which no
+    round face 21.5 mm in radius holds (laser._disc_holds_cut_seeds): the face stays a box."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _setting_frame(setting, "hexagonal_prism", 1, frame, "")
+    assert result.shape == "cuboid", (result.shape, result.grasp_width_m)
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 2.0, error
+    assert result.grasp_width_m is not None
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.008, result.grasp_width_m
+
+
+def test_a_banana_whose_crest_stands_above_a_circle_on_its_side_is_no_disc() -> None:
+    """SGBM 5 in HH mode with a stiffer smoothness (the sweep's hh5), the banana, trial 1
+    frame 1: the RANSAC circle on the table found follows the banana's side, 80 mm across,
+    its band up to 35.5 mm high, and took 0.60 of the runs from the free cylinder's 0.93: a
+    disc 54 mm wide, 90 degrees off the banana (the bench's angle spread 28 degrees, its limit
+    15). Seven samples beyond the circle stand 1.7-3.0 mm above its band and top: the banana's
+    crest, which no disc lying on the table holds (laser._disc_shares). The free cylinder
+    stands: 8 degrees off, 39 mm wide (the truth 36)."""
+    from lpc_core.perception.reconstruction import wrap_half_turn
+
+    view, result = _setting_frame("hh5", "banana", 1, 1, "")
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "disc_axis" not in result.extra
+    assert result.wrist_angle_rad is not None and view.truth.wrist_angle_rad is not None
+    error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
+    assert abs(error) < 10.0, error
+    assert result.grasp_width_m is not None
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.005, result.grasp_width_m
+
+
+@pytest.mark.parametrize(("frame", "before_deg"), [(1, -39.5), (2, -39.0)])
+def test_a_jar_cap_whose_rims_turn_its_axis_lies_flat_on_the_table_found(
+    frame: int, before_deg: float
+) -> None:
+    """SGBM 7 with sparse dots on a 35 mm baseline (the sweep's sparse35), the jar cap from
+    the front, trial 1: its lines cover too little of a ball's chord, and the cylinder took
+    its axis from the band's rims (laser._rim_axis), ``before_deg`` off the truth's wrist
+    angle; the disc search was not asked. The support search finds the table, and the disc
+    lying flat on it holds the runs: within 2 degrees (the rims stand where the search finds
+    no table, as under BM 7 with uniqueness 5)."""
+    view, result = _setting_frame("sparse35", "jar_cap", 1, frame, "front")
+    error = _disc_angle_error(view, result)
+    assert abs(error) < 2.0, (error, before_deg)
+    view, result = _setting_frame("bm7-u5", "jar_cap", 0, 2, "front")
+    assert "rim_axis" in result.extra and "disc_axis" not in result.extra
