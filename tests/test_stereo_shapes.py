@@ -839,6 +839,20 @@ def test_a_box_side_facing_the_occlusion_side_goes_through_its_median_edge() -> 
         assert abs(error) < bound, (setting, error)  # 10.2 and 12.0 mm before
 
 
+def test_a_rounded_side_facing_the_occlusion_side_keeps_its_walk() -> None:
+    """SGBM 7, the soap bar (rounded on both sides): its walks past the side facing -x, all on
+    the bar, fell away as a matcher's fill does, and were dropped where the line's other end
+    kept no walk (laser._occlusion_side_fill). There the bar's side facing +x falls away over
+    1-4 samples, no longer than the fattening's trim: counted before the trim, it shows the
+    object falling away on both sides. Trial 0 frames 1 and 2, trial 1 frame 2: 9.7, 9.5 and
+    14.0 mm too narrow before, 7.2, 7.6 and 10.8 so."""
+    for trial, frame, bound in ((0, 1, -0.0085), (0, 2, -0.0085), (1, 2, -0.012)):
+        view, result = _setting_frame("sgbm7", "soap_bar", trial, frame)
+        assert result.shape == "cuboid", (trial, frame, result.shape, result.reason)
+        error = result.grasp_width_m - view.truth.grasp_width_m
+        assert error > bound, (trial, frame, error)
+
+
 def test_a_jar_cap_whose_table_holds_runs_past_the_disc_is_scored_as_a_disc() -> None:
     """SGBM 5 in HH mode with a stiffer smoothness (the sweep's hh5), the jar cap from the
     front, trial 0 frame 0: the support search found the table within a degree, but one of
