@@ -2355,7 +2355,9 @@ def _beyond_edges(
         below = h <= params.solid_threshold_m
         along_x = abs(math.cos(line.angle)) > _ALONG_ROW_COS
         walks: list[tuple[np.ndarray, bool]] = []  # each walk's end, and whether it is fill
-        falls = False  # an end walks past the edge, before the trim, and is no fill
+        # An end walks past the edge, before the trim, is no fill and falls gently (a side
+        # rounding off, not the step down to what lies behind).
+        falls = False
         if last < m - 1:
             # Walking right from the run's last point: step i reaches point i + 1.
             ok = below[last + 1 :] & (
@@ -2374,7 +2376,7 @@ def _beyond_edges(
                 and trim > 0
                 and _occlusion_side_fill(math.cos(line.angle), h[last], h[last + k], params)
             )
-            falls |= k > 0 and not fill
+            falls |= k > 0 and not fill and h[last] - h[last + k] <= free
             if k > 0 and trim > 0:
                 q = line.sz[last : last + k + 1, 0] / line.sz[last : last + k + 1, 1]
                 short = int(np.count_nonzero(q <= q[-1] - trim * line.step)) - 1
@@ -2403,7 +2405,7 @@ def _beyond_edges(
                 and trim > 0
                 and _occlusion_side_fill(-math.cos(line.angle), h[first], h[first - k], params)
             )
-            falls |= k > 0 and not fill
+            falls |= k > 0 and not fill and h[first] - h[first - k] <= free
             if k > 0 and trim > 0:
                 q = line.sz[first - k : first + 1, 0] / line.sz[first - k : first + 1, 1]
                 short = int(np.count_nonzero(q >= q[0] + trim * line.step)) - 1
@@ -2466,13 +2468,16 @@ def _occlusion_side_fill(
     gate; dropping such walks heading +x instead 2.91; heading -x whatever the other end 2.82
     and the soap bar (rounded on both sides) 7.8 -> 9.4 mm, 8.7 so.
 
-    The other end's walk counts before the fattening's trim: the soap bar's rounded side
-    facing +x falls away there over 1-4 samples, 0.5-2.7 mm (SGBM 7 and P1 x 3, P2 x 6), no
-    longer than the trim, and its walks past the side facing -x, all on the bar, were dropped
-    as fill on 9 of 10 frames at SGBM 7. So: soap bar width MAE over the 44 study settings
-    8.56 -> 8.12 mm (better on 33, by up to 1.6 mm: SGBM 7 9.5 -> 8.6), cuboids 2.880 ->
-    2.885 (a box's smear at the other end, 1-2 samples and 1 mm, kept its fill on two frames:
-    hh5's upright box 4.6 -> 5.0, hh7-p2x4's tilted right 4.9 -> 5.3)."""
+    The other end's walk counts before the fattening's trim where it falls no more than
+    ``bevel_free_depth_m``: the soap bar's rounded side facing +x falls away there over 1-4
+    samples, 0.5-2.7 mm (SGBM 7 and P1 x 3, P2 x 6), no longer than the trim, and its walks
+    past the side facing -x, all on the bar, were dropped as fill on 9 of 10 frames at SGBM
+    7. Soap bar width MAE over the 44 study settings 8.56 -> 8.18 mm (SGBM 7 9.5 -> 8.6),
+    cuboids 2.880 -> 2.882 (a box's smear at the other end, 1-2 samples and 1 mm, kept its
+    fill on two frames: hh5's upright box 4.6 -> 5.0, hh7-p2x4's tilted right 4.9 -> 5.3).
+    Whatever the other end's fall: soap 8.12, but the frying pan's handle 2.15 -> 2.22 mm
+    (hh5 6.2 -> 8.2, pattern2 1.0 -> 2.0: the other end fell 7-12 mm over 3-4 samples, the
+    step behind the handle); so 2.15 -> 2.12."""
     return heading_x < -_RIGHTWARD_COS and h_edge - h_end > params.solid_threshold_m
 
 
