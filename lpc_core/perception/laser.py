@@ -2417,6 +2417,7 @@ def _beyond_edges(
         # A walk that is no fill at the line's other end, if only within the fattening's trim
         # there: the object falls away on both sides (its own rounded or bevelled sides), and
         # the fill-like one is kept too (see _occlusion_side_fill).
+        falls |= any(not is_fill for _, is_fill in walks)
         out.extend(end for end, is_fill in walks if falls or not is_fill)
     return (plane.project(np.array(out)) if out else np.empty((0, 3))), smeared
 
@@ -2472,12 +2473,12 @@ def _occlusion_side_fill(
     ``bevel_free_depth_m``: the soap bar's rounded side facing +x falls away there over 1-4
     samples, 0.5-2.7 mm (SGBM 7 and P1 x 3, P2 x 6), no longer than the trim, and its walks
     past the side facing -x, all on the bar, were dropped as fill on 9 of 10 frames at SGBM
-    7. Soap bar width MAE over the 44 study settings 8.56 -> 8.18 mm (SGBM 7 9.5 -> 8.6),
-    cuboids 2.880 -> 2.882 (a box's smear at the other end, 1-2 samples and 1 mm, kept its
-    fill on two frames: hh5's upright box 4.6 -> 5.0, hh7-p2x4's tilted right 4.9 -> 5.3).
-    Whatever the other end's fall: soap 8.12, but the frying pan's handle 2.15 -> 2.22 mm
-    (hh5 6.2 -> 8.2, pattern2 1.0 -> 2.0: the other end fell 7-12 mm over 3-4 samples, the
-    step behind the handle); so 2.15 -> 2.12."""
+    7. Soap bar width MAE over the 44 study settings 8.56 -> 8.13 mm (better on 31, SGBM 7
+    9.5 -> 8.6), cuboids 2.880 -> 2.885 (a box's smear at the other end, 1-2 samples and 1
+    mm, kept its fill on two frames: hh5's upright box 4.6 -> 5.0, hh7-p2x4's tilted right
+    4.9 -> 5.3). Whatever the other end's fall: the frying pan's handle 2.15 -> 2.22 mm (hh5
+    6.2 -> 8.2, pattern2 1.0 -> 2.0: the other end fell 7-12 mm over 3-4 samples, the step
+    behind the handle); so 2.150 -> 2.155."""
     return heading_x < -_RIGHTWARD_COS and h_edge - h_end > params.solid_threshold_m
 
 
