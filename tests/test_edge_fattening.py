@@ -322,11 +322,18 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     (``laser._FAR_EDGES``) it goes through the median of its seeds' edges: those four frames
     come out 1.1-4.5 mm narrower (6.6, 11.6, 12.7, 4.7 -> 3.8, 7.1, 9.4, 3.6 mm too wide),
     the others and every axis as they were (width MAE 6.1 -> 5.0 mm; 6.5 -> 5.3 before the
-    fill past trial 1 frame 0's -x side was dropped, 4.3 -> -0.6 mm: _occlusion_side_fill)."""
+    fill past trial 1 frame 0's -x side was dropped, 4.3 -> -0.6 mm: _occlusion_side_fill).
+    Undone with the rule: the median of a side facing -x with one far edge or more
+    (``laser._occlusion_sides``), which alone takes these sides there too."""
     # Without the fattened seeds' trims taken back before the face's direction is counted,
     # which turn these frames' boxes nearer their axis with and without the rule alike.
     monkeypatch.setattr(laser, "_unfattened_seeds", lambda seeds, _: seeds.points.copy())
-    errors, before = _box_width_errors(monkeypatch, "cuboid_tilt_left", 9, {"_FAR_EDGES": 1.0})
+    errors, before = _box_width_errors(
+        monkeypatch,
+        "cuboid_tilt_left",
+        9,
+        {"_FAR_EDGES": 1.0, "_occlusion_sides": lambda *_: [False] * 4},
+    )
     narrower = [b - e for e, b in zip(errors, before, strict=True)]
     assert sum(d > 0.001 for d in narrower) >= 4, narrower
     assert min(narrower) > -1e-9, narrower

@@ -843,17 +843,53 @@ def test_a_jar_cap_whose_table_both_searches_missed_is_a_disc_on_the_plane_besid
 
 
 def _setting_frame(
-    setting: str, name: str, trial: int, frame: int, detail: str
+    setting: str,
+    name: str,
+    trial: int,
+    frame: int,
+    detail: str | None = None,
+    *,
+    suite: str = "irregular",
 ) -> tuple[View, Reconstruction]:
-    """The irregular suite's stereo frame ``(trial, frame)`` of ``name`` seen from ``detail``
-    on the bench sweep's ``setting``, and the four-line method's result on it."""
+    """The stereo frame ``(trial, frame)`` of ``name`` in ``suite`` (with ``detail``, seen
+    from there) on the bench sweep's ``setting``, and the four-line method's result on it."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from services.cli import _laser_views as lv
     from services.cli.bench.sweep import SETTINGS
 
-    views = lv.views("irregular", 2, 5, 0, names=[name], sensor=SETTINGS[setting].sensor())
-    view = next(v for v in views if (v.trial, v.frame, v.detail) == (trial, frame, detail))
+    views = lv.views(suite, 2, 5, 0, names=[name], sensor=SETTINGS[setting].sensor())
+    view = next(
+        v for v in views if (v.trial, v.frame) == (trial, frame) and detail in (None, v.detail)
+    )
     return view, reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+
+
+def test_a_box_side_facing_the_occlusion_side_goes_through_its_median_edge() -> None:
+    """The band of background past a box's side facing -x that only the left imager sees
+    holds the matcher's fill, as far as each row's paths carried the face's disparity. SGBM 7
+    in HH mode at P2 x 4 (the sweep's hh7-p2x4) and at four times the room light (light4),
+    the upright box, trial 0 frame 3: the left side went through its farthest seed, 10.2 and
+    8.8 mm past the true side (the right side 0.3 and 4.9), the box 10.2 and 12.0 mm too wide.
+    Through the median of its occluding seeds' edges (laser._occlusion_sides): 2.9 and 5.5."""
+    for setting, bound in (("hh7-p2x4", 0.004), ("light4", 0.0065)):
+        view, result = _setting_frame(setting, "cuboid_upright", 0, 3, suite="functional")
+        assert result.shape == "cuboid", (setting, result.shape, result.reason)
+        error = result.grasp_width_m - view.truth.grasp_width_m
+        assert abs(error) < bound, (setting, error)  # 10.2 and 12.0 mm before
+
+
+def test_a_rounded_side_facing_the_occlusion_side_keeps_its_walk() -> None:
+    """SGBM 7, the soap bar (rounded on both sides): its walks past the side facing -x, all on
+    the bar, fell away as a matcher's fill does, and were dropped where the line's other end
+    kept no walk (laser._occlusion_side_fill). There the bar's side facing +x falls away over
+    1-4 samples, no longer than the fattening's trim: counted before the trim, it shows the
+    object falling away on both sides. Trial 0 frames 1 and 2, trial 1 frame 2: 9.7, 9.5 and
+    14.0 mm too narrow before, 7.2, 7.6 and 10.8 so."""
+    for trial, frame, bound in ((0, 1, -0.0085), (0, 2, -0.0085), (1, 2, -0.012)):
+        view, result = _setting_frame("sgbm7", "soap_bar", trial, frame)
+        assert result.shape == "cuboid", (trial, frame, result.shape, result.reason)
+        error = result.grasp_width_m - view.truth.grasp_width_m
+        assert error > bound, (trial, frame, error)
 
 
 def test_a_jar_cap_whose_table_holds_runs_past_the_disc_is_scored_as_a_disc() -> None:

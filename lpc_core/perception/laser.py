@@ -1741,6 +1741,7 @@ def _face_geometry(
                 if len(pts_all) == len(pts) and not smeared else math.inf,
                 _OUTLYING_TRIMS * trim_px * pixel_rad * float(plane.point[2]),
                 seeds.occluding[order].tolist(), trims, settled,  # type: ignore[arg-type]
+                _occlusion_sides(plane, (e1, e2), (ux, uy)),
             ),
             trim_px * pixel_rad, params, settled,
         )  # fmt: skip
@@ -1878,6 +1879,7 @@ def _consistent_sides(
     shares: list[float] | None = None,
     trims: tuple[float, float] = (0.0, 0.0),
     settled: list[bool] | None = None,
+    occlusion: list[bool] | None = None,
 ) -> tuple[float, float, float, float]:
     """The rectangle's sides ``(alo, ahi, blo, bhi)`` along the unit direction ``u`` where a
     matcher fattened the edges: each side through the farthest uncut seed nearest it once the
@@ -1897,7 +1899,9 @@ def _consistent_sides(
     seed's own trim taken off, its outliers beyond dropped as above and a seed at no
     occluding edge lying more than ``_HOLE_APART`` times ``apart_m`` inside the farthest
     left out (a hole's border, inside the face). Those sides are trimmed already:
-    ``_trimmed_sides`` leaves them.
+    ``_trimmed_sides`` leaves them. So too a side facing the occlusion side (``occlusion``,
+    four flags, ``_occlusion_sides``) with one edge or more taking a whole window, through the
+    median of its occluding seeds' edges alone.
 
     A window matcher fattens an occluding edge by an amount that varies along it: at SGBM 7
     the cuboids' seeds lay 0.95 mm past the true side on the nearest, 3.1 on the median and
@@ -1962,6 +1966,16 @@ def _consistent_sides(
         # box) fattens no less (see _FAR_EDGES).
         edges = [w for _, _, w in outward if w > 0]
         far = not with_cut and sum(w >= 1.0 for w in edges) >= _FAR_EDGES * len(edges)
+        # Facing the occlusion side with something far behind: the band's fill varies along
+        # the side, and only the occluding seeds' edges stand for it (see _occlusion_sides).
+        filled = (
+            not far
+            and not with_cut
+            and occlusion is not None
+            and occlusion[side]
+            and any(w >= 1.0 for w in edges)
+        )
+        far |= filled
         outward.sort(reverse=True)
         while len(outward) > 1 and _beyond_seed(outward[0], outward[1], far) > apart_m:
             outward.pop(0)
@@ -1971,7 +1985,7 @@ def _consistent_sides(
             # The side through the median of its seeds' edges, each seed's own trim taken
             # off; a hole's seed (at no occluding edge) far inside the others is no edge.
             inside = outward[0][0] - _HOLE_APART * apart_m
-            ed = sorted(e for c, e, w in outward if w > 0 or c >= inside)
+            ed = sorted(e for c, e, w in outward if w > 0 or (c >= inside and not filled))
             m = len(ed)
             if m >= _SIDE_MEDIAN_SEEDS:
                 mid = ed[m // 2] if m % 2 else 0.5 * (ed[m // 2 - 1] + ed[m // 2])
@@ -1981,6 +1995,47 @@ def _consistent_sides(
                     continue
         out[side] = sign * max([outward[0][0], *beyond])
     return out[0], out[1], out[2], out[3]
+
+
+def _occlusion_sides(
+    plane: PlaneSolid, basis: tuple[np.ndarray, np.ndarray], u: tuple[float, float]
+) -> list[bool]:
+    """Per side of the rectangle along the unit direction ``u`` (in the face's ``basis``;
+    ``alo, ahi, blo, bhi`` as ``_consistent_sides`` orders them): whether its outward normal
+    heads within 60 degrees of -x in the image at the face's point.
+
+    The second imager sits along +x: past a near object's side facing -x lies the band of
+    background the left image shows and the right one cannot, as wide as the disparity step
+    (see ``_occlusion_side_fill``). A matcher with no left-right check, or one that keeps
+    what a semi-global smoothness carried there, fills part of that band with the face's
+    disparity, as far as each row's paths took it: the side's seeds lie out by the window's
+    fattening and the fill, which varies along the side, and the farthest of them takes the
+    most. Where one of the side's edges or more takes a whole window (something far behind
+    it, a wide band), ``_consistent_sides`` draws such a side through the median of its
+    occluding seeds' edges, as a side with the background far behind, and leaves out the
+    seeds at no occluding edge (a hole, a bump, a run ending inside the band short of its
+    segment's end: no edge of the side). Through the farthest seed, the functional boxes'
+    sides facing -x lay 5.2-8.2 mm out (mean before the trim; SGBM 5 at uniqueness 15, SGBM 9
+    3-way, HH 9 without the left-right check, SGBM 7 at half the signal and at P1 x 3, P2 x
+    6), against 1.8-5.2 on their sides facing +x. Cuboid width MAE over the 44 study settings
+    2.892 -> 2.880 mm (HH 7 at P2 x 4 4.50 -> 4.32, four times the room light 3.22 -> 3.05,
+    soft9 3.22 -> 3.09, base40 3.50 -> 3.38; base55 1.73 -> 1.78, 3way9-dark 3.64 -> 3.71).
+    With only the table near behind the side (a narrow band) too: 2.869, but the 40 mm bar
+    lying on the table (rotation suite, SGBM 7, six rolls) -0.7 -> -1.5 mm, its median seed
+    over-trimmed by its share (see ``_consistent_sides``). Without the gate and with the seeds
+    at no occluding edge kept as on a far side: 2.845 and the TV remote 2.81 -> 2.89 (its
+    buttons' seeds drew its side in: 8.6-9.4 mm narrow on a frame each at SGBM 9, HH, 3-way
+    and proj35, 0.3-3.4 before)."""
+    e1, e2 = basis
+    ux, uy = u
+    x, y, z = plane.point.tolist()
+    out = []
+    for n2x, n2y in ((-ux, -uy), (ux, uy), (uy, -ux), (-uy, ux)):
+        nx, ny, nz = (n2x * e1 + n2y * e2).tolist()
+        # The normal's direction in the image: the derivative of the projection along it.
+        dx, dy = nx / z - x * nz / (z * z), ny / z - y * nz / (z * z)
+        out.append(dx < -_RIGHTWARD_COS * math.hypot(dx, dy))
+    return out
 
 
 def _beyond_seed(
@@ -2300,6 +2355,9 @@ def _beyond_edges(
         below = h <= params.solid_threshold_m
         along_x = abs(math.cos(line.angle)) > _ALONG_ROW_COS
         walks: list[tuple[np.ndarray, bool]] = []  # each walk's end, and whether it is fill
+        # An end walks past the edge, before the trim, is no fill and falls gently (a side
+        # rounding off, not the step down to what lies behind).
+        falls = False
         if last < m - 1:
             # Walking right from the run's last point: step i reaches point i + 1.
             ok = below[last + 1 :] & (
@@ -2318,6 +2376,7 @@ def _beyond_edges(
                 and trim > 0
                 and _occlusion_side_fill(math.cos(line.angle), h[last], h[last + k], params)
             )
+            falls |= k > 0 and not fill and h[last] - h[last + k] <= free
             if k > 0 and trim > 0:
                 q = line.sz[last : last + k + 1, 0] / line.sz[last : last + k + 1, 1]
                 short = int(np.count_nonzero(q <= q[-1] - trim * line.step)) - 1
@@ -2346,6 +2405,7 @@ def _beyond_edges(
                 and trim > 0
                 and _occlusion_side_fill(-math.cos(line.angle), h[first], h[first - k], params)
             )
+            falls |= k > 0 and not fill and h[first] - h[first - k] <= free
             if k > 0 and trim > 0:
                 q = line.sz[first - k : first + 1, 0] / line.sz[first - k : first + 1, 1]
                 short = int(np.count_nonzero(q >= q[0] + trim * line.step)) - 1
@@ -2354,10 +2414,11 @@ def _beyond_edges(
                     k = short
             if k > 0:
                 walks.append((pts[first - k], fill))
-        # A walk that is no fill at the line's other end: the object falls away on both
-        # sides (its own rounded or bevelled sides), and the fill-like one is kept too.
-        both = any(not is_fill for _, is_fill in walks)
-        out.extend(end for end, is_fill in walks if both or not is_fill)
+        # A walk that is no fill at the line's other end, if only within the fattening's trim
+        # there: the object falls away on both sides (its own rounded or bevelled sides), and
+        # the fill-like one is kept too (see _occlusion_side_fill).
+        falls |= any(not is_fill for _, is_fill in walks)
+        out.extend(end for end, is_fill in walks if falls or not is_fill)
     return (plane.project(np.array(out)) if out else np.empty((0, 3))), smeared
 
 
@@ -2406,7 +2467,18 @@ def _occlusion_side_fill(
     smooth settings). Cuboid width MAE over the 39 study settings 3.01 -> 2.82 mm, none worse
     by 0.05 mm or more (the box lying at SGBM 7 1.5 -> 1.2); 2.77 without the fattening's
     gate; dropping such walks heading +x instead 2.91; heading -x whatever the other end 2.82
-    and the soap bar (rounded on both sides) 7.8 -> 9.4 mm, 8.7 so."""
+    and the soap bar (rounded on both sides) 7.8 -> 9.4 mm, 8.7 so.
+
+    The other end's walk counts before the fattening's trim where it falls no more than
+    ``bevel_free_depth_m``: the soap bar's rounded side facing +x falls away there over 1-4
+    samples, 0.5-2.7 mm (SGBM 7 and P1 x 3, P2 x 6), no longer than the trim, and its walks
+    past the side facing -x, all on the bar, were dropped as fill on 9 of 10 frames at SGBM
+    7. Soap bar width MAE over the 44 study settings 8.56 -> 8.13 mm (better on 31, SGBM 7
+    9.5 -> 8.6), cuboids 2.880 -> 2.885 (a box's smear at the other end, 1-2 samples and 1
+    mm, kept its fill on two frames: hh5's upright box 4.6 -> 5.0, hh7-p2x4's tilted right
+    4.9 -> 5.3). Whatever the other end's fall: the frying pan's handle 2.15 -> 2.22 mm (hh5
+    6.2 -> 8.2, pattern2 1.0 -> 2.0: the other end fell 7-12 mm over 3-4 samples, the step
+    behind the handle); so 2.150 -> 2.155."""
     return heading_x < -_RIGHTWARD_COS and h_edge - h_end > params.solid_threshold_m
 
 
