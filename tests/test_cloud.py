@@ -844,6 +844,43 @@ def test_facing_passes_resumed_after_the_margin_passes_match_a_fresh_run() -> No
     assert resumed.radius == _camera_facing(points, start, PARAMS, pixel_rad).radius
 
 
+def test_the_rim_band_moves_in_on_the_banded_side_only() -> None:
+    """A can pulled toward the camera on its +x rim only (the window's pull where the
+    background lies far behind; none where the table lies just past the other rim): the band
+    run on that side alone moves in past the pull; on the other side alone it stays."""
+    points, start = _pulled_can(0.003, 3.5)
+    unpulled, _ = _pulled_can(0.0, 3.5)
+    points = np.where((points[:, 0] > 0)[:, None], points, unpulled)  # same draws, +x pulled
+    pixel_rad = 1 / INTR.fx
+    fixed, passes = _facing_passes(points, start, CloudParams(rim_band_px=0.0), pixel_rad)
+    pulled_side, _ = _facing_passes(
+        points, fixed, PARAMS, pixel_rad, passes, banded_sides=(True, False)
+    )
+    other_side, _ = _facing_passes(
+        points, fixed, PARAMS, pixel_rad, passes, banded_sides=(False, True)
+    )
+    assert 1000 * (fixed.radius - 0.03) > 0.6
+    assert 1000 * abs(pulled_side.radius - 0.03) < 0.6 * 1000 * (fixed.radius - 0.03)
+    assert other_side.radius == fixed.radius
+
+
+def test_a_tilted_can_under_a_wide_window_bands_the_rim_with_far_background() -> None:
+    """SGBM 11, the 50 mm can standing tilted right, trial 1 frame 1: the table lies just
+    past one rim (0.09 of the range nearer than the axis), far behind the other. Every rim
+    had to be far for the rim band, so the fit kept the pulled rims: 55.3 mm. Banded on the
+    far side only: 50.7 mm."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    sensor = SETTINGS["sgbm11"].sensor()
+    views = lv.views("functional", 2, 5, 0, names=["cylinder_tilt_right"], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (1, 1))
+    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert abs(1000 * (result.grasp_width_m - view.truth.grasp_width_m)) < 2.0
+
+
 @pytest.mark.parametrize("rows", [1, 30, 254, 255, 256, 384, 510, 511, 766])
 def test_column_counts_match_a_wide_sum_past_the_byte_range(rows: int) -> None:
     # The support search counts each hypothesis's points in uint8 chunks of 255 rows: the

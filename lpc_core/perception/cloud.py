@@ -1102,21 +1102,36 @@ def _facing_passes(
     pixel_rad: float,
     passes: int = 0,
     from_points: bool = False,
+    banded_sides: tuple[bool, bool] = (True, True),
 ) -> tuple[SphereModel | CylinderModel, int]:
     """_camera_facing's fit, and the refits it made counting the ``passes`` already made on
     ``model`` (its margin still ``silhouette_margin_px``): two such passes resume with the
     rim band's. With ``from_points`` the margin counts from the silhouette the close points
-    show on each side (_points_silhouette) instead of the fit's."""
+    show on each side (_points_silhouette) instead of the fit's. The rim band runs on the
+    sides (_points_silhouette's order) ``banded_sides`` names: its margin moves in there
+    only."""
     margin = params.silhouette_margin_px * pixel_rad
     if margin <= 0:
         return model, passes
     solid = _solid(model)
     need = max(10, len(points) // 8)
     band = params.rim_band_px * pixel_rad
+    one_sided = not all(banded_sides)
+    margins = [margin, margin]
     while True:
         residuals = solid.residuals(points)
         close = residuals <= params.fit_threshold_m
-        if from_points:
+        if one_sided:
+            inside, gaps = _points_silhouette(points, solid, close)
+            if len(gaps) != 2:
+                break
+            # Each side's own margin: a point's distance in past it (0 at the margin).
+            for (side, _), side_margin in zip(gaps, margins, strict=True):
+                inside[side] -= side_margin - margin
+            banded = np.zeros(len(points), dtype=bool)
+            for (side, _), on in zip(gaps, banded_sides, strict=True):
+                banded |= side & on
+        elif from_points:
             inside, gaps = _points_silhouette(points, solid, close)
             # The cap keeps a small round's fit on enough arc: the margin within the outer
             # half of its half-width in view.
@@ -1129,6 +1144,8 @@ def _facing_passes(
         if passes >= 2:
             # The fit's own rim band: points pulled toward the camera lie outside the solid.
             rim = close & (inside >= margin - band) & (inside < margin)
+            if one_sided:
+                rim &= banded
             if band <= 0 or np.count_nonzero(rim) < 5:
                 break
             outward = _outward(points, solid)
@@ -1137,7 +1154,12 @@ def _facing_passes(
             noise = 3.0 * 1.2533 * spread / math.sqrt(np.count_nonzero(rim))
             if float(np.median(outward[rim])) <= max(params.rim_bulge_m, noise):
                 break
-            margin += band
+            if one_sided:
+                # The margin stays put on the other side: ``inside`` counts from each side's.
+                margins = [m + band * on for m, on in zip(margins, banded_sides, strict=True)]
+                inside = np.where(banded, inside - band, inside)
+            else:
+                margin += band
         keep = close & (inside >= margin)
         if np.count_nonzero(keep) < need:
             break
@@ -1161,23 +1183,40 @@ def _round_facing(
     points: np.ndarray,
     model: SphereModel | CylinderModel,
     params: CloudParams,
+    support: np.ndarray | None = None,
 ) -> SphereModel | CylinderModel:
     """The round's camera-facing fit (_camera_facing): its rim band moves in past the margin
-    only where a window matcher made the frame and every rim has its background far behind
-    (_far_rims), where the matcher pulls the rim toward the camera."""
+    only where a window matcher made the frame, and only on a side with its background far
+    behind (_far_sides), where the matcher pulls the rim toward the camera: a can standing
+    tilted before its table has the table just past one side, not the other. On one side
+    only where the round does not lie along the supporting plane (``support``, its points;
+    _along_table): a can lying on its table leaves the fit there to the resting fit."""
     pixel_rad = 1.0 / intrinsics.fx
     fixed, passes = _facing_passes(points, model, replace(params, rim_band_px=0.0), pixel_rad)
     # Fewer than two passes: the rim band's run would have stopped where this one did.
-    if passes < 2 or not _far_rims(depth, intrinsics, fixed, params):
+    if passes < 2:
+        return fixed
+    far = _far_sides(depth, intrinsics, fixed, params)
+    if not any(far) or (not all(far) and _along_table(fixed, support)):
         return fixed
     banded = params.rim_band_px > 0 and _window_matched(depth, intrinsics, params)
-    if _wider_than_points(points, fixed, params):
+    if all(far) and _wider_than_points(points, fixed, params):
         run = params if banded else replace(params, rim_band_px=0.0)
         return _facing_passes(points, model, run, pixel_rad, from_points=True)[0]
     if not banded:
         return fixed
     # The band's run makes the same two passes first: resume from them.
-    return _facing_passes(points, fixed, params, pixel_rad, passes)[0]
+    return _facing_passes(points, fixed, params, pixel_rad, passes, banded_sides=far)[0]
+
+
+def _along_table(model: SphereModel | CylinderModel, support: np.ndarray | None) -> bool:
+    """Whether the cylinder's axis lies nearer the supporting plane (``support``, its points)
+    than its normal: a can lying on its table, the table along a whole side of it. False for
+    a sphere, or without such a plane."""
+    if not isinstance(model, CylinderModel) or support is None or len(support) < 3:
+        return False
+    table = _support_refit(support)
+    return table is not None and abs(float(table[0] @ model.axis)) < math.sqrt(0.5)
 
 
 def _solid(model: SphereModel | CylinderModel) -> SphereSolid | CylinderSolid:
@@ -1238,32 +1277,33 @@ def _wider_than_points(
     return len(gaps) == 2 and all(gap > voxel for _, gap in gaps)
 
 
-def _far_rims(
+def _far_sides(
     depth: np.ndarray,
     intrinsics: Intrinsics,
     model: SphereModel | CylinderModel,
     params: CloudParams,
-) -> bool:
-    """Whether the background past each rim of the round lies far behind it (_far_behind):
-    a cylinder's two sides, a sphere's four (left, right, up, down in view). A table just
+) -> tuple[bool, bool]:
+    """Whether the background past each side of the round lies far behind it (_far_behind), in
+    _points_silhouette's order: a cylinder's two sides across its axis; a sphere's both when
+    all four of its rims (left, right, up, down in view) are far, else neither. A table just
     behind a rim (a ball or a can lying on it) takes the window's pull the other way."""
     middle = model.center
     ray = middle / np.linalg.norm(middle)
+    ratio = params.far_background_ratio
+
+    def far(e: np.ndarray) -> bool:
+        return _far_behind(depth, intrinsics, middle + model.radius * e, e, ratio=ratio)
+
     if isinstance(model, CylinderModel):
         across = np.cross(model.axis, ray)
         if np.linalg.norm(across) < 1e-6:
-            return False
-        outwards = [across / np.linalg.norm(across)]
-    else:
-        e1 = np.cross(ray, (0.0, 1.0, 0.0))
-        e1 /= np.linalg.norm(e1)
-        outwards = [e1, np.cross(ray, e1)]
-    ratio = params.far_background_ratio
-    return all(
-        _far_behind(depth, intrinsics, middle + sign * model.radius * e, sign * e, ratio=ratio)
-        for e in outwards
-        for sign in (1.0, -1.0)
-    )
+            return False, False
+        across /= np.linalg.norm(across)
+        return far(across), far(-across)
+    e1 = np.cross(ray, (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    every = all(far(sign * e) for e in (e1, np.cross(ray, e1)) for sign in (1.0, -1.0))
+    return every, every
 
 
 def _window_matched(depth: np.ndarray, intrinsics: Intrinsics, params: CloudParams) -> bool:
@@ -1792,7 +1832,7 @@ def reconstruct_cloud(
             points=used, extra=extra,
         )  # fmt: skip
     if isinstance(fit, _Fit) and isinstance(fit.model, CylinderModel):
-        cylinder = _round_facing(depth, intrinsics, segment, fit.model, params)
+        cylinder = _round_facing(depth, intrinsics, segment, fit.model, params, support)
         resting = _resting_width(
             segment[fit.inliers], support, cylinder.center, cylinder.radius, cylinder.axis, params
         )
