@@ -3869,15 +3869,16 @@ def _background_bound(
     background on one side). Under lpc's noise model the background shows within half a
     pixel of the silhouette, and the fit's silhouette within it.
 
-    Other segments' ends near a rim (``_near_rim_ends``) bound it too, with
-    ``_NEAR_RIM_SLACK_PX``: a cylinder's silhouette lies at one view angle across its axis
-    all along it, so every line crossing a rim meets it there, and where the outermost sample
-    lies in a window's fattening another line may show the background nearer (the 50 mm
-    bottle tilted right: samples 3.3 px past the true silhouette on each side, median). Not
-    a pixel past: on the side that faces the second imager (+x), where the background beside
-    the round is seen by both and matched, a window may give the rim's last pixels its depth,
-    and that background lay up to 3 px inside the true silhouette (p1 of such ends, stereo
-    sweep; lpc's noise model 1.1 px); on the occluded side it lay 10 or more pixels past.
+    Other segments' ends near a rim (``_near_rim_ends``) bound it too, with the slack that gives
+    (``_NEAR_RIM_SLACK_PX`` past a plateau): a cylinder's silhouette lies at one view angle
+    across its axis all along it, so every line crossing a rim meets it there, and where the
+    outermost sample lies in a window's fattening another line may show the background nearer
+    (the 50 mm bottle tilted right: samples 3.3 px past the true silhouette on each side,
+    median). Not a pixel past: on the side that faces the second imager (+x), where the
+    background beside the round is seen by both and matched, a window may give the rim's last
+    pixels its depth, and that background lay up to 3 px inside the true silhouette (p1 of such
+    ends, stereo sweep; lpc's noise model 1.1 px); on the occluded side it lay 10 or more pixels
+    past.
     """
     far = getattr(scan_lines, "far_past_m", None)
     samples = np.concatenate([ln.points for ln in lines])
@@ -3894,11 +3895,7 @@ def _background_bound(
     limit = half
     outermost = _outermost_samples(lines, angle, on)
     ends = [(sign, ln, k, pixel_rad) for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True)]
-    slack = _NEAR_RIM_SLACK_PX * pixel_rad
-    ends += [
-        (sign, ln, k, slack)
-        for sign, ln, k in _near_rim_ends(lines, samples, angle, on, full, outermost, pixel_rad)
-    ]
+    ends += _near_rim_ends(lines, samples, angle, on, full, outermost, pixel_rad)
     for sign, ln, k, allowance in ends:
         last = len(ln.points) - 1
         if k not in (0, last):
@@ -3938,7 +3935,7 @@ def _near_rim_ends(
     full: CylinderSolid,
     outermost: list[tuple[LineModels, int]],
     pixel_rad: float,
-) -> list[tuple[float, LineModels, int]]:
+) -> list[tuple[float, LineModels, int, float]]:
     """The side (-1 or +1 by ``angle``, the view angles across the axis of ``samples``, the
     lines' points laid end to end), line and index of every segment end among ``on`` (the
     samples on the round) but the ``outermost`` two within ``_NEAR_RIM_PX`` of its side's
@@ -3946,7 +3943,11 @@ def _near_rim_ends(
     fattening (``_fattened_end``: a plateau, then the rim) or a window's smoothing
     (``_smoothed_rim``: no rim's rise), and not at either of the round's ends along its
     axis: within ``_RIM_PX`` (of the end's pixel footprint) of the farthest sample on the
-    round along ``full``'s axis.
+    round along ``full``'s axis; with the slack (radians) past the background seen beyond
+    it that the silhouette may lie: ``_NEAR_RIM_SLACK_PX`` on a fattened side, ``_RIM_PX``
+    on a smoothed one, where on other lines the background may reach the rim band's last
+    pixels (the 75 mm jar tilted left, proj35 and base55: 3-7 px inside the fit's
+    silhouette, the width 3.4-5.3 mm narrow at 2 px).
 
     Where the outermost sample ends at the rim itself, the background past it bounds the
     silhouette already, and other lines' ends a few pixels in belong to an object only
@@ -3964,12 +3965,16 @@ def _near_rim_ends(
     on_round = np.zeros(len(angle), dtype=bool)
     on_round[on] = True
     edge = {-1.0: float(angle[on].min()), 1.0: float(angle[on].max())}
+    slack = {}
     for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True):
         last = len(ln.points) - 1
-        if k not in (0, last) or (
-            _fattened_end(ln.sz[:, 1], k, 1 if k == 0 else -1) == k
-            and not _smoothed_rim(ln, k, full, pixel_rad)
-        ):
+        if k in (0, last) and _fattened_end(ln.sz[:, 1], k, 1 if k == 0 else -1) != k:
+            slack[sign] = _NEAR_RIM_SLACK_PX * pixel_rad
+        elif k in (0, last) and _smoothed_rim(ln, k, full, pixel_rad):
+            # A window that smoothed the rim mixed it with the background both ways: on
+            # other lines the background's depth may reach the rim band's last pixels.
+            slack[sign] = _RIM_PX * pixel_rad
+        else:
             del edge[sign]  # that side's outermost sample ends at the rim, or the round goes on
     if not edge:
         return []
@@ -3987,7 +3992,7 @@ def _near_rim_ends(
             footprint = _RIM_PX * pixel_rad * float(ln.points[k][2])
             if not lowest + footprint < along[i] < highest - footprint:
                 continue  # over the round's end
-            found.append((sign, ln, k))
+            found.append((sign, ln, k, slack[sign]))
     return found
 
 
