@@ -413,6 +413,24 @@ def test_a_round_is_no_wider_than_the_background_seen_past_any_line_near_its_rim
     assert abs(wide) < within_mm < main_mm, wide
 
 
+@pytest.mark.parametrize(("frame", "main_mm", "within_mm"), [(1, 9.0, 2.5), (4, 6.0, 3.5)])
+def test_a_round_whose_outermost_samples_end_in_a_window_ramp_is_bounded_by_other_lines(
+    frame: int, main_mm: float, within_mm: float
+) -> None:
+    """SGBM (block 11), the 60 mm can, trial 1: a side's outermost sample ended its segment
+    in a smear of eight samples or more within a millimetre, where a rim reached at its
+    silhouette comes 15-16 mm nearer over the first four pixels: no plateau that the rim then
+    follows (laser._fattened_end), so the other lines' ends near that rim bounded nothing and
+    the can came out 9.0 and 6.0 mm wide. An end that comes nearer by a third or less of a
+    rim's rise is the window's (laser._smoothed_rim), and the background past those ends
+    bounds the width, ``_RIM_PX`` past it (laser._near_rim_ends): 2.0 and 3.1 mm wide."""
+    view, result = _bench_frame("cylinder_upright", 1, frame, kind="sgbm", block_size=11)
+    assert result.shape == "cylinder", (result.shape, result.reason)
+    assert "background_width_mm" in result.extra
+    wide = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    assert abs(wide) < within_mm < main_mm, wide
+
+
 def test_lines_leaving_a_can_over_its_top_rim_bound_no_width() -> None:
     """lpc's noise model, the 60 mm can seen from above: the lines that leave it over its
     top rim end 7-15 px inside the silhouette, and the background past them would cut it to

@@ -3869,15 +3869,16 @@ def _background_bound(
     background on one side). Under lpc's noise model the background shows within half a
     pixel of the silhouette, and the fit's silhouette within it.
 
-    Other segments' ends near a rim (``_near_rim_ends``) bound it too, with
-    ``_NEAR_RIM_SLACK_PX``: a cylinder's silhouette lies at one view angle across its axis
-    all along it, so every line crossing a rim meets it there, and where the outermost sample
-    lies in a window's fattening another line may show the background nearer (the 50 mm
-    bottle tilted right: samples 3.3 px past the true silhouette on each side, median). Not
-    a pixel past: on the side that faces the second imager (+x), where the background beside
-    the round is seen by both and matched, a window may give the rim's last pixels its depth,
-    and that background lay up to 3 px inside the true silhouette (p1 of such ends, stereo
-    sweep; lpc's noise model 1.1 px); on the occluded side it lay 10 or more pixels past.
+    Other segments' ends near a rim (``_near_rim_ends``) bound it too, with the slack that gives
+    (``_NEAR_RIM_SLACK_PX`` past a plateau): a cylinder's silhouette lies at one view angle
+    across its axis all along it, so every line crossing a rim meets it there, and where the
+    outermost sample lies in a window's fattening another line may show the background nearer
+    (the 50 mm bottle tilted right: samples 3.3 px past the true silhouette on each side,
+    median). Not a pixel past: on the side that faces the second imager (+x), where the
+    background beside the round is seen by both and matched, a window may give the rim's last
+    pixels its depth, and that background lay up to 3 px inside the true silhouette (p1 of such
+    ends, stereo sweep; lpc's noise model 1.1 px); on the occluded side it lay 10 or more pixels
+    past.
     """
     far = getattr(scan_lines, "far_past_m", None)
     samples = np.concatenate([ln.points for ln in lines])
@@ -3894,11 +3895,7 @@ def _background_bound(
     limit = half
     outermost = _outermost_samples(lines, angle, on)
     ends = [(sign, ln, k, pixel_rad) for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True)]
-    slack = _NEAR_RIM_SLACK_PX * pixel_rad
-    ends += [
-        (sign, ln, k, slack)
-        for sign, ln, k in _near_rim_ends(lines, samples, angle, on, full, outermost, pixel_rad)
-    ]
+    ends += _near_rim_ends(lines, samples, angle, on, full, outermost, pixel_rad)
     for sign, ln, k, allowance in ends:
         last = len(ln.points) - 1
         if k not in (0, last):
@@ -3938,14 +3935,19 @@ def _near_rim_ends(
     full: CylinderSolid,
     outermost: list[tuple[LineModels, int]],
     pixel_rad: float,
-) -> list[tuple[float, LineModels, int]]:
+) -> list[tuple[float, LineModels, int, float]]:
     """The side (-1 or +1 by ``angle``, the view angles across the axis of ``samples``, the
     lines' points laid end to end), line and index of every segment end among ``on`` (the
     samples on the round) but the ``outermost`` two within ``_NEAR_RIM_PX`` of its side's
     outermost sample, on a side whose outermost sample ends its segment in a matcher's
-    fattening (``_fattened_end``: a plateau, then the rim), and not at either of the round's
-    ends along its axis: within ``_RIM_PX`` (of the end's pixel footprint) of the farthest
-    sample on the round along ``full``'s axis.
+    fattening (``_fattened_end``: a plateau, then the rim) or a window's smoothing
+    (``_smoothed_rim``: no rim's rise), and not at either of the round's ends along its
+    axis: within ``_RIM_PX`` (of the end's pixel footprint) of the farthest sample on the
+    round along ``full``'s axis; with the slack (radians) past the background seen beyond
+    it that the silhouette may lie: ``_NEAR_RIM_SLACK_PX`` on a fattened side, ``_RIM_PX``
+    on a smoothed one, where on other lines the background may reach the rim band's last
+    pixels (the 75 mm jar tilted left, proj35 and base55: 3-7 px inside the fit's
+    silhouette, the width 3.4-5.3 mm narrow at 2 px).
 
     Where the outermost sample ends at the rim itself, the background past it bounds the
     silhouette already, and other lines' ends a few pixels in belong to an object only
@@ -3963,10 +3965,16 @@ def _near_rim_ends(
     on_round = np.zeros(len(angle), dtype=bool)
     on_round[on] = True
     edge = {-1.0: float(angle[on].min()), 1.0: float(angle[on].max())}
+    slack = {}
     for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True):
         last = len(ln.points) - 1
-        z = ln.sz[:, 1]
-        if k not in (0, last) or _fattened_end(z, k, 1 if k == 0 else -1) == k:
+        if k in (0, last) and _fattened_end(ln.sz[:, 1], k, 1 if k == 0 else -1) != k:
+            slack[sign] = _NEAR_RIM_SLACK_PX * pixel_rad
+        elif k in (0, last) and _smoothed_rim(ln, k, full, pixel_rad):
+            # A window that smoothed the rim mixed it with the background both ways: on
+            # other lines the background's depth may reach the rim band's last pixels.
+            slack[sign] = _RIM_PX * pixel_rad
+        else:
             del edge[sign]  # that side's outermost sample ends at the rim, or the round goes on
     if not edge:
         return []
@@ -3984,8 +3992,54 @@ def _near_rim_ends(
             footprint = _RIM_PX * pixel_rad * float(ln.points[k][2])
             if not lowest + footprint < along[i] < highest - footprint:
                 continue  # over the round's end
-            found.append((sign, ln, k))
+            found.append((sign, ln, k, slack[sign]))
     return found
+
+
+# The least fraction of a round rim's rise over its first _RIM_PX inward that a segment's end
+# reached by no window shows: a rim is reached within a pixel or two of its silhouette.
+_SMOOTHED_RIM = 1 / 3
+
+
+def _smoothed_rim(ln: LineModels, k: int, full: CylinderSolid, pixel_rad: float) -> bool:
+    """Whether the segment of ``ln`` that ends at sample ``k`` comes nearer the camera over
+    its samples within ``_RIM_PX`` across ``full``'s axis inward of the end by less than
+    ``_SMOOTHED_RIM`` of what a round of ``full``'s radius whose silhouette lay at the end
+    would: a round's depth changes fastest at its silhouette (the square root of the inset),
+    and only a matcher's window flattens that into a slow ramp or carries the rim's depth out
+    past it in a smear longer than the rim behind it shows (``_fattened_end`` reads a plateau
+    that a rim then follows): the 60 mm can at SGBM 11, its depth within a millimetre over
+    eight samples where the rim rises 15 mm over four pixels.
+
+    Under lpc's noise model, with no window, every outermost sample on the functional
+    cylinders came 0.48 or more of that nearer (p5; a rim reached a pixel or two inside its
+    silhouette rises less than one reached at it); under SGBM 7-9, P1 and P2 x 2 and cvsample
+    0.12-0.18 at the median."""
+    view = _axis_in_view(full)
+    last = len(ln.points) - 1
+    if view is None or last < 1:
+        return False
+    distance, half = view
+    inward = 1 if k == 0 else -1
+    run = ln.points[k::inward] if inward == 1 else ln.points[k::-1]
+    angle = _across_view(full, run)
+    if angle is None:
+        return False
+    inset = np.abs(angle - angle[0])
+    within = np.flatnonzero(inset <= _RIM_PX * pixel_rad)
+    j = int(within[-1])
+    if inset[j] < 0.5 * _RIM_PX * pixel_rad:
+        return False  # the line runs along the axis there: no rim profile across it
+    across = run.take((0, j), axis=0)
+    across = across - (across @ full.axis)[:, None] * full.axis
+    reach = np.sqrt(np.einsum("ij,ij->i", across, across))
+    seen = float(reach[0] - reach[1])
+    ray = half - float(inset[j])
+    chord = full.radius**2 - (distance * math.sin(ray)) ** 2
+    if chord <= 0:
+        return False
+    rise = distance * math.cos(half) - (distance * math.cos(ray) - math.sqrt(chord))
+    return seen < _SMOOTHED_RIM * rise
 
 
 def _occluding_rims(
