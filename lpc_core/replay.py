@@ -418,6 +418,9 @@ def first_difference(
 def _diff(
     a: Any, b: Any, path: str, ignore: Collection[str], rel_tol: float
 ) -> tuple[str, str, str] | None:
+    if isinstance(a, memoryview) or isinstance(b, memoryview):
+        # A decoded array's data views its payload; one built by a step holds bytes.
+        a, b = (bytes(x) if isinstance(x, memoryview) else x for x in (a, b))
     if type(a) is not type(b):
         return path or "<message>", _short(a), _short(b)
     fields = getattr(type(a), "__struct_fields__", None)

@@ -34,9 +34,15 @@ class Message(Struct, kw_only=True, frozen=True):
 
 
 class NDArray(Struct, frozen=True):
-    """A numpy array on the wire: raw little-endian bytes, numpy dtype string and shape."""
+    """A numpy array on the wire: raw little-endian bytes, numpy dtype string and shape.
 
-    data: bytes
+    Decoded, ``data`` is a read-only view into the payload, not a copy of it (a depth frame's
+    200 KB copied on every decode); so a payload must be ``bytes``, which nothing can change
+    while the message lives (``Topic.decode`` sees to it). Built here (``to_wire``), it holds
+    ``bytes``: both have ``len``, ``==`` by content, and the buffer ``np.frombuffer`` reads.
+    """
+
+    data: memoryview
     dtype: Annotated[str, Meta(pattern=r"^(<f[248]|<[iu][248]|\|[iu]1|\|b1)$")]
     shape: list[Annotated[int, Meta(ge=0)]]
 

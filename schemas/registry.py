@@ -78,6 +78,10 @@ class Topic:
         key = key or self.key
         if len(payload) > self.max_bytes:
             raise BadMessage(key, f"payload of {len(payload)} bytes exceeds {self.max_bytes}")
+        if type(payload) is not bytes:
+            # A decoded array views its payload (NDArray): a view into a buffer that its owner
+            # reuses or changes (a receive buffer) would change under the message.
+            payload = bytes(payload)
         try:
             message = self.decoder.decode(payload)
         except msgspec.ValidationError as exc:

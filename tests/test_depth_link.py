@@ -88,3 +88,17 @@ def test_depth_link_whole_records_are_decoded_where_they_lie() -> None:
     assert out == [frame]
     assert parser.pending == 10
     assert peak < 1.2 * len(record), peak  # main: 2.0 (buffer and frame)
+
+
+def test_depth_link_frames_do_not_view_the_reused_receive_buffer() -> None:
+    # The socket's receive buffer is refilled with the next piece while the camera still
+    # holds the frame parsed from it; and the parser's own buffer shrinks after each record.
+    first, second = _frame(0), _frame(1)
+    receive = bytearray(encode(first))
+    parser = LinkParser()
+    out = parser.feed(memoryview(receive))
+    receive[:] = encode(second)
+    assert out == [first]
+    record = encode(second)
+    out = parser.feed(record[:10]) + parser.feed(record[10:])  # through the parser's buffer
+    assert out == [second] and parser.pending == 0

@@ -691,3 +691,15 @@ def test_recording_catches_a_changed_algorithm(
     assert lpc(["replay", str(RECORDINGS / "depth.mcap"), "--check"]) == 1
     out = capsys.readouterr().out
     assert "lpc/aim/cue frame" in out and "differences" in out
+
+
+def test_replayed_frames_keep_their_depth_as_the_reader_moves_on() -> None:
+    # A decoded frame views its payload: each must own bytes of its own, not a view into the
+    # reader's chunk, which the next chunk's read replaces.
+    kept = []
+    with McapLog(Path(__file__).parents[1] / "recordings" / "depth.mcap") as log:
+        for m in log.messages(["lpc/camera/depth"], decode=True):
+            assert type(m.message.depth.data.obj) is bytes
+            kept.append((m.message, bytes(m.message.depth.data)))
+    assert len(kept) == 41
+    assert all(frame.depth.data == snapshot for frame, snapshot in kept)

@@ -216,3 +216,32 @@ def test_bad_message_survives_pickling_with_its_fields() -> None:
         "truncated",
         "lpc/scans: truncated",
     )
+
+
+def _depth_payload(offset: int) -> bytes:
+    depth = (np.arange(240 * 424, dtype=np.uint16) + offset).reshape(240, 424)
+    return encode(DepthFrame(seq=1, t_ns=2, intrinsics=INTR, depth=to_wire(depth)))
+
+
+def test_decoded_array_views_its_payload_without_a_copy() -> None:
+    # A depth frame's 200 KB were copied out of the payload on every decode (main: a copy,
+    # shares_memory False).
+    payload = _depth_payload(0)
+    frame = decode("lpc/camera/depth", payload)
+    depth = from_wire(frame.depth)
+    assert np.shares_memory(depth, np.frombuffer(payload, np.uint8))
+    assert not depth.flags.writeable
+    np.testing.assert_array_equal(depth.ravel(), np.arange(240 * 424, dtype=np.uint16))
+    assert encode(frame) == payload
+
+
+def test_decoded_array_is_not_changed_by_its_buffer_being_reused() -> None:
+    # A payload in a buffer that its owner refills (a receive or read buffer) is copied once:
+    # the decoded frame must not view the buffer, nor hold it against a resize.
+    buffer = bytearray(_depth_payload(0))
+    frame = decode("lpc/camera/depth", memoryview(buffer))
+    buffer[:] = _depth_payload(7)
+    del buffer[:100]
+    np.testing.assert_array_equal(
+        from_wire(frame.depth).ravel(), np.arange(240 * 424, dtype=np.uint16)
+    )

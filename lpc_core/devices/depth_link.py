@@ -118,11 +118,11 @@ class LinkParser:
             if self._skipped:
                 out.append(Rejected(self._skipped, self._why))
                 self._skipped = 0
-            # Decoded in place, through a view released before the buffer shrinks: a slice
-            # would copy the frame once more before msgspec copies its depth out.
+            # Copied once out of the buffer, which shrinks and refills: the decoded depth views
+            # these bytes (NDArray) instead of being copied out by msgspec.
             try:
                 with memoryview(buffer) as view, view[HEADER_BYTES : HEADER_BYTES + length] as body:
-                    out.append(_DECODER.decode(body))
+                    out.append(_DECODER.decode(bytes(body)))
             except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                 out.append(Rejected(HEADER_BYTES + length, f"a record that does not decode: {exc}"))
             del buffer[: HEADER_BYTES + length]
@@ -143,7 +143,8 @@ class LinkParser:
                     break
                 try:
                     with view[start + HEADER_BYTES : end] as body:
-                        out.append(_DECODER.decode(body))
+                        # Copied: ``data`` is often the socket's reused receive buffer.
+                        out.append(_DECODER.decode(bytes(body)))
                 except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                     out.append(Rejected(end - start, f"a record that does not decode: {exc}"))
                 start = end
