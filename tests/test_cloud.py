@@ -6,6 +6,8 @@ noise 0.3 mm RMS, 1 mm quantisation), so these tests do not depend on lpc_core.s
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -33,6 +35,11 @@ from lpc_core.perception.cloud import (
     smallest_eigenvectors,
     voxel_downsample,
 )
+
+if TYPE_CHECKING:
+    from lpc_core.perception.reconstruction import Reconstruction
+    from lpc_core.sim.stereo import StereoSensor
+    from services.cli._laser_views import View
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.solids import silhouette_distance
 
@@ -128,6 +135,18 @@ def _angle_error_deg(a: float, b: float) -> float:
 
 
 # --------------------------------------------------------------------------- steps
+
+
+def _functional_frame(
+    sensor: StereoSensor, name: str, trial: int, frame: int
+) -> tuple[View, Reconstruction]:
+    """The stereo frame ``(trial, frame)`` of the functional object ``name`` seen by
+    ``sensor`` (2 trials x 5 frames, seed 0), and the full cloud's result on it."""
+    from services.cli import _laser_views as lv
+
+    views = lv.views("functional", 2, 5, 0, names=[name], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
+    return view, reconstruct_cloud(view.depth, INTR, seed=view.seq)
 
 
 def test_voxel_downsample_counts_points_on_a_grid():
@@ -605,11 +624,8 @@ def test_a_lying_box_side_on_the_table_is_not_trimmed_as_an_occluding_edge() -> 
     rectangle's, 1.1 off)."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
-    from services.cli import _laser_views as lv
 
-    views = lv.views("functional", 2, 5, 0, names=["cuboid_lying"], sensor=StereoSensor())
-    view = next(v for v in views if (v.trial, v.frame) == (1, 0))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(StereoSensor(), "cuboid_lying", 1, 0)
     assert result.shape == "cuboid", (result.shape, result.reason)
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.006
 
@@ -638,13 +654,10 @@ def test_a_lying_box_whose_table_a_texture_check_left_in_patches_is_not_a_patch(
     largest plane, and the patch nearest the axis came out a 6.9 mm box. The axis meets the
     face and misses the patch: the face is put back, and the box is 41.2 mm."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from services.cli import _laser_views as lv
     from services.cli.bench.sweep import SETTINGS
 
     sensor = SETTINGS["bm5-t30"].sensor()
-    views = lv.views("functional", 2, 5, 0, names=["cuboid_lying"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (1, 0))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(sensor, "cuboid_lying", 1, 0)
     assert result.shape == "cuboid", (result.shape, result.reason)
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.003
 
@@ -692,11 +705,8 @@ def test_an_upright_box_under_semi_global_matching_gets_its_axis_from_the_whole_
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.perception.reconstruction import wrap_half_turn
     from lpc_core.sim.stereo import StereoSensor
-    from services.cli import _laser_views as lv
 
-    views = lv.views("functional", 2, 5, 0, names=["cuboid_upright"], sensor=StereoSensor())
-    view = next(v for v in views if (v.trial, v.frame) == (0, 2))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(StereoSensor(), "cuboid_upright", 0, 2)
     assert result.shape == "cuboid", (result.shape, result.reason)
     error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
     assert abs(error) < 1.0
@@ -710,13 +720,10 @@ def test_an_upright_box_under_strong_smoothness_gets_its_axis_from_a_whole_turn(
     degrees off. Searched over every direction, the straightest sides give 34.5 mm, 0.3."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.perception.reconstruction import wrap_half_turn
-    from services.cli import _laser_views as lv
     from services.cli.bench.sweep import SETTINGS
 
     sensor = SETTINGS["p1x3p2x6"].sensor()
-    views = lv.views("functional", 2, 5, 0, names=["cuboid_upright"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (1, 3))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(sensor, "cuboid_upright", 1, 3)
     assert result.shape == "cuboid", (result.shape, result.reason)
     error = np.degrees(wrap_half_turn(result.wrist_angle_rad - view.truth.wrist_angle_rad))
     assert abs(error) < 2.0
@@ -755,13 +762,10 @@ def test_a_lying_box_under_a_matcher_reaches_the_line_it_stands_on() -> None:
     line the two planes meet on: 37.2 mm. Its side standing on the table goes out to that
     line: 40.3 mm."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from services.cli import _laser_views as lv
     from services.cli.bench.sweep import SETTINGS
 
     sensor = SETTINGS["sgbm5"].sensor()
-    views = lv.views("functional", 2, 5, 0, names=["cuboid_lying"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (0, 0))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(sensor, "cuboid_lying", 0, 0)
     assert result.shape == "cuboid", (result.shape, result.reason)
     assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.001
 
@@ -775,12 +779,9 @@ def test_a_can_fitted_wider_than_its_points_counts_its_margin_from_them() -> Non
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
     from lpc_core.sim.stereo import StereoSensor
     from lpc_core.sim.stereo_settings import Matcher
-    from services.cli import _laser_views as lv
 
     sensor = StereoSensor(matcher=Matcher(block_size=11))
-    views = lv.views("functional", 2, 5, 0, names=["cylinder_upright"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (0, 2))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(sensor, "cylinder_upright", 0, 2)
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert abs(1000 * (result.grasp_width_m - view.truth.grasp_width_m)) < 7.0
 
@@ -870,13 +871,10 @@ def test_a_tilted_can_under_a_wide_window_bands_the_rim_with_far_background() ->
     had to be far for the rim band, so the fit kept the pulled rims: 55.3 mm. Banded on the
     far side only: 50.7 mm."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from services.cli import _laser_views as lv
     from services.cli.bench.sweep import SETTINGS
 
     sensor = SETTINGS["sgbm11"].sensor()
-    views = lv.views("functional", 2, 5, 0, names=["cylinder_tilt_right"], sensor=sensor)
-    view = next(v for v in views if (v.trial, v.frame) == (1, 1))
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
+    view, result = _functional_frame(sensor, "cylinder_tilt_right", 1, 1)
     assert result.shape == "cylinder", (result.shape, result.reason)
     assert abs(1000 * (result.grasp_width_m - view.truth.grasp_width_m)) < 2.0
 
