@@ -235,36 +235,82 @@ SETTINGS: dict[str, Setting] = {
         rig={"albedo": 0.4, "read_noise_dn": 2.0, "pattern_seed": 8},
         matcher={"block_size": 9, "sgbm_mode": "3way", "min_texture": 8.0},
     ),
-    # Held out from every helper of stop 36: only the lead's before -> after runs on them.
-    "fresh-bm9s": Setting(
-        "fresh",
+    # Held out from every helper of stop 36 (then its "fresh" group); studied from stop 37.
+    "bm9-s150": Setting(
+        "untuned",
         "BM 9, uniqueness 10, speckle window 150 and range 1, 0.045 dots/px², a ninth pattern",
         rig={"dot_density": 0.045, "pattern_seed": 9},
         matcher={"kind": "bm", "block_size": 9, "speckle_window": 150, "speckle_range": 1},
     ),
-    "fresh-base60": Setting(
-        "fresh",
+    "base60": Setting(
+        "untuned",
         "SGBM 7, 60 mm baseline, projector 20 mm from the left imager, albedo 0.65",
         rig={"baseline_m": 0.06, "projector_x_m": 0.02, "albedo": 0.65},
     ),
-    "fresh-hh5d": Setting(
-        "fresh",
+    "hh5-dim": Setting(
+        "untuned",
         "SGBM 5, HH mode, dots 0.45 px, 60 % of the signal, read noise 2.5",
         rig={"dot_sigma_px": 0.45, "gain_dn": 190.0, "read_noise_dn": 2.5},
         matcher={"block_size": 5, "sgbm_mode": "hh"},
     ),
-    "fresh-p2x3": Setting(
-        "fresh",
+    "p2x3-lr3": Setting(
+        "untuned",
         "SGBM 9, P2 x 3, uniqueness 5, left-right 3 px, 2.5 times the room light",
         rig={"ambient": 0.2},
         matcher={"block_size": 9, "uniqueness": 5, "disp12_max_diff": 3},
         smoothness=(1.0, 3.0),
     ),
-    "fresh-3way7s": Setting(
-        "fresh",
+    "3way7-shot": Setting(
+        "untuned",
         "SGBM 7, 3-way, IR 2x supersampled, 0.03 dots/px², twice the shot noise, a tenth pattern",
         rig={"supersample": 2, "dot_density": 0.03, "electrons_per_dn": 5.0, "pattern_seed": 10},
         matcher={"sgbm_mode": "3way"},
+    ),
+    # Held out from every helper of stop 37: only the lead's before -> after runs on them.
+    "fresh-bm5c": Setting(
+        "fresh",
+        "BM 5, uniqueness 8, texture threshold 5, prefilter cap 45, 0.055 dots/px², "
+        "optics 0.65 px, an eleventh pattern",
+        rig={"dot_density": 0.055, "blur_sigma_px": 0.65, "pattern_seed": 11},
+        matcher={
+            "kind": "bm",
+            "block_size": 5,
+            "uniqueness": 8,
+            "texture_threshold": 5,
+            "pre_filter_cap": 45,
+        },
+    ),
+    "fresh-proj15": Setting(
+        "fresh",
+        "SGBM 7, projector 15 mm from the left imager, dots 0.55 px, 1.25 times the shot noise, "
+        "read noise 1.5, 1.5 times the room light",
+        rig={
+            "projector_x_m": 0.015,
+            "dot_sigma_px": 0.55,
+            "electrons_per_dn": 8.0,
+            "read_noise_dn": 1.5,
+            "ambient": 0.12,
+        },
+    ),
+    "fresh-3way5p": Setting(
+        "fresh",
+        "SGBM 5, 3-way mode, P1 and P2 x 1.5, speckle window 50, a twelfth pattern",
+        rig={"pattern_seed": 12},
+        matcher={"block_size": 5, "sgbm_mode": "3way", "speckle_window": 50},
+        smoothness=(1.5, 1.5),
+    ),
+    "fresh-hh9u": Setting(
+        "fresh",
+        "SGBM 9, HH mode, albedo 0.55, 0.05 dots/px² of uneven brightness, uniqueness 12",
+        rig={"albedo": 0.55, "dot_density": 0.05, "dot_brightness": (0.4, 1.0)},
+        matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 12},
+    ),
+    "fresh-ss45": Setting(
+        "fresh",
+        "SGBM 7, 45 mm baseline, IR 2x supersampled, texture check 3, left-right 2 px, "
+        "uniqueness 12",
+        rig={"baseline_m": 0.045, "supersample": 2},
+        matcher={"min_texture": 3.0, "disp12_max_diff": 2, "uniqueness": 12},
     ),
 }
 
