@@ -9,7 +9,10 @@ import mcap.writer
 import numpy as np
 import pytest
 import zstandard
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 import services.mcap_log
@@ -230,6 +233,30 @@ def test_reader_corrupt_chunk_stops_at_crc(tmp_path: Path) -> None:
     with McapLog(tmp_path / "bad.mcap") as log:
         got = list(log.messages())
         assert log.cut is not None and "CRC" in log.cut.reason
+    assert [(m.key, m.payload) for m in got] == [(k, p) for k, p, _ in items[: len(got)]]
+
+
+def test_zstd_chunks_carry_zstd_checksum_instead_of_crc(tmp_path: Path) -> None:
+    items = session(30)
+    write_session(tmp_path / "full.mcap", items)
+    with open(tmp_path / "full.mcap", "rb") as f:
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+        f.seek(0)
+        reader = make_reader(f, validate_crcs=True)
+        assert [m.data for _, _, m in reader.iter_messages()] == [p for _, p, _ in items]
+    assert len(chunks) > 2 and {c.compression for c in chunks} == {"zstd"}
+    assert {c.uncompressed_crc for c in chunks} == {0}  # "not computed" (MCAP spec)
+    assert all(zstandard.get_frame_parameters(c.data).has_checksum for c in chunks)
+    # A flipped bit in the second chunk's compressed data: zstd alone decodes it to wrong bytes.
+    with McapLog(tmp_path / "full.mcap") as log:
+        second = [item for item in log._items if item.opcode == Opcode.CHUNK][1]
+    data = bytearray((tmp_path / "full.mcap").read_bytes())
+    data[second.offset + second.length // 2] ^= 0x10
+    (tmp_path / "bad.mcap").write_bytes(bytes(data))
+    with McapLog(tmp_path / "bad.mcap") as log:
+        got = list(log.messages())
+        assert log.cut is not None and "zstd checksum" in log.cut.reason
+    assert 0 < len(got) < len(items)
     assert [(m.key, m.payload) for m in got] == [(k, p) for k, p, _ in items[: len(got)]]
 
 
