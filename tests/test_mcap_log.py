@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -293,12 +294,33 @@ def test_writer_fast_message_path_writes_what_mcaps_add_message_writes(
     rotated ones and a rejected payload included, are byte for byte the ones it writes."""
     items = session(30)
     items.insert(7, ("lpc/emg", b"\xc1 not msgpack", items[6][2]))
+    # A new channel after each depth frame: some land just after a chunk ended, where mcap
+    # writes the channel into a buffer of its own and the fast path takes it over.
+    for i in reversed([i for i, (key, _, _) in enumerate(items) if key == "lpc/camera/depth"]):
+        items.insert(i + 1, (f"lpc/x{i}", b"\xc1 not msgpack", items[i][2]))
     fast = write_session(tmp_path / "fast.mcap", items, compression=compression, max_bytes=2**21)
     monkeypatch.setattr(services.mcap_log._FastMessages, "of", classmethod(lambda cls, w: None))
     plain = write_session(tmp_path / "plain.mcap", items, compression=compression, max_bytes=2**21)
     assert len(fast.paths) == len(plain.paths) > 1, "rotated"
     for a, b in zip(fast.paths, plain.paths, strict=True):
         assert a.read_bytes() == b.read_bytes()
+
+
+def test_writer_reuses_one_chunk_buffer(tmp_path: Path) -> None:
+    """The chunks are built in one buffer, allocated once, not in a BytesIO per chunk that
+    grows (and moves) with each depth payload."""
+    with LogWriter(tmp_path / "b.mcap") as writer:
+        assert writer._fast is not None
+        buffer = writer._fast._buffer
+        capacity = len(buffer._data)
+        for key, payload, t in session(30):
+            writer.write_received(key, payload, t)
+            # Ours, or mcap's fresh one right after a chunk ended, until the next message.
+            current = writer._fast._stream._buffer
+            assert current is buffer or (isinstance(current, io.BytesIO) and not current.tell())
+        assert len(buffer._data) == capacity
+    with McapLog(tmp_path / "b.mcap") as log:
+        assert sum(item.opcode == Opcode.CHUNK for item in log._items) >= 4
 
 
 @pytest.mark.parametrize("compression", ["none", "zstd"])
