@@ -36,6 +36,14 @@ frame's payload were new pages, faulted in and zeroed (71 page faults a frame, `
 back after every chunk. ``services.heap.keep_freed_memory``, which every service's process and
 the container call at start, keeps it: the write loop went from 0.89 to 0.54 ms of CPU a frame
 at level 1 (0.43 to 0.16 ms uncompressed), RSS unchanged.
+
+What the writer thread spends beside zstd (callgrind of ``LogWriter`` on a recording's live mix,
+per depth frame): a zstd chunk's integrity is zstd's own content checksum instead of MCAP's
+chunk CRC, and every chunk is built in one buffer instead of a ``BytesIO`` that glibc moved as
+each depth payload grew it: 6.20 -> 5.22 M instructions, about three quarters of them zstd's
+(``services.mcap_log._ChunkZstd``, ``_ChunkBuffer``). Of the recorder's footprint row, the
+loop's own share is small (0.5 % of a core at 90 Hz, about 7 us a message); the rest is the
+writer thread.
 """
 
 from __future__ import annotations

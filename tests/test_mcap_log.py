@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -9,7 +10,10 @@ import mcap.writer
 import numpy as np
 import pytest
 import zstandard
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 import services.mcap_log
@@ -233,6 +237,30 @@ def test_reader_corrupt_chunk_stops_at_crc(tmp_path: Path) -> None:
     assert [(m.key, m.payload) for m in got] == [(k, p) for k, p, _ in items[: len(got)]]
 
 
+def test_zstd_chunks_carry_zstd_checksum_instead_of_crc(tmp_path: Path) -> None:
+    items = session(30)
+    write_session(tmp_path / "full.mcap", items)
+    with open(tmp_path / "full.mcap", "rb") as f:
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+        f.seek(0)
+        reader = make_reader(f, validate_crcs=True)
+        assert [m.data for _, _, m in reader.iter_messages()] == [p for _, p, _ in items]
+    assert len(chunks) > 2 and {c.compression for c in chunks} == {"zstd"}
+    assert {c.uncompressed_crc for c in chunks} == {0}  # "not computed" (MCAP spec)
+    assert all(zstandard.get_frame_parameters(c.data).has_checksum for c in chunks)
+    # A flipped bit in the second chunk's compressed data: zstd alone decodes it to wrong bytes.
+    with McapLog(tmp_path / "full.mcap") as log:
+        second = [item for item in log._items if item.opcode == Opcode.CHUNK][1]
+    data = bytearray((tmp_path / "full.mcap").read_bytes())
+    data[second.offset + second.length // 2] ^= 0x10
+    (tmp_path / "bad.mcap").write_bytes(bytes(data))
+    with McapLog(tmp_path / "bad.mcap") as log:
+        got = list(log.messages())
+        assert log.cut is not None and "zstd checksum" in log.cut.reason
+    assert 0 < len(got) < len(items)
+    assert [(m.key, m.payload) for m in got] == [(k, p) for k, p, _ in items[: len(got)]]
+
+
 def test_reader_not_mcap_raises_clear_error(tmp_path: Path) -> None:
     (tmp_path / "x.mcap").write_bytes(b"hello world, not a log")
     with pytest.raises(McapLogError, match="not an MCAP file"):
@@ -266,12 +294,33 @@ def test_writer_fast_message_path_writes_what_mcaps_add_message_writes(
     rotated ones and a rejected payload included, are byte for byte the ones it writes."""
     items = session(30)
     items.insert(7, ("lpc/emg", b"\xc1 not msgpack", items[6][2]))
+    # A new channel after each depth frame: some land just after a chunk ended, where mcap
+    # writes the channel into a buffer of its own and the fast path takes it over.
+    for i in reversed([i for i, (key, _, _) in enumerate(items) if key == "lpc/camera/depth"]):
+        items.insert(i + 1, (f"lpc/x{i}", b"\xc1 not msgpack", items[i][2]))
     fast = write_session(tmp_path / "fast.mcap", items, compression=compression, max_bytes=2**21)
     monkeypatch.setattr(services.mcap_log._FastMessages, "of", classmethod(lambda cls, w: None))
     plain = write_session(tmp_path / "plain.mcap", items, compression=compression, max_bytes=2**21)
     assert len(fast.paths) == len(plain.paths) > 1, "rotated"
     for a, b in zip(fast.paths, plain.paths, strict=True):
         assert a.read_bytes() == b.read_bytes()
+
+
+def test_writer_reuses_one_chunk_buffer(tmp_path: Path) -> None:
+    """The chunks are built in one buffer, allocated once, not in a BytesIO per chunk that
+    grows (and moves) with each depth payload."""
+    with LogWriter(tmp_path / "b.mcap") as writer:
+        assert writer._fast is not None
+        buffer = writer._fast._buffer
+        capacity = len(buffer._data)
+        for key, payload, t in session(30):
+            writer.write_received(key, payload, t)
+            # Ours, or mcap's fresh one right after a chunk ended, until the next message.
+            current = writer._fast._stream._buffer
+            assert current is buffer or (isinstance(current, io.BytesIO) and not current.tell())
+        assert len(buffer._data) == capacity
+    with McapLog(tmp_path / "b.mcap") as log:
+        assert sum(item.opcode == Opcode.CHUNK for item in log._items) >= 4
 
 
 @pytest.mark.parametrize("compression", ["none", "zstd"])
