@@ -17,6 +17,7 @@ import pytest
 from lpc_core.perception.laser import (
     LaserParams,
     LineModels,
+    _ball_width,
     _beyond_edges,
     _short_of_ball,
     analyse_lines,
@@ -588,6 +589,24 @@ def test_short_of_ball_needs_two_lines_short_of_the_balls_chord() -> None:
         behind = np.column_stack([t * c, t * s, np.full(30, 0.25)])
         ln.points = np.concatenate([ln.points, behind])
     assert _short_of_ball(wall, ball, params)
+
+
+def test_ball_width_keeps_no_contact_with_a_plane_its_runs_lie_behind() -> None:
+    """A ball takes its contact refit's width from a support none of its samples lie behind;
+    a plane beside it that cuts through it (the ball's samples up to 6 mm behind it) is no
+    support: the ball keeps its own fit's width."""
+    params = LaserParams()
+    lines, ball = _ball_lines([19.9] * 4)
+    clean = np.concatenate([ln.points for ln in lines])
+    # The table 1 mm below the ball's lowest sample, its normal up (-y) toward the camera.
+    low = float(clean[:, 1].max())
+    table = PlaneSolid(point=np.array([0.0, low + 0.001, 0.2]), normal=np.array([0.0, -1.0, 0.0]))
+    assert _ball_width(clean, ball, table, 0.0401, params) == pytest.approx(0.0401)
+    # A plane 6 mm inside the ball's +x side, facing -x: the +x line's last samples lie behind.
+    wall = PlaneSolid(point=np.array([0.014, 0.0, 0.2]), normal=np.array([-1.0, 0.0, 0.0]))
+    assert float(((clean - wall.point) @ wall.normal).min()) < -0.0045
+    assert _ball_width(clean, ball, wall, 0.0201, params) == pytest.approx(0.04)
+    assert _ball_width(clean, ball, None, None, params) == pytest.approx(0.04)
 
 
 def _face_then_flat(

@@ -1018,3 +1018,22 @@ def test_a_jar_cap_whose_rims_turn_its_axis_lies_flat_on_the_table_found(
     assert abs(error) < 2.0, (error, before_deg)
     view, result = _setting_frame("bm7-u5", "jar_cap", 0, 2, "front")
     assert "rim_axis" in result.extra and "disc_axis" not in result.extra
+
+
+def test_a_ball_rests_on_no_plane_its_runs_lie_behind() -> None:
+    """3-way SGBM 7 with twice the shot noise (the sweep's 3way7-shot), the 70 mm ball, trial 0
+    frame 1: the support search took a plane beside the ball's -x side, the true ball 15.6 mm
+    into it, for the table, and the contact refit made the ball 50.3 mm; two of the lines'
+    run samples lie 5.3 and 6.7 mm behind that plane, and the ball keeps its own fit, 77.9."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = lv.views(
+        "functional", 2, 5, 0, names=["sphere_large"], sensor=SETTINGS["3way7-shot"].sensor()
+    )
+    view = next(v for v in views if (v.trial, v.frame) == (0, 1))
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "sphere"
+    error = result.grasp_width_m - view.truth.grasp_width_m
+    assert -0.003 < error < 0.009, error

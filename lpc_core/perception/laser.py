@@ -2939,7 +2939,7 @@ def _decide(
     if shape == "sphere":
         return Reconstruction(
             shape="sphere",
-            grasp_width_m=2 * solid.radius if resting is None else resting,
+            grasp_width_m=_ball_width(clean, solid, support, resting, params),
             center_m=_tuple3(solid.center),
             lines=summaries,
             confidence=confidence,
@@ -4337,6 +4337,36 @@ def _short_of_ball(lines: list[LineModels], ball: SphereSolid, params: LaserPara
         if short >= 2:
             return True
     return False
+
+
+def _ball_width(
+    clean: np.ndarray,
+    ball: SphereSolid,
+    support: PlaneSolid | None,
+    resting: float | None,
+    params: LaserParams,
+) -> float:
+    """The ball's width: ``resting``, its contact refit on ``support`` (``_resting_width``),
+    unless a sample of the lines' runs (``clean``) lies behind that plane by more than three
+    inlier bands, else ``ball``'s own.
+
+    A ball resting on a surface shows none of itself behind it; a plane that cuts through
+    the ball is no support. Under a 3-way SGBM 7 with twice the shot noise (3way7-shot,
+    the 70 mm ball, trial 0 frame 1) the search took a plane beside the ball's -x side for
+    the table (its normal 73 degrees off the line of sight, the true ball 15.6 mm into it):
+    5 of the 152 run samples lay 1.0-6.7 mm behind it, two of them 5.3 and 6.7, and the
+    contact refit made the ball 19.7 mm narrow, its own fit 7.9 mm wide. Of the 441 other
+    balls the sweep's 49 settings sized by a contact, none had a run sample behind its
+    support (the nearest 0.8 mm in front of it). The pear's lower bulb met the same plane
+    (SGBM 7 with P2 x 2, trial 1 frame 3: normal (-0.89, 0.44, -0.14), samples down to 11.6
+    mm behind it, the contact refit 23.8 mm narrow, its own fit 2.4 mm wide); the pear's
+    width MAE on the four settings where it did went 2.6-3.6 -> 1.1-2.1 mm."""
+    if resting is None or support is None:
+        return 2 * ball.radius
+    heights = (clean - support.point) @ support.normal
+    if float(heights.min()) < -3 * params.solid_threshold_m:
+        return 2 * ball.radius
+    return resting
 
 
 # A line crosses a band from rim to rim where the ball's surface faces the camera at both
