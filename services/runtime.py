@@ -259,6 +259,20 @@ def _rss_bytes() -> int:
 # --------------------------------------------------------------------------- pub / sub
 
 
+class _Matching:
+    """Whether a remote subscriber matches a publisher, as Zenoh's matching listener said last
+    (on Zenoh's thread, in the order the declarations arrive). A cell of its own, not a method
+    of the publisher: the listener holds it, and would otherwise hold the publisher too."""
+
+    __slots__ = ("remote",)
+
+    def __init__(self, *, remote: bool) -> None:
+        self.remote = remote
+
+    def __call__(self, status: zenoh.MatchingStatus) -> None:
+        self.remote = status.matching
+
+
 class Publisher:
     """A typed publisher: encodes with the topic's schema and counts what it sends."""
 
@@ -278,6 +292,15 @@ class Publisher:
             express=not sensor,
             allowed_destination=zenoh.Locality.REMOTE if self._local else zenoh.Locality.ANY,
         )
+        # In the container Zenoh carries a sample only to other processes, and in the default
+        # set none subscribes to most topics: a put then still copied the payload into Zenoh's
+        # buffer (200 kB for a depth frame) and took the GIL round Zenoh's routing for nothing.
+        # Zenoh's matching listener says when a remote subscriber comes or goes (the same
+        # declarations Zenoh routes by; one that matches already is told at once), so the put
+        # is skipped only while none would get it. No status query besides: its answer could
+        # land after a newer call of the listener's and undo it.
+        self._match = _Matching(remote=not self._local)
+        self._listener = self._zpub.declare_matching_listener(self._match) if self._local else None
         self._bus = bus
         self._stream = bus.health.published[key]
 
@@ -296,7 +319,8 @@ class Publisher:
             raise TypeError(f"{self.key} carries {self.topic.type.__name__}, not {type(message)}")
 
     def _send(self, message: msgspec.Struct, payload: bytes) -> None:
-        self._zpub.put(payload)
+        if self._match.remote:
+            self._zpub.put(payload)
         for router in self._local:
             router.deliver(self.key, payload)
         now = self._bus.clock.now_ns()

@@ -18,7 +18,7 @@ import zenoh
 
 from schemas import EmgSample, Health, decode, encode
 from services.runtime import Bus, Router, zenoh_config
-from tests.conftest import spawn_service, wait_for
+from tests.conftest import spawn_service, until, wait_for
 
 PUBLISHER = textwrap.dedent(
     """
@@ -372,6 +372,56 @@ def test_router_decodes_a_sample_once_for_all_its_subscriptions(endpoint: str) -
             assert bus.health.received["lpc/emg"].count == 4
             assert bus.health.received["lpc/emg"].rejected == 1
             bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())
+
+
+def test_publisher_in_the_container_puts_on_zenoh_only_while_a_remote_subscriber_matches(
+    endpoint: str, rendezvous: zenoh.Session
+) -> None:
+    """A sample put in the container still reaches its local subscriptions; Zenoh is handed it
+    only while another process subscribes (the put copied a depth frame for no one), and a
+    remote subscriber that comes, or was there first, gets every sample put after it matched."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        bus = Bus(session, "scans", loop=loop, router=router, quiet=True)
+        local = bus.subscribe("lpc/emg", latest=False)
+        pub = bus.publisher("lpc/emg")
+        handed: list[bytes] = []
+        zpub = pub._zpub
+
+        class Counting:  # Zenoh's publisher, counting what it is handed
+            def put(self, payload: bytes) -> None:
+                handed.append(payload)
+                zpub.put(payload)
+
+        pub._zpub = Counting()  # type: ignore[assignment]
+        heard: list[int] = []
+        for seq in range(10):
+            pub.put(EmgSample(seq=seq, t_ns=seq + 1, channels=[0.0]))
+        assert [(await local.receive())[1].seq for _ in range(10)] == list(range(10))
+        assert handed == [], "no remote subscriber: nothing handed to Zenoh"
+        remote = rendezvous.declare_subscriber(
+            "lpc/emg", lambda s: heard.append(decode("lpc/emg", s.payload.to_bytes()).seq)
+        )
+        await until(lambda: pub._match.remote, 30, "the remote subscriber's match")
+        for seq in range(10, 20):
+            pub.put(EmgSample(seq=seq, t_ns=seq + 1, channels=[0.0]))
+        await until(lambda: len(heard) == 10, 10, "the remote samples")
+        assert heard == list(range(10, 20)) and len(handed) == 10
+        # A publisher declared while the subscriber matches already is told so at once.
+        late = bus.publisher("lpc/emg")
+        await until(lambda: late._match.remote, 10, "the match at declaration")
+        remote.undeclare()
+        await until(lambda: not pub._match.remote and not late._match.remote, 30, "the unmatch")
+        pub.put(EmgSample(seq=20, t_ns=21, channels=[0.0]))
+        assert len(handed) == 10
+        local.close()
         router.close()
         session.close()
 
