@@ -4764,11 +4764,16 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
 
 
 # A face run goes on across at most _EXCURSION_SAMPLES samples off the face's plane (about a
-# matching window across), all on one side of it and within _EXCURSION_OFF of
-# solid_threshold_m of it, where the next _EXCURSION_RESUME samples past them lie on the plane
-# again.
+# matching window across), on one side of it (the last of them may lie off the other side:
+# the shift snapping back) and within _EXCURSION_OFF of solid_threshold_m of it, where the
+# next _EXCURSION_RESUME samples past them lie on the plane again. A matcher's depth
+# quantisation and wander across a patch with little texture reach 3.3 mm off the plane at
+# 21 cm (the sparse dots, 35 mm apart; the box tilted right, trial 1 frame 3) and snap back
+# 1.6-1.7 mm past it (BM 7 texture threshold 20 and SGBM 3-way 7 with shot noise, the box
+# tilted right, trial 0 frame 4 and trial 1 frame 0): those runs ended there, their seeds
+# 17-35 mm inside the face turned the box 29-33 degrees.
 _EXCURSION_SAMPLES = 8
-_EXCURSION_OFF = 2.0
+_EXCURSION_OFF = 3.0
 _EXCURSION_RESUME = 4
 
 
@@ -4794,13 +4799,14 @@ def _across_excursions(run: np.ndarray, heights: np.ndarray, params: LaserParams
         ``step``, or ``end`` when there is none."""
         j = end + step
         side = heights[j] > 0 if 0 <= j < n else False
-        while (
-            0 <= j < n
-            and not on[j]
-            and near[j]
-            and (heights[j] > 0) == side
-            and abs(j - end) <= _EXCURSION_SAMPLES
-        ):
+        crossed = False
+        while 0 <= j < n and not on[j] and near[j] and abs(j - end) <= _EXCURSION_SAMPLES:
+            # The shift snaps back across the plane as it ends (a sample or two off the
+            # other side), never back to the first side: that is noise either side.
+            if (heights[j] > 0) != side:
+                crossed = True
+            elif crossed:
+                break
             j += step
         if not (0 <= j < n and on[j]) or abs(j - end) == 1 or abs(j - end) > _EXCURSION_SAMPLES + 1:
             return end
