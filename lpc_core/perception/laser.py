@@ -4764,14 +4764,14 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
 
 
 # A face run goes on across at most _EXCURSION_SAMPLES samples off the face's plane (about a
-# matching window across), on one side of it (the last of them may lie off the other side:
-# the shift snapping back) and within _EXCURSION_OFF of solid_threshold_m of it, where the
-# next _EXCURSION_RESUME samples past them lie on the plane again. A matcher's depth
-# quantisation and wander across a patch with little texture reach 3.3 mm off the plane at
-# 21 cm (the sparse dots, 35 mm apart; the box tilted right, trial 1 frame 3) and snap back
-# 1.6-1.7 mm past it (BM 7 texture threshold 20 and SGBM 3-way 7 with shot noise, the box
-# tilted right, trial 0 frame 4 and trial 1 frame 0): those runs ended there, their seeds
-# 17-35 mm inside the face turned the box 29-33 degrees.
+# matching window across), two or more on one side of it (the last of them may lie off the
+# other side: the shift snapping back) and within _EXCURSION_OFF of solid_threshold_m of it,
+# where the next _EXCURSION_RESUME samples past them lie on the plane again. A matcher's
+# disparity shifts across a patch with little texture reach 3.3 mm off the plane at 21 cm
+# (sparse dots 35 mm apart, the box tilted right, trial 1 frame 3) and snap back 1.6-1.7 mm
+# past it (BM 7 texture threshold 20, trial 0 frame 4; SGBM 3-way 7 with shot noise, trial
+# 1 frame 0): those runs ended there, and their seeds, 17-35 mm inside the face, turned the
+# box 29-33 degrees.
 _EXCURSION_SAMPLES = 8
 _EXCURSION_OFF = 3.0
 _EXCURSION_RESUME = 4
@@ -4801,9 +4801,11 @@ def _across_excursions(run: np.ndarray, heights: np.ndarray, params: LaserParams
         side = heights[j] > 0 if 0 <= j < n else False
         crossed = False
         while 0 <= j < n and not on[j] and near[j] and abs(j - end) <= _EXCURSION_SAMPLES:
-            # The shift snaps back across the plane as it ends (a sample or two off the
-            # other side), never back to the first side: that is noise either side.
+            # A shift holds for two samples or more, then may snap back across the plane, but
+            # never returns to its first side: a lone sample each side is noise.
             if (heights[j] > 0) != side:
+                if abs(j - end) < 3:
+                    break
                 crossed = True
             elif crossed:
                 break
