@@ -4773,7 +4773,7 @@ def _face_run(line: LineModels, plane: PlaneSolid, params: LaserParams) -> LineM
 # 1 frame 0): those runs ended there, and their seeds, 17-35 mm inside the face, turned the
 # box 29-33 degrees.
 _EXCURSION_SAMPLES = 8
-_EXCURSION_OFF = 3.0
+_EXCURSION_OFF = 2.5
 _EXCURSION_RESUME = 4
 
 
