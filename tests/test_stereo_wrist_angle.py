@@ -454,3 +454,45 @@ def test_a_face_run_goes_on_across_a_shift_that_snaps_back_past_the_plane() -> N
     # Longer than a window: the face resumes past something else.
     long = 0.001 * np.array(face + [-2.0] * 10 + again)
     assert laser._across_excursions(run, long, params) is run
+
+
+def _tilted_face_line(past: list[tuple[float, float]]) -> tuple[Any, Any]:
+    """A scan line along x over a face tilted 22 degrees about y (z = 0.2 + 0.4 x), samples
+    1.3 mm apart from x = -44.7 mm on, and before them ``past`` (x, height in front of the
+    face, mm), outward first; and the face's plane."""
+    from lpc_core.perception.laser import LineModels
+    from lpc_core.perception.solids import PlaneSolid
+
+    normal = np.array([0.4, 0.0, -1.0]) / math.hypot(0.4, 1.0)
+    face_x = -0.0447 + 0.0013 * np.arange(60)
+    rows = [(0.001 * x, 0.001 * h) for x, h in past] + [(x, 0.0) for x in face_x]
+    points = np.array([[x, 0.0, 0.2 + 0.4 * x] + h * normal for x, h in rows])
+    sz = np.column_stack([points[:, 0], points[:, 2]])
+    line = LineModels(index=0, angle=0.0, total=len(points), points=points, sz=sz)
+    return line, PlaneSolid(point=np.array([0.0, 0.0, 0.2]), normal=normal)
+
+
+def test_a_face_run_leaves_out_a_few_samples_past_a_bump_at_its_end() -> None:
+    """The box tilted right, trial 0 frame 2, its line at 45 degrees (shot noise, SGBM 9
+    soft, without texture, ... 8 matchers): past the face's edge two samples 1.8-3.2 mm in
+    front of its plane, then two on the plane's extension 10 mm further along (something
+    nearer the camera). The rule for a bump (a remote's buttons, the face going on past
+    them) joined them to the run, and its seed, 12-27 mm outside the face, turned the box
+    15-42 degrees (shot: 20.2 -> 3.5 without them), past a hole of 7 pixels. Five samples
+    past the bump are the face going on, and two past a bump measured pixel by pixel (a
+    remote's button) the face's end: kept."""
+    params = LaserParams()
+    line, plane = _tilted_face_line([(-56.5, -0.2), (-55.3, 0.2), (-48.3, 1.8), (-46.9, 3.2)])
+    run = laser._face_run(line, plane, params)
+    assert run is not None
+    assert run.run[0] == 4
+    past = [(-58.0 + 1.3 * k, 0.2) for k in range(5)]
+    line, plane = _tilted_face_line([*past, (-50.0, 1.8), (-48.0, 3.2)])
+    run = laser._face_run(line, plane, params)
+    assert run is not None
+    assert run.run[0] == 0
+    button = [(-56.3 + 1.3 * k, 2.5) for k in range(9)]
+    line, plane = _tilted_face_line([(-58.9, 0.1), (-57.6, -0.1), *button])
+    run = laser._face_run(line, plane, params)
+    assert run is not None
+    assert run.run[0] == 0
