@@ -473,14 +473,13 @@ def _tilted_face_line(past: list[tuple[float, float]]) -> tuple[Any, Any]:
 
 
 def test_a_face_run_leaves_out_a_few_samples_past_a_bump_at_its_end() -> None:
-    """The box tilted right, trial 0 frame 2, its line at 45 degrees (shot noise, SGBM 9
-    soft, without texture, ... 8 matchers): past the face's edge two samples 1.8-3.2 mm in
-    front of its plane, then two on the plane's extension 10 mm further along (something
-    nearer the camera). The rule for a bump (a remote's buttons, the face going on past
-    them) joined them to the run, and its seed, 12-27 mm outside the face, turned the box
-    15-42 degrees (shot: 20.2 -> 3.5 without them), past a hole of 7 pixels. Five samples
-    past the bump are the face going on, and two past a bump measured pixel by pixel (a
-    remote's button) the face's end: kept."""
+    """The box tilted right, trial 0 frame 2, its line at 45 degrees (SGBM 7 with 2.5 times
+    the shot noise): past the face's edge two samples 1.8-3.2 mm in front of its plane, a
+    hole of 7 pixels, then two on the plane's extension 10 mm further along. The rule for a
+    bump (a remote's buttons, the face going on past them) joined them to the run, and its
+    seed, 11 mm outside the face, turned the box 20.2 degrees (3.5 without them). Five
+    samples past the bump are the face going on, and two past a bump measured pixel by pixel
+    (a remote's button, no hole) the face's end: kept."""
     params = LaserParams()
     line, plane = _tilted_face_line([(-56.5, -0.2), (-55.3, 0.2), (-48.3, 1.8), (-46.9, 3.2)])
     run = laser._face_run(line, plane, params)
