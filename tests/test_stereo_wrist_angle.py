@@ -424,12 +424,74 @@ def test_a_face_run_goes_on_across_a_matchers_excursion_off_the_plane() -> None:
     # An edge leaves the plane for good: the next face parts from it with every sample.
     crease = 0.001 * np.array([*face, -1.8, -2.4, -3.1, -3.9, -4.6, -5.3, -6.0, -6.8])
     assert laser._across_excursions(run, crease, params) is run
-    # Further off than twice the face's tolerance: a background, or another object.
+    # Further off than 2.5 times the face's tolerance: a background, or another object.
     step = 0.001 * np.array(face + [-4.0] * 5 + again)
     assert laser._across_excursions(run, step, params) is run
-    # Either side of the plane: its noise (BM 5, the box tilted right, trial 0 frame 2).
+    # A lone sample either side of the plane: its noise (BM 5, the box tilted right, trial 0
+    # frame 2).
     noise = 0.001 * np.array([*face, 1.8, -1.7, *again])
     assert laser._across_excursions(run, noise, params) is run
+    # Back to the first side after snapping across: noise too.
+    wobble = 0.001 * np.array([*face, 1.8, 1.7, -1.7, 1.9, *again])
+    assert laser._across_excursions(run, wobble, params) is run
+
+
+def test_a_face_run_goes_on_across_a_shift_that_snaps_back_past_the_plane() -> None:
+    """The box tilted right, its line along y past the face's middle: under BM 7 with a
+    texture threshold of 20 (trial 0 frame 4) two samples 1.6-1.8 mm in front of the face,
+    then one 1.7 mm behind it as the disparity snaps back, then the face again; under sparse
+    dots 35 mm apart (trial 1 frame 3) four samples climbing to 3.3 mm (at 21 cm, under a
+    pixel's disparity), then 1.6 mm behind. The runs stopped before them, and their seeds,
+    29-35 mm inside the face, turned the box's axis 29-33 degrees (2.0 and 2.2 joined)."""
+    params = LaserParams()
+    face = [0.1, -0.4, 0.5, -0.3, 0.1, 0.2, -0.6, -0.2, -1.4, -0.9, 1.1, 0.0, 0.4, 1.3, 0.9]
+    again = [-1.1, -1.2, -0.6, -0.0, 0.6, 1.2, 1.1, 0.2, -0.6, -0.7]
+    run = np.arange(len(face))
+    for shift in ([1.8, 1.6, -1.7], [1.6, 2.2, 2.7, 3.3, -1.6]):
+        heights = 0.001 * np.array(face + shift + again)
+        got = laser._across_excursions(run, heights, params)
+        assert (got[0], got[-1]) == (0, len(heights) - 1)
     # Longer than a window: the face resumes past something else.
     long = 0.001 * np.array(face + [-2.0] * 10 + again)
     assert laser._across_excursions(run, long, params) is run
+
+
+def _tilted_face_line(past: list[tuple[float, float]]) -> tuple[Any, Any]:
+    """A scan line along x over a face tilted 22 degrees about y (z = 0.2 + 0.4 x), samples
+    1.3 mm apart from x = -44.7 mm on, and before them ``past`` (x, height in front of the
+    face, mm), outward first; and the face's plane."""
+    from lpc_core.perception.laser import LineModels
+    from lpc_core.perception.solids import PlaneSolid
+
+    normal = np.array([0.4, 0.0, -1.0]) / math.hypot(0.4, 1.0)
+    face_x = -0.0447 + 0.0013 * np.arange(60)
+    rows = [(0.001 * x, 0.001 * h) for x, h in past] + [(x, 0.0) for x in face_x]
+    points = np.array([[x, 0.0, 0.2 + 0.4 * x] + h * normal for x, h in rows])
+    sz = np.column_stack([points[:, 0], points[:, 2]])
+    line = LineModels(index=0, angle=0.0, total=len(points), points=points, sz=sz)
+    return line, PlaneSolid(point=np.array([0.0, 0.0, 0.2]), normal=normal)
+
+
+def test_a_face_run_leaves_out_a_few_samples_past_a_bump_at_its_end() -> None:
+    """The box tilted right, trial 0 frame 2, its line at 45 degrees (SGBM 7 with 2.5 times
+    the shot noise): past the face's edge two samples 1.8-3.2 mm in front of its plane, a
+    hole of 7 pixels, then two on the plane's extension 10 mm further along. The rule for a
+    bump (a remote's buttons, the face going on past them) joined them to the run, and its
+    seed, 11 mm outside the face, turned the box 20.2 degrees (3.5 without them). Five
+    samples past the bump are the face going on, and two past a bump measured pixel by pixel
+    (a remote's button, no hole) the face's end: kept."""
+    params = LaserParams()
+    line, plane = _tilted_face_line([(-56.5, -0.2), (-55.3, 0.2), (-48.3, 1.8), (-46.9, 3.2)])
+    run = laser._face_run(line, plane, params)
+    assert run is not None
+    assert run.run[0] == 4
+    past = [(-58.0 + 1.3 * k, 0.2) for k in range(5)]
+    line, plane = _tilted_face_line([*past, (-50.0, 1.8), (-48.0, 3.2)])
+    run = laser._face_run(line, plane, params)
+    assert run is not None
+    assert run.run[0] == 0
+    button = [(-56.3 + 1.3 * k, 2.5) for k in range(9)]
+    line, plane = _tilted_face_line([(-58.9, 0.1), (-57.6, -0.1), *button])
+    run = laser._face_run(line, plane, params)
+    assert run is not None
+    assert run.run[0] == 0
