@@ -21,6 +21,7 @@ from lpc_core.perception.cloud import (
     _aimed_past,
     _camera_facing,
     _column_counts,
+    _contiguous,
     _facing_passes,
     _support_refit,
     crop_points,
@@ -582,6 +583,20 @@ def test_reconstruct_cloud_box_side_ends_where_a_matchers_fill_parts_from_the_fa
     # On a frame no matcher made, the side keeps its extreme.
     exact = _width_errors_mm(z, 0.04, EXACT_EDGES)
     assert np.array_equal(exact, _width_errors_mm(z, 0.04, replace(EXACT_EDGES, side_gap_m=0.0)))
+
+
+def test_only_a_gap_in_the_outer_part_parts_a_fill_from_the_face():
+    # Ten strips, each points every 2 mm from -20 to +20 mm, a 7 mm gap at +8 mm (a curved
+    # face's band on its plane, two fifths of the way out: kept) and one at +30 mm past which a
+    # fill runs to +40 mm (three quarters of the way out: cut there).
+    row = np.concatenate([np.arange(-0.020, 0.0081, 0.002), np.arange(0.015, 0.0301, 0.002),
+                          np.arange(0.037, 0.0401, 0.002)])  # fmt: skip
+    across = np.tile(row, 10)
+    strips = np.repeat(np.arange(10), len(row))
+    kept, kept_strips = _contiguous(across, strips, 0.006)
+    assert kept.max() == pytest.approx(0.029)
+    assert kept.min() == pytest.approx(-0.020)
+    assert np.array_equal(np.unique(kept_strips), np.arange(10))
 
 
 def test_a_block_matchers_hole_past_a_side_facing_x_trims_the_far_sides() -> None:
