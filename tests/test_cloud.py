@@ -6,6 +6,7 @@ noise 0.3 mm RMS, 1 mm quantisation), so these tests do not depend on lpc_core.s
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -20,6 +21,7 @@ from lpc_core.perception.cloud import (
     _aimed_past,
     _camera_facing,
     _column_counts,
+    _contiguous,
     _facing_passes,
     _support_refit,
     crop_points,
@@ -555,6 +557,46 @@ def test_reconstruct_cloud_box_side_ignores_a_locally_fattened_stretch():
     # Without the stretch the sides stay the extremes, as before.
     clean = _width_errors_mm((box, table), 0.04, PARAMS)
     assert np.array_equal(clean, _width_errors_mm((box, table), 0.04, every_extreme))
+
+
+def test_reconstruct_cloud_box_side_ends_where_a_matchers_fill_parts_from_the_face():
+    # Front face 40 x 120 mm square-on at 0.2 m, 30 degrees in the image, the table behind. A
+    # matcher's smoothness fills the background along the whole of one long side: 8 mm that
+    # part from the face's plane (5 mm nearer), then 10 mm back on it (SGBM 9, P2 x 3, the
+    # upright box at 0.175 m: 7-25 px past its sides). Every stretch of the side reaches as
+    # far, so the median stretch does not bound it; the gap on the face's plane does.
+    angle = np.radians(30)
+    box = _hit_box((0.0, 0.0, 0.225), _rotation((0, 0, 1), angle), (0.12, 0.04, 0.05))
+    table = _hit_plane((0, 0, 1), (0, 0, 0.3))
+    rays = _directions()
+    x, y = 0.2 * rays[..., 0], 0.2 * rays[..., 1]
+    along = x * np.cos(angle) + y * np.sin(angle)
+    across = -x * np.sin(angle) + y * np.cos(angle)
+    beside = (np.abs(along) <= 0.06) & ~np.isfinite(box)
+    parted = np.where(beside & (across > 0.02) & (across <= 0.028), 0.195, np.inf)
+    back = np.where(beside & (across > 0.028) & (across <= 0.038), 0.2, np.inf)
+    z = (_fattened(np.minimum(box, table), 1), parted, back)
+    # A matcher made the frame (a pixel's fattening trimmed, as on a 3 x 3 window).
+    matched = CloudParams(edge_fattening_px=1.0)
+    assert _width_errors_mm(z, 0.04, replace(matched, side_gap_m=0.0)).min() > 15.0
+    assert np.abs(_width_errors_mm(z, 0.04, matched)).max() < 1.5
+    # On a frame no matcher made, the side keeps its extreme.
+    exact = _width_errors_mm(z, 0.04, EXACT_EDGES)
+    assert np.array_equal(exact, _width_errors_mm(z, 0.04, replace(EXACT_EDGES, side_gap_m=0.0)))
+
+
+def test_only_a_gap_in_the_outer_part_parts_a_fill_from_the_face():
+    # Ten strips, each points every 2 mm from -20 to +20 mm, a 7 mm gap at +8 mm (a curved
+    # face's band on its plane, two fifths of the way out: kept) and one at +30 mm past which a
+    # fill runs to +40 mm (three quarters of the way out: cut there).
+    row = np.concatenate([np.arange(-0.020, 0.0081, 0.002), np.arange(0.015, 0.0301, 0.002),
+                          np.arange(0.037, 0.0401, 0.002)])  # fmt: skip
+    across = np.tile(row, 10)
+    strips = np.repeat(np.arange(10), len(row))
+    kept, kept_strips = _contiguous(across, strips, 0.006)
+    assert kept.max() == pytest.approx(0.029)
+    assert kept.min() == pytest.approx(-0.020)
+    assert np.array_equal(np.unique(kept_strips), np.arange(10))
 
 
 def test_a_block_matchers_hole_past_a_side_facing_x_trims_the_far_sides() -> None:

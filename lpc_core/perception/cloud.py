@@ -123,6 +123,15 @@ class CloudParams:
     # than this past its median stretch was fattened there, and the median stretch bounds it
     # (see _strip_sides). Half a voxel: a clean edge's strips agree closer than that.
     side_tolerance_m: float = 0.001
+    # Where a matcher made the frame, an occluding side across the face's shorter extent ends
+    # at its stretch's first gap wider than this on the face's plane, going out from the
+    # face's middle: past it lies the matcher's fill of the background, which parts from the
+    # face's plane (off it, or no depth) and comes back to it (SGBM 9 with P2 x 3, the upright
+    # box at 0.175 m: 7-25 px past its sides, dipping 3-7 mm toward the camera on the way).
+    # Three voxels: neighbouring voxels' centroids lie up to two apart, so a wider gap holds
+    # an empty voxel at least (at two voxels, BM 5's and 3-way SGBM 7's sparse dots left
+    # such gaps inside the face and cut it 0.4-1.4 mm narrower). 0 turns it off.
+    side_gap_m: float = 0.006
 
     def __post_init__(self) -> None:
         positive = (
@@ -160,6 +169,7 @@ class CloudParams:
             "far_background_ratio",
             "rest_gap_ratio",
             "rest_max_tilt_rad",
+            "side_gap_m",
         ):
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0:
@@ -1424,6 +1434,20 @@ def _cuboid_geometry(
         strip if free else edge
         for strip, edge, free in zip(strips, extremes, occluding, strict=True)
     )
+    if matched and params.side_gap_m > 0:
+        # Only the two sides across the face's shorter extent, which the grasp spans: along
+        # the longer one a gap in the face (a band without depth across a 120 mm face, SGBM 7
+        # with P1 x 3 and P2 x 6) cut it shorter than the grasp.
+        gap = params.side_gap_m
+        if hi1 - lo1 <= hi2 - lo2:
+            cut, k = _strip_sides(s1, s2, strip_m, tolerance, gap), 0
+        else:
+            cut, k = _strip_sides(s2, s1, strip_m, tolerance, gap), 2
+        sides = [lo1, hi1, lo2, hi2]
+        for j in (0, 1):
+            if occluding[k + j]:
+                sides[k + j] = cut[j]
+        lo1, hi1, lo2, hi2 = sides
     if matched and any(standing):
         # A matcher's window straddles the crease where the face meets its table: the points
         # within about half a window of it lie off both planes, and the face stops short of
@@ -1531,7 +1555,7 @@ def _on_support(
 
 
 def _strip_sides(
-    across: np.ndarray, along: np.ndarray, strip_m: float, tolerance_m: float
+    across: np.ndarray, along: np.ndarray, strip_m: float, tolerance_m: float, gap_m: float = 0.0
 ) -> tuple[float, float]:
     """The two sides, in ``across``, of a face's points whose coordinate along those sides is
     ``along``. The points are cut in strips ``strip_m`` wide along the sides. A side whose
@@ -1539,8 +1563,11 @@ def _strip_sides(
     a clean edge's is; else the matcher fattened stretches of that edge more than the rest
     (by 6-27 px on stereo frames, where the background is far and dim, at the face's own
     depth on a face seen square-on, so no scan line's depth shows it), and the median strip's
-    extreme bounds the face."""
+    extreme bounds the face. With ``gap_m`` (> 0), each strip keeps only its points that run
+    on from the face's middle without a gap wider than that (``_contiguous``)."""
     strips = np.floor((along - along.min()) / strip_m).astype(np.intp)
+    if gap_m > 0:
+        across, strips = _contiguous(across, strips, gap_m)
     order = np.argsort(strips, kind="stable")
     strip = strips[order]
     starts = np.flatnonzero(np.concatenate([[True], strip[1:] != strip[:-1]]))
@@ -1552,6 +1579,42 @@ def _strip_sides(
         lo if lo >= lo_edge - tolerance_m else lo_edge,
         hi if hi <= hi_edge + tolerance_m else hi_edge,
     )
+
+
+# A gap parts a matcher's fill from a face only this far out or further, of the way from the
+# face's middle to its extreme point on that side: a fill as wide as twice the face's half-width
+# still ends past it (p2x3-lr3's upright box at 0.175 m: 17.5 mm, fills up to 20 mm), while a
+# curved face's points on its plane, which a gap nearer the middle parts (the soap bar: 13 mm
+# narrow as it was, 15-18 mm with every gap), keep their width.
+_FILL_GAP_OUTER = 1.0 / 3.0
+
+
+def _contiguous(
+    across: np.ndarray, strips: np.ndarray, gap_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points of each strip that run on from the face's middle (the median of ``across``)
+    without a gap wider than ``gap_m`` in the outer part (``_FILL_GAP_OUTER``): ``across``
+    and ``strips`` of those."""
+    middle = float(np.median(across))
+    order = np.lexsort((across, strips))
+    a, k = across[order], strips[order]
+    new_strip = np.concatenate([[True], k[1:] != k[:-1]])
+    steps = np.concatenate([[0.0], np.diff(a)])
+    # Only a gap _FILL_GAP_OUTER of the way out or further (see there).
+    hi, lo = float(a.max()) - middle, middle - float(a.min())
+    prev = np.concatenate([[middle], a[:-1]])
+    reach = _FILL_GAP_OUTER
+    outer = np.where(a > middle, prev - middle >= reach * hi, middle - a >= reach * lo)
+    broken = new_strip | ((steps > gap_m) & outer)
+    run = np.cumsum(broken) - 1
+    # Each strip's run nearest the middle.
+    distance = np.abs(a - middle)
+    by = np.lexsort((distance, k))
+    first = np.concatenate([[True], k[by][1:] != k[by][:-1]])
+    mid_run = np.empty(k.max() + 1, dtype=np.intp)
+    mid_run[k[by][first]] = run[by][first]
+    keep = run == mid_run[k]
+    return a[keep], k[keep]
 
 
 def _measured_fattening(
