@@ -3572,7 +3572,8 @@ def _smeared_past(
     inlier bands) past the line's last inlier toward a segment end that is an occluding edge
     before a background more than ``full``'s diameter behind it, or before nothing (the
     line's own samples beyond the segment within ``background_reach_px``, else the scans'
-    ``past_ends_m``, as ``_occluding_rims`` reads them).
+    ``past_ends_m``, as ``_occluding_rims`` reads them), or none of them farther than the last
+    inlier by more than the depth quantum (``_END_PLATEAU_M``), whatever lies past the end.
 
     Such samples are a matcher's smear from the rim toward the far background, whose depth
     its smoothness carries over a few pixels (they part from the fit by about 1 mm a pixel),
@@ -3591,6 +3592,13 @@ def _smeared_past(
         for side, outside in ((0, slice(0, inliers[0])), (1, slice(inliers[-1] + 1, None))):
             # Between the last inlier and the segment's end every sample is off the fit.
             if not len(mark[outside]):
+                continue
+            rim = float(ln.points[inliers[0] if side == 0 else inliers[-1], 2])
+            if float(ln.points[outside, 2].max()) - rim <= _END_PLATEAU_M:
+                # Nothing past the rim lies farther than it: no surface seen past an occluding
+                # rim lies nearer, and a support the round touches lies behind it, so this is
+                # the window's plateau at the rim's depth, smoothed on past the segment's end.
+                mark[outside] = True
                 continue
             end = ln.points[0 if side == 0 else -1]
             beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
