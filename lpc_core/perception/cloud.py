@@ -19,7 +19,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import lru_cache, partial
-from typing import Protocol, Self
+from typing import NamedTuple, Protocol, Self
 
 import numpy as np
 from scipy import ndimage
@@ -527,8 +527,7 @@ def _column_counts(hits: np.ndarray) -> np.ndarray:
     return counts
 
 
-@dataclass(frozen=True)
-class SupportHypotheses:
+class SupportHypotheses(NamedTuple):
     """A support search's planes through point triples and their scores on (a sample of) the
     points: what ``find_support_plane`` draws and counts before it picks one. Searches over
     the same points that differ only in how much may lie behind the plane share them

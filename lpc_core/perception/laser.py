@@ -48,7 +48,7 @@ import math
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 from numpy.linalg import _umath_linalg
@@ -3140,8 +3140,7 @@ def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | N
     return correlation if correlation >= params.window_correlation_gate else None
 
 
-@dataclass(frozen=True)
-class _Beside:
+class _Beside(NamedTuple):
     """The lines' samples off the round's runs (``points``), in pieces of ``counts`` samples,
     each piece's line (``owners``) and whether a jump parts it from the round's segment
     (``far``); and the support search's planes through them (``cloud.support_hypotheses``, or
