@@ -35,6 +35,7 @@ from lpc_core.perception.cloud import (
     plane_hypotheses,
     reconstruct_cloud,
     smallest_eigenvectors,
+    support_hypotheses,
     voxel_downsample,
 )
 
@@ -212,6 +213,30 @@ def test_find_support_plane_skips_a_box_face_with_the_table_behind_it():
     assert mask is not None
     assert not mask[front].any()
     assert mask[cloud[:, 2] > 0.275].mean() > 0.98
+
+
+def test_find_support_plane_on_shared_hypotheses_is_the_search_it_replaces():
+    """The four-line method draws a frame's support planes once for both its table searches
+    (``support_hypotheses``): each search on them finds the mask its own draws find, for
+    every fraction allowed behind, on all the points and on a sample of them."""
+    box = _hit_box((0.0, 0.0, 0.2 + 0.02), np.eye(3), (0.13, 0.13, 0.04))
+    depth = _frame(box, _hit_plane((0, 0, 1), (0, 0, 0.28)))
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    found = 0
+    for size in (300, len(cloud)):  # under and over score_sample's 384
+        points = cloud[np.random.default_rng(1).permutation(len(cloud))[:size]]
+        shared = support_hypotheses(points, PARAMS, np.random.default_rng(0))
+        assert shared is not None and shared.sampled == (size > PARAMS.score_sample)
+        for fraction in (0.0, 0.03, 1.0):
+            search = replace(PARAMS, support_max_behind_fraction=fraction)
+            own = find_support_plane(points, search, np.random.default_rng(0))
+            again = find_support_plane(points, search, np.random.default_rng(5), shared)
+            assert (own is None) == (again is None)
+            if own is not None:
+                found += 1
+                assert np.array_equal(own, again)
+    assert found >= 2
+    assert support_hypotheses(cloud[:149], PARAMS, np.random.default_rng(0)) is None
 
 
 def test_find_support_plane_none_for_a_lone_ball():

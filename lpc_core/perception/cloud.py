@@ -19,7 +19,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import lru_cache, partial
-from typing import Protocol, Self
+from typing import NamedTuple, Protocol, Self
 
 import numpy as np
 from scipy import ndimage
@@ -537,15 +537,27 @@ def _column_counts(hits: np.ndarray) -> np.ndarray:
     return counts
 
 
-def find_support_plane(
-    points: np.ndarray, params: CloudParams, rng: np.random.Generator
-) -> np.ndarray | None:
-    """Mask of the supporting plane's points, or ``None`` when there is no such plane.
+class SupportHypotheses(NamedTuple):
+    """A support search's planes through point triples and their scores on (a sample of) the
+    points: what ``find_support_plane`` draws and counts before it picks one. Searches over
+    the same points that differ only in how much may lie behind the plane share them
+    (``support_max_behind_fraction``; the four-line method's table search and its disc's,
+    which also tries these planes for a table)."""
 
-    The supporting plane is the largest plane that has (almost) no point behind it as seen from
-    the camera: the table under an object qualifies; the front face of a box standing on it
-    does not, because the table and the box's sides lie behind that face.
-    """
+    normals: np.ndarray  # (3, T) unit, facing away from the camera
+    offsets: np.ndarray  # (T,)
+    valid: np.ndarray  # (T,) the triple spans a plane
+    signed: np.ndarray  # (S, T) signed distances of the scored points
+    sampled: bool  # the scored points are a sample of the points, not all of them
+    behind: np.ndarray  # (T,) scored points behind each plane
+    inliers: np.ndarray  # (T,) scored points on each plane
+
+
+def support_hypotheses(
+    points: np.ndarray, params: CloudParams, rng: np.random.Generator
+) -> SupportHypotheses | None:
+    """``find_support_plane``'s planes and scores (``SupportHypotheses``), or ``None`` when
+    there are too few points for a support."""
     n = len(points)
     if n < max(3, params.support_min_points):
         return None
@@ -555,7 +567,8 @@ def find_support_plane(
     picks = rng.integers(0, n, size=3 * params.support_trials).reshape(-1, 3)
     normals, offsets, valid = plane_hypotheses(points, picks)
     # All the points when they are few (no copy: _sample's arange would only copy them).
-    if n <= params.score_sample:
+    sampled = n > params.score_sample
+    if not sampled:
         sub = np.ascontiguousarray(points)
     else:
         sub = points[_sample(n, params.score_sample, rng)]
@@ -563,12 +576,35 @@ def find_support_plane(
     # |d| <= t is d >= -t less d > t.
     behind = _column_counts(signed > threshold)
     front = _column_counts(signed >= -threshold)
-    inliers = front - behind
-    ok = valid & (behind <= params.support_max_behind_fraction * len(sub))
+    return SupportHypotheses(normals, offsets, valid, signed, sampled, behind, front - behind)
+
+
+def find_support_plane(
+    points: np.ndarray,
+    params: CloudParams,
+    rng: np.random.Generator,
+    hypotheses: SupportHypotheses | None = None,
+) -> np.ndarray | None:
+    """Mask of the supporting plane's points, or ``None`` when there is no such plane.
+
+    The supporting plane is the largest plane that has (almost) no point behind it as seen from
+    the camera: the table under an object qualifies; the front face of a box standing on it
+    does not, because the table and the box's sides lie behind that face. ``hypotheses``:
+    ``support_hypotheses(points, p, rng)`` already drawn, with ``p`` as ``params`` but for
+    ``support_max_behind_fraction`` (``rng`` is then not used).
+    """
+    if hypotheses is None:
+        hypotheses = support_hypotheses(points, params, rng)
+        if hypotheses is None:
+            return None
+    n = len(points)
+    threshold = params.support_threshold_m
+    normals, offsets, s = hypotheses.normals, hypotheses.offsets, len(hypotheses.signed)
+    ok = hypotheses.valid & (hypotheses.behind <= params.support_max_behind_fraction * s)
     if not np.logical_or.reduce(ok):
         return None
     # The method, not np.argmax's Python wrapper: the search runs on every resting round.
-    best = int(np.where(ok, inliers, -1).argmax())
+    best = int(np.where(ok, hypotheses.inliers, -1).argmax())
     signed_all = points @ normals[:, best] + offsets[best]
     mask = np.abs(signed_all) <= threshold
     refit = _support_refit(points[mask])
@@ -581,7 +617,7 @@ def find_support_plane(
     # population correction (none when the sample is the whole cloud). A table seen through a
     # sparse dot pattern has a noise tail past the threshold; the table behind a box's face is
     # far more than that.
-    f, s = params.support_max_behind_fraction, len(sub)
+    f = params.support_max_behind_fraction
     allowed = f + 3.0 * math.sqrt(f * (1.0 - f) / s * (n - s) / max(n - 1, 1))
     if np.count_nonzero(mask) < params.support_min_points or behind_all > allowed * n:
         return None
@@ -1971,6 +2007,7 @@ __all__ = [
     "FitModel",
     "PlaneModel",
     "SphereModel",
+    "SupportHypotheses",
     "crop_points",
     "estimate_normals",
     "find_support_plane",
@@ -1982,5 +2019,6 @@ __all__ = [
     "plane_hypotheses",
     "reconstruct_cloud",
     "smallest_eigenvectors",
+    "support_hypotheses",
     "voxel_downsample",
 ]

@@ -46,9 +46,9 @@ import functools
 import itertools
 import math
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 from numpy.linalg import _umath_linalg
@@ -57,8 +57,9 @@ from lpc_core.perception import fit
 from lpc_core.perception.cloud import (
     SCAN_LINE_SUPPORT,
     CloudParams,
+    SupportHypotheses,
     find_support_plane,
-    plane_hypotheses,
+    support_hypotheses,
 )
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
 from lpc_core.perception.scans import residual_correlation
@@ -2840,7 +2841,8 @@ def _decide(
     lost = shape != "cylinder" and candidates[shape].score < params.min_solid_fraction
     rival = "cylinder" in candidates and (lost or shape == "cuboid")
     if shape == "cylinder" or rival:
-        support, supported = _support_plane(lines, params), True
+        beside = _beside(lines)
+        support, supported = _support_plane(lines, params, beside=beside), True
         sizes = [len(ln.run) for ln in lines]
         disc = _lying_disc(clean, support, params, sizes) if support is not None else None
         table = None
@@ -2855,13 +2857,20 @@ def _decide(
         if disc is None and guess:
             # A matcher smears the band's lower rim down behind the table, which then hides
             # the table from the support search (see _DISC_SUPPORT).
-            table = _support_plane(lines, params, _DISC_SUPPORT, _DISC_SUPPORT_LINE_POINTS)
+            table = _support_plane(
+                lines, params, _DISC_SUPPORT, _DISC_SUPPORT_LINE_POINTS, beside=beside
+            )
+            if _same_plane(table, support):
+                # The search that lets the table hide more behind it found the support again
+                # (a quarter of the rounds): its disc is the one not found above.
+                table = None
             disc = _lying_disc(clean, table, params, sizes) if table is not None else None
         if disc is None and guess:
             # Both searches may take a plane across the cap's top face for the table, or
             # find none, and a free cylinder then wins along the band (soft SGBM 9, the jar
             # cap from the front, trial 0 frame 0: 53 degrees off; the table beside, 0.78).
-            disc = _disc_on_plane_beside(lines, clean, params, sizes)
+            searched = [plane for plane in (support, table) if plane is not None]
+            disc = _disc_on_plane_beside(lines, clean, params, sizes, beside, searched)
         for plane in (support, table) if disc is None and guess else ():
             # Last, as a wrong table's scored circles may just reach the share a disc needs
             # (SGBM 7 with the OpenCV sample's smoothness, the jar cap from the front, trial 0
@@ -3149,11 +3158,50 @@ def _matched(scan_lines: ScanLinesLike | None, params: LaserParams) -> float | N
     return correlation if correlation >= params.window_correlation_gate else None
 
 
+class _Beside(NamedTuple):
+    """The lines' samples off the round's runs (``points``), in pieces of ``counts`` samples,
+    each piece's line (``owners``) and whether a jump parts it from the round's segment
+    (``far``); and the support search's planes through them (``cloud.support_hypotheses``, or
+    ``None`` when too few samples lie beside for a support). Both support searches and
+    ``_disc_on_plane_beside`` draw the same 64 triples of the same samples from the same seed:
+    drawn and scored once a frame."""
+
+    points: np.ndarray
+    counts: list[int]
+    owners: list[int]
+    far: list[bool]
+    hypotheses: SupportHypotheses | None
+
+
+def _beside(lines: list[LineModels]) -> _Beside | None:
+    """The frame's samples beside the runs (``_Beside``), or ``None`` where there are none."""
+    pieces = [
+        (ln.index, k < len(ln.beyond), p)
+        for ln in lines
+        for k, p in enumerate((*ln.beyond, ln.points[: ln.run[0]], ln.points[ln.run[-1] + 1 :]))
+        if len(p)
+    ]
+    if not pieces:
+        return None
+    points = np.concatenate([p for *_, p in pieces])
+    # A fixed seed: the same lines give the same support (decide has no frame seed).
+    # _DISC_SUPPORT draws and scores as SCAN_LINE_SUPPORT does (it lets more lie behind).
+    hypotheses = support_hypotheses(points, SCAN_LINE_SUPPORT, _support_rng())
+    return _Beside(
+        points,
+        [len(p) for *_, p in pieces],
+        [i for i, _, _ in pieces],
+        [b for _, b, _ in pieces],
+        hypotheses,
+    )
+
+
 def _support_plane(
     lines: list[LineModels],
     params: LaserParams,
     search: CloudParams = SCAN_LINE_SUPPORT,
     min_line_points: int = _SUPPORT_MIN_LINE_POINTS,
+    beside: _Beside | bool | None = True,
 ) -> PlaneSolid | None:
     """The support the lines show beside the round, or ``None`` (or when resting is off,
     ``rest_gap_ratio`` 0).
@@ -3164,35 +3212,37 @@ def _support_plane(
     (the samples it needs on each of those two lines) are the disc's where the plain search
     found no table under it (``_DISC_SUPPORT``); a line whose samples past a jump from the
     round's segment lie on the plane shows it with ``_SUPPORT_MIN_FAR_POINTS`` of them.
+    ``beside``: ``_beside(lines)`` where the caller has it already.
     """
     if params.rest_gap_ratio == 0:
         return None
-    # Each piece's line, and whether a jump parts it from the round's segment (beyond).
-    pieces = [
-        (ln.index, k < len(ln.beyond), p)
-        for ln in lines
-        for k, p in enumerate((*ln.beyond, ln.points[: ln.run[0]], ln.points[ln.run[-1] + 1 :]))
-        if len(p)
-    ]
-    if not pieces:
+    if beside is True:
+        beside = _beside(lines)
+    if not isinstance(beside, _Beside) or beside.hypotheses is None:
         return None
-    beside = np.concatenate([p for *_, p in pieces])
-    if len(beside) < SCAN_LINE_SUPPORT.support_min_points:
-        return None
-    # A fixed seed: the same lines give the same support (decide has no frame seed).
-    mask = find_support_plane(beside, search, _support_rng())
+    points = beside.points
+    mask = find_support_plane(points, search, _support_rng(), beside.hypotheses)
     if mask is None:
         return None
-    counts = [len(p) for *_, p in pieces]
-    owner = np.repeat([i for i, _, _ in pieces], counts).compress(mask)
-    far = np.repeat([b for _, b, _ in pieces], counts).compress(mask)
+    owner = np.repeat(beside.owners, beside.counts).compress(mask)
+    far = np.repeat(beside.far, beside.counts).compress(mask)
     per_line = np.bincount(owner, minlength=len(lines))
     per_line_far = np.bincount(owner.compress(far), minlength=len(lines))
     shown = (per_line >= min_line_points) | (per_line_far >= _SUPPORT_MIN_FAR_POINTS)
     if np.count_nonzero(shown) < 2:
         return None
-    support = PlaneSolid.estimate(beside.compress(mask, axis=0))
+    support = PlaneSolid.estimate(points.compress(mask, axis=0))
     return support if support else None
+
+
+def _same_plane(a: PlaneSolid | None, b: PlaneSolid | None) -> bool:
+    """Whether two supports are one plane to the last bit (the same samples' fit)."""
+    return (
+        a is not None
+        and b is not None
+        and a.point.tolist() == b.point.tolist()
+        and a.normal.tolist() == b.normal.tolist()
+    )
 
 
 def _resting_width(
@@ -4592,7 +4642,7 @@ def _disc_shares(
     count = np.count_nonzero(inside, axis=1)
     rows = np.flatnonzero(ok & (count >= 3))
     top = np.full(len(radii), np.nan)
-    top[rows] = np.nanmedian(np.where(inside[rows], height, np.nan), axis=1)
+    top[rows] = _row_medians(height, inside[rows])
     with np.errstate(invalid="ignore"):
         on_top = inside & (np.abs(height - top[:, None]) <= thr)
     held = np.count_nonzero(on_top, axis=1)
@@ -4625,9 +4675,22 @@ def _disc_shares(
     return (explained | on_top) & ok[:, None]
 
 
-# The planes _disc_on_plane_beside tries: as many triples as the scan lines' support search
-# draws, the disc fitted on the three largest that lie 5 degrees or more apart.
-_DISC_TABLE_TRIALS = SCAN_LINE_SUPPORT.support_trials
+def _row_medians(values: np.ndarray, present: np.ndarray) -> np.ndarray:
+    """The median of ``values`` (N,) where each row of ``present`` (R, N) is true, each row
+    holding one or more: ``np.nanmedian`` of the rows with NaN elsewhere, the middle value
+    or the middle two summed and halved as its masked sort's are, without its masked arrays
+    (a tenth of its cost on a disc's one row). To the bit but for a zero's sign where -0.0
+    and 0.0 tie in the middle (the sort may order them either way): no comparison sees it."""
+    counts = np.count_nonzero(present, axis=1)
+    ordered = np.sort(np.where(present, values, np.inf), axis=1)
+    high = counts // 2
+    low = np.where(counts % 2 == 1, high, high - 1)
+    rows = np.arange(len(counts))
+    return (ordered[rows, low] + ordered[rows, high]) / 2
+
+
+# The planes _disc_on_plane_beside tries: the scan lines' support search's triples, the disc
+# fitted on the three largest that lie 5 degrees or more apart.
 _DISC_TABLE_TRIES = 3
 _DISC_TABLE_APART_COS = math.cos(math.radians(5.0))
 
@@ -4653,7 +4716,12 @@ def _smeared_below(height: np.ndarray, sizes: list[int], depth: float) -> bool:
 
 
 def _disc_on_plane_beside(
-    lines: list[LineModels], clean: np.ndarray, params: LaserParams, sizes: list[int]
+    lines: list[LineModels],
+    clean: np.ndarray,
+    params: LaserParams,
+    sizes: list[int],
+    beside: _Beside | bool | None = True,
+    searched: Sequence[PlaneSolid] = (),
 ) -> tuple[CylinderSolid, float] | None:
     """The lying disc (``_lying_disc``) on a plane through samples beside the runs, where
     the support searches found none: of the planes through three such samples holding five
@@ -4667,24 +4735,20 @@ def _disc_on_plane_beside(
     plane holds 0.80-0.82 of the runs, within a degree of the truth. The guessed plane
     makes a richer solid: its disc must explain ``cylinder_margin`` more than
     ``min_solid_fraction`` (a hexagonal prism's side under BM 9, 0.60 against the face's
-    0.94)."""
-    pieces = [
-        (ln.index, p)
-        for ln in lines
-        for p in (*ln.beyond, ln.points[: ln.run[0]], ln.points[ln.run[-1] + 1 :])
-        if len(p)
-    ]
-    if not pieces:
+    0.94). ``beside``: ``_beside(lines)`` where the caller has it already: its planes are
+    the support searches' (the same triples of the same samples from the same seed).
+    ``searched``: planes whose disc ``_lying_disc`` found none already (the supports the
+    searches found, which one of these planes may be to the bit: a fifth of the fits)."""
+    if beside is True:
+        beside = _beside(lines)
+    if not isinstance(beside, _Beside) or beside.hypotheses is None:
         return None
-    beside = np.concatenate([p for _, p in pieces])
-    n = len(beside)
-    if n < _DISC_SUPPORT.support_min_points:
-        return None
-    owner = np.repeat([i for i, _ in pieces], [len(p) for _, p in pieces])
-    rng = _support_rng()
-    picks = rng.integers(0, n, size=(_DISC_TABLE_TRIALS, 3))
-    normals, offsets, valid = plane_hypotheses(beside, picks)
-    on = np.abs(beside @ normals + offsets) <= _DISC_SUPPORT.support_threshold_m
+    hypotheses = beside.hypotheses
+    normals, offsets, valid = hypotheses.normals, hypotheses.offsets, hypotheses.valid
+    owner = np.repeat(beside.owners, beside.counts)
+    # The searches' scores are every sample's distances unless they scored a sample.
+    signed = hypotheses.signed if not hypotheses.sampled else beside.points @ normals + offsets
+    on = np.abs(signed) <= _DISC_SUPPORT.support_threshold_m
     per_line = np.stack([on[owner == ln.index].sum(axis=0) for ln in lines])
     planar = (per_line >= _DISC_SUPPORT_LINE_POINTS).sum(axis=0) >= 2
     height = -(clean @ normals + offsets)
@@ -4705,8 +4769,8 @@ def _disc_on_plane_beside(
         if any(abs(float(normals[:, k] @ t)) > _DISC_TABLE_APART_COS for t in tried):
             continue
         tried.append(normals[:, k])
-        plane = PlaneSolid.estimate(beside.compress(on[:, k], axis=0))
-        if not plane:
+        plane = PlaneSolid.estimate(beside.points.compress(on[:, k], axis=0))
+        if not plane or any(_same_plane(plane, known) for known in searched):
             continue
         disc = _lying_disc(clean, plane, params, sizes)
         if disc is not None and disc[1] >= need and (best is None or disc[1] > best[1]):
