@@ -562,10 +562,10 @@ def test_reconstruct_cloud_box_sides_move_in_from_occluding_edges():
         assert np.abs(_width_errors_mm((fat,), 0.04, trimmed)).max() < 1.5
 
 
-def test_reconstruct_cloud_box_side_ignores_a_locally_fattened_stretch():
-    # Front face 40 x 120 mm square-on at 0.2 m, 30 degrees in the image, the table behind.
-    # A matcher fattens a 30 mm stretch of one long side by 12 mm (about 13 px) at the face's
-    # own depth, where a scan line would see no depth change: the stretch must not bound it.
+def _tilted_face() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A box's 40 x 120 mm front face square-on at 0.2 m, 30 degrees in the image, the table
+    behind: the box's and the table's depth, and each pixel's ray at 0.2 m along and across the
+    face's long side."""
     angle = np.radians(30)
     box = _hit_box((0.0, 0.0, 0.225), _rotation((0, 0, 1), angle), (0.12, 0.04, 0.05))
     table = _hit_plane((0, 0, 1), (0, 0, 0.3))
@@ -573,6 +573,14 @@ def test_reconstruct_cloud_box_side_ignores_a_locally_fattened_stretch():
     x, y = 0.2 * rays[..., 0], 0.2 * rays[..., 1]
     along = x * np.cos(angle) + y * np.sin(angle)
     across = -x * np.sin(angle) + y * np.cos(angle)
+    return box, table, along, across
+
+
+def test_reconstruct_cloud_box_side_ignores_a_locally_fattened_stretch():
+    # Front face 40 x 120 mm square-on at 0.2 m, 30 degrees in the image, the table behind.
+    # A matcher fattens a 30 mm stretch of one long side by 12 mm (about 13 px) at the face's
+    # own depth, where a scan line would see no depth change: the stretch must not bound it.
+    box, table, along, across = _tilted_face()
     stretch = (along >= 0.02) & (along <= 0.05) & (across > 0.02) & (across <= 0.032)
     bulge = np.where(stretch & ~np.isfinite(box), 0.2, np.inf)
     assert np.count_nonzero(np.isfinite(bulge)) > 300
@@ -590,13 +598,7 @@ def test_reconstruct_cloud_box_side_ends_where_a_matchers_fill_parts_from_the_fa
     # part from the face's plane (5 mm nearer), then 10 mm back on it (SGBM 9, P2 x 3, the
     # upright box at 0.175 m: 7-25 px past its sides). Every stretch of the side reaches as
     # far, so the median stretch does not bound it; the gap on the face's plane does.
-    angle = np.radians(30)
-    box = _hit_box((0.0, 0.0, 0.225), _rotation((0, 0, 1), angle), (0.12, 0.04, 0.05))
-    table = _hit_plane((0, 0, 1), (0, 0, 0.3))
-    rays = _directions()
-    x, y = 0.2 * rays[..., 0], 0.2 * rays[..., 1]
-    along = x * np.cos(angle) + y * np.sin(angle)
-    across = -x * np.sin(angle) + y * np.cos(angle)
+    box, table, along, across = _tilted_face()
     beside = (np.abs(along) <= 0.06) & ~np.isfinite(box)
     parted = np.where(beside & (across > 0.02) & (across <= 0.028), 0.195, np.inf)
     back = np.where(beside & (across > 0.028) & (across <= 0.038), 0.2, np.inf)
