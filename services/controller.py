@@ -29,7 +29,11 @@ from services.drivers.emg import load_emg_profile
 from services.runtime import Bus, service_main, service_parser
 
 TICK_NS = 10_000_000
-INPUTS = {EMG: False, TARGET: True, "lpc/aim/cue": True, HAND: True}  # key -> newest only
+INPUTS = {EMG: False, HAND: True}  # key -> newest only
+# Stepped when the controller next steps for one of INPUTS or its tick (within 10 ms), not on
+# arrival: the commands follow the hand's status anyway, and each grasp target woke the
+# control loop on its own (90 a second, from the reconstructor's result on the main loop).
+VISION = (TARGET, "lpc/aim/cue")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -97,6 +101,17 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             if isinstance(out, ControllerState) and out.event:
                 bus.log("info", f"{out.previous} -> {out.state} on {out.event}: {out.reason}")
 
+    # Every target and cue, in order (FIFO), at the time it arrived; they wake no one.
+    vision = [bus.subscribe(k, latest=False, capacity=64, prompt=False) for k in VISION]
+
+    def step(t_ns: int, message: object) -> None:
+        # The vision messages queued meanwhile go first, in the order they arrived and at the
+        # time they did, as they were stepped when each woke a task of its own.
+        queued = [got for sub in vision for got in sub.take_queued()]
+        queued.append(("", message, t_ns))
+        for _, got, received_ns in sorted(queued, key=lambda got: got[2]):
+            handle(received_ns, got)
+
     # Each input carries the time it happened (received, or the tick's time), so that a stall
     # of this process is not taken for silence of its inputs.
     async def pump(key: str, latest: bool) -> None:
@@ -104,7 +119,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         sub = bus.subscribe(key, latest=latest)
         while True:
             _, message, received_ns = await sub.receive()
-            handle(received_ns, message)
+            step(received_ns, message)
 
     async def ticks() -> None:
         # On the clock's 10 ms grid, as the EMG service's samples are: the control loop's two
@@ -117,7 +132,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             bus.health.counters["ticks"] += 1
             if bus.clock.now_ns() - t_ns > TICK_NS:
                 bus.health.counters["late_ticks"] += 1
-            handle(t_ns, Tick(t_ns))
+            step(t_ns, Tick(t_ns))
 
     tasks = [asyncio.create_task(pump(k, latest)) for k, latest in INPUTS.items()]
     tasks.append(asyncio.create_task(ticks()))

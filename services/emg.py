@@ -47,8 +47,10 @@ async def _simulated_user(bus: Bus, args: argparse.Namespace) -> None:
     # What the person perceives is read when the tick fires, all of it, in the order it
     # arrived and at the time it did: a task per topic woken per message (the hand's status,
     # the cue: about 200 task steps a second) changed nothing until the next tick.
+    # Not prompt: a cue or status that arrives from another thread does not wake the loop for
+    # a read that waits for the tick anyway.
     perceived = [
-        bus.subscribe(k, latest=False)
+        bus.subscribe(k, latest=False, prompt=False)
         for k in ("lpc/controller/state", "lpc/prosthesis/state", "lpc/aim/cue")
     ]
     # On the clock's 10 ms grid, as the controller's ticks are: one wake-up of the control

@@ -25,7 +25,7 @@ from schemas import (
     decode,
     encode,
 )
-from services import emg
+from services import controller, emg
 from services.runtime import Bus, Router, zenoh_config
 from tests.conftest import spawn_service, wait_for
 
@@ -225,3 +225,69 @@ def test_emg_service_sim_user_perceives_at_its_tick_in_one_task(
     assert stepped[first + 6][0] == "Tick"  # all six before the next tick's sample
     times = [t for _, _, t in stepped[first : first + 6]]
     assert times == sorted(times) and times[-1] <= stepped[first + 6][2] + 10_000_000
+
+
+def test_controller_steps_vision_with_its_next_input_and_no_vision_wakes_the_loop(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Grasp targets and aim cues wake neither the control loop nor a task (main: a task each,
+    and a target from the main loop's reconstructor result woke the loop, 90 a second); the
+    controller steps them before its next hand status, EMG sample or tick, every one in the
+    order it arrived and at the time it did."""
+    stepped: list[tuple[str, int, int]] = []
+
+    def controller_step(core, message, now_ns):  # type: ignore[no-untyped-def]
+        stepped.append((type(message).__name__, getattr(message, "seq", -1), now_ns))
+        return real(core, message, now_ns)
+
+    real = controller.controller_step
+    monkeypatch.setattr(controller, "controller_step", controller_step)
+    args = controller.parser().parse_args(["--sim-user"])
+
+    async def main() -> tuple[int, list[bool]]:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        buses = [Bus(session, n, loop=loop, router=router, quiet=True) for n in ("ctl", "emg")]
+        before = len(asyncio.all_tasks())
+        service = asyncio.create_task(controller.serve(buses[0], args))
+        await asyncio.sleep(0.03)
+        tasks = len(asyncio.all_tasks()) - before
+        user = asyncio.create_task(
+            emg.serve(buses[1], argparse.Namespace(source="sim", seed=0, no_wrist=False))
+        )
+        await asyncio.sleep(0.03)
+        wakes = [router._wakes(k) for k in ("lpc/grasp/target", "lpc/aim/cue")]
+        start = len(stepped)
+        for seq in range(1, 4):  # as the main loop's aim and reconstructor would
+            cue = AimCue(seq=seq, t_ns=time.time_ns(), frame_seq=seq, state="on_target")
+            router.deliver("lpc/aim/cue", encode(cue))
+            target = GraspTarget(
+                seq=seq,
+                t_ns=time.time_ns(),
+                frame_seq=seq,
+                shape="sphere",
+                grasp_width_mm=50.0,
+                reconstructed=True,
+            )
+            router.deliver("lpc/grasp/target", encode(target))
+        del stepped[:start]
+        await asyncio.sleep(0.03)
+        for task in (user, service):
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+        for bus in buses:
+            bus.close()
+        router.close()
+        session.close()
+        return tasks, wakes
+
+    tasks, wakes = asyncio.run(main())
+    assert tasks == 4  # serve, EMG, the hand's status, the tick (main: 6)
+    assert wakes == [False, False]
+    vision = [(kind, seq) for kind, seq, _ in stepped if kind in ("AimCue", "GraspTarget")]
+    assert vision == [(k, s) for s in range(1, 4) for k in ("AimCue", "GraspTarget")]
+    first = next(i for i, (kind, _, _) in enumerate(stepped) if kind in ("AimCue", "GraspTarget"))
+    times = [t for _, _, t in stepped[first : first + 6]]
+    assert times == sorted(times)
+    assert stepped[first + 6][0] in ("Tick", "EmgSample", "ProsthesisState")
