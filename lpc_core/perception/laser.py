@@ -2636,12 +2636,9 @@ def _cylinder_candidate(
     lines: list[LineModels], clean: np.ndarray, params: LaserParams
 ) -> _Candidate:
     thr = params.solid_threshold_m
+    step = max(1, len(clean) // params.cylinder_points)
+    sample = clean[::step]
     lo, hi = params.radius_limits_m
-    # The fit leaves out a run's smeared tail; the share it explains is still over ``clean``.
-    unfattened = _unfattened_runs(lines)
-    fitted = clean if unfattened is None else unfattened
-    step = max(1, len(fitted) // params.cylinder_points)
-    sample = fitted[::step]
     best: CylinderSolid | None = None
     best_rank = (False, -1.0)
     best_residuals = _EMPTY_RUN
@@ -2679,94 +2676,20 @@ def _cylinder_candidate(
     if best is None:
         return _Candidate("cylinder", reason="no cylinder converged")
     solid = best
-    residuals = best_residuals if step == 1 else solid.residuals(fitted)
+    residuals = best_residuals if step == 1 else solid.residuals(clean)
     keep = residuals <= thr
-    inliers = fitted.compress(keep, axis=0)
+    inliers = clean.compress(keep, axis=0)
     if len(inliers) >= 5 and (step > 1 or not keep.all()):
         # Refit on every inlier: the first fit saw a sample, or outliers.
         refined = CylinderSolid.estimate(inliers, solid.axis, iterations=1)
         if refined:
-            solid = refined
-    if unfattened is not None or solid is not best or step > 1:
-        residuals = solid.residuals(clean)
+            solid, residuals = refined, refined.residuals(clean)
     if not lo <= solid.radius <= hi:
         return _Candidate("cylinder", solid=solid, reason=f"radius {solid.radius * 1e3:.0f} mm")
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
     if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
     return _Candidate("cylinder", _fraction(residuals, thr), solid, residuals=residuals)
-
-
-def _unfattened_runs(lines: list[LineModels]) -> np.ndarray | None:
-    """The runs' samples without the smear that ends a run at its line's end, or None where
-    the frame shows no matcher's fattening (``_fattened_samples``) or no run ends in a smear.
-
-    Seen from the camera a round's depth rises ever faster from its crest to its silhouette
-    (the profile is convex). A smoothing matcher carries the rim's depth on past a rim the
-    line crosses obliquely (a tilted round): the depth flattens there and the run ends in a
-    tail whose samples lie beyond the silhouette yet hold more points on a wider, tilted
-    cylinder than on the true one (the 50 mm bottle tilted right, P1 and P2 x2: 16 degrees
-    off the axis with a lower cost than the truth). The tail starts where the profile's
-    chord from the crest rises by more than convexity allows given the tail's own rise, by
-    two depth quanta or more (``_smear_tail``); it is a smear when it stays within two
-    quanta of the rim's depth (a generator receding along a line along the axis does not)
-    and runs on farther than the plateaus the frame shows elsewhere (the median of their
-    lengths along their lines: a matcher fattens all round an object by about as much, and
-    past an oblique rim by more).
-    """
-    fat = _fattened_samples(lines)
-    if not fat.any():
-        return None
-    spans = []
-    k = 0
-    for ln in lines:
-        s = ln.sz[:, 0]
-        mark = fat[k : k + len(s)]
-        k += len(s)
-        for end, inward in ((0, 1), (len(s) - 1, -1)):
-            if mark[end]:
-                j = _plateau_end(ln.sz[:, 1], end, inward, _END_PLATEAU_M)
-                spans.append(abs(float(s[j] - s[end])))
-    fattening = float(np.median(spans))
-    kept = []
-    cut = False
-    for ln in lines:
-        s, z = ln.sz[:, 0], ln.sz[:, 1]
-        keep = np.zeros(len(s), dtype=bool)
-        keep[ln.run] = True
-        for end in (0, len(s) - 1):
-            if end != ln.run[0] and end != ln.run[-1]:
-                continue
-            tail = _smear_tail(s, z, ln.run, end)
-            if (
-                tail is not None
-                and abs(float(s[tail] - s[end])) > fattening
-                and abs(float(z[end] - z[tail])) <= 2 * _END_PLATEAU_M
-            ):
-                keep[min(tail, end) : max(tail, end) + 1] = False
-                cut = True
-        kept.append(ln.points.compress(keep, axis=0))
-    points = np.concatenate(kept)
-    return points if cut and len(points) >= 5 else None
-
-
-def _smear_tail(s: np.ndarray, z: np.ndarray, run: np.ndarray, end: int) -> int | None:
-    """The first sample of the non-convex tail that ends ``run`` at ``end`` (see
-    ``_unfattened_runs``), or None."""
-    zr = z.take(run)
-    if end == run[-1]:
-        crest = int(run[len(zr) - 1 - int(np.argmin(zr[::-1]))])
-        p = np.arange(crest + 1, end - 1)
-    else:
-        crest = int(run[int(np.argmin(zr))])
-        p = np.arange(end + 2, crest)
-    if len(p) == 0:
-        return None
-    inner = np.abs(z[p] - z[crest])
-    allowed = np.abs(s[p] - s[crest]) * (z[end] - z[p]) / np.abs(s[end] - s[p])
-    excess = inner - np.maximum(allowed, 0.0)
-    best = int(np.argmax(excess))
-    return int(p[best]) if excess[best] >= 2 * _END_PLATEAU_M else None
 
 
 _GRID_CACHE: dict[int, np.ndarray] = {}
