@@ -266,9 +266,9 @@ SETTINGS: dict[str, Setting] = {
         rig={"supersample": 2, "dot_density": 0.03, "electrons_per_dn": 5.0, "pattern_seed": 10},
         matcher={"sgbm_mode": "3way"},
     ),
-    # Held out from every helper of stop 37: only the lead's before -> after runs on them.
-    "fresh-bm5c": Setting(
-        "fresh",
+    # Held out from every helper of stop 37 (then its "fresh" group); studied from stop 38.
+    "bm5-c45": Setting(
+        "untuned",
         "BM 5, uniqueness 8, texture threshold 5, prefilter cap 45, 0.055 dots/px², "
         "optics 0.65 px, an eleventh pattern",
         rig={"dot_density": 0.055, "blur_sigma_px": 0.65, "pattern_seed": 11},
@@ -280,8 +280,8 @@ SETTINGS: dict[str, Setting] = {
             "pre_filter_cap": 45,
         },
     ),
-    "fresh-proj15": Setting(
-        "fresh",
+    "proj15": Setting(
+        "untuned",
         "SGBM 7, projector 15 mm from the left imager, dots 0.55 px, 1.25 times the shot noise, "
         "read noise 1.5, 1.5 times the room light",
         rig={
@@ -292,25 +292,81 @@ SETTINGS: dict[str, Setting] = {
             "ambient": 0.12,
         },
     ),
-    "fresh-3way5p": Setting(
-        "fresh",
+    "3way5-p15": Setting(
+        "untuned",
         "SGBM 5, 3-way mode, P1 and P2 x 1.5, speckle window 50, a twelfth pattern",
         rig={"pattern_seed": 12},
         matcher={"block_size": 5, "sgbm_mode": "3way", "speckle_window": 50},
         smoothness=(1.5, 1.5),
     ),
-    "fresh-hh9u": Setting(
-        "fresh",
+    "hh9-uneven": Setting(
+        "untuned",
         "SGBM 9, HH mode, albedo 0.55, 0.05 dots/px² of uneven brightness, uniqueness 12",
         rig={"albedo": 0.55, "dot_density": 0.05, "dot_brightness": (0.4, 1.0)},
         matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 12},
     ),
-    "fresh-ss45": Setting(
-        "fresh",
+    "ss45": Setting(
+        "untuned",
         "SGBM 7, 45 mm baseline, IR 2x supersampled, texture check 3, left-right 2 px, "
         "uniqueness 12",
         rig={"baseline_m": 0.045, "supersample": 2},
         matcher={"min_texture": 3.0, "disp12_max_diff": 2, "uniqueness": 12},
+    ),
+    # Held out from every helper of stop 38: only the lead's before -> after runs on them.
+    "fresh-bm7w": Setting(
+        "fresh",
+        "BM 7, uniqueness 12, texture threshold 8, speckle window 80, 0.07 dots/px² of "
+        "0.7 px, a thirteenth pattern",
+        rig={"dot_density": 0.07, "dot_sigma_px": 0.7, "pattern_seed": 13},
+        matcher={
+            "kind": "bm",
+            "block_size": 7,
+            "uniqueness": 12,
+            "texture_threshold": 8,
+            "speckle_window": 80,
+        },
+    ),
+    "fresh-p1w": Setting(
+        "fresh",
+        "SGBM 7, P1 x 0.75 and P2 x 2, 1.7 times the shot noise, a fourteenth pattern",
+        rig={"electrons_per_dn": 6.0, "pattern_seed": 14},
+        smoothness=(0.75, 2.0),
+    ),
+    "fresh-proj35": Setting(
+        "fresh",
+        "SGBM 9, uniqueness 8, 52 mm baseline, projector 35 mm from the left imager, "
+        "optics 0.6 px, albedo 0.7, 1.25 times the room light",
+        rig={
+            "baseline_m": 0.052,
+            "projector_x_m": 0.035,
+            "blur_sigma_px": 0.6,
+            "albedo": 0.7,
+            "ambient": 0.1,
+        },
+        matcher={"block_size": 9, "uniqueness": 8},
+    ),
+    "fresh-hh7x3": Setting(
+        "fresh",
+        "SGBM 7, HH mode, IR 3x supersampled, 0.04 dots/px² of brightness 0.5-1, "
+        "a fifteenth pattern",
+        rig={
+            "supersample": 3,
+            "dot_density": 0.04,
+            "dot_brightness": (0.5, 1.0),
+            "pattern_seed": 15,
+        },
+        matcher={"sgbm_mode": "hh"},
+    ),
+    "fresh-3way9g": Setting(
+        "fresh",
+        "SGBM 9, 3-way mode, texture check 6, speckle range 1, 80 % of the signal, read noise 2",
+        rig={"gain_dn": 260.0, "read_noise_dn": 2.0},
+        matcher={
+            "block_size": 9,
+            "sgbm_mode": "3way",
+            "min_texture": 6.0,
+            "speckle_range": 1,
+        },
     ),
 }
 
