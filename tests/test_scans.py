@@ -260,3 +260,29 @@ def test_cut_finds_the_first_background_pixel_past_each_line_end() -> None:
     # themselves): no pixel past the ends shows the far background.
     for scene in (_ball(0.03), Scene(_ball(0.03).objects, _wall(0.23).support)):
         assert np.array_equal(cut_scan_lines(_render(scene), INTR).far_past_m, np.zeros((4, 2, 3)))
+
+
+def test_scans_step_follows_a_change_of_intrinsics_mid_stream() -> None:
+    """The scans state keeps the last intrinsics it built: a frame with other intrinsics (a
+    camera reopened at another resolution or focal length) is cut with its own, exactly as
+    a fresh state would, and so is a frame with the first ones again."""
+    from lpc_core.perception.pipeline import ScansState, intrinsics_to_message, scans_step
+    from schemas import DepthFrame, encode, to_wire
+
+    other = Intrinsics(width=320, height=200, fx=180.0, fy=181.0, ppx=160.5, ppy=99.5)
+    frames = [
+        DepthFrame(
+            seq=seq,
+            t_ns=seq,
+            intrinsics=intrinsics_to_message(intr),
+            depth=to_wire(_render(_ball(0.02), intr)),
+        )
+        for seq, intr in enumerate([INTR, other, other, INTR])
+    ]
+    state = ScansState()
+    for frame in frames:
+        state, out = scans_step(state, frame, 0)
+        _, fresh = scans_step(ScansState(seq=state.seq - 1), frame, 0)
+        assert encode(out) == encode(fresh)
+    counts = [len(line.points.data) for line in out.lines]
+    assert sum(counts) > 0

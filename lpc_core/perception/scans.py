@@ -162,8 +162,10 @@ class _ScanTable:
     slope_x: np.ndarray  # (M,) x/z of the pixel ray
     slope_y: np.ndarray  # (M,) y/z
     along: np.ndarray  # (M,) s / z
-    lo_units: np.ndarray  # (M,) int32 smallest depth (units) in the volume and the band
-    hi_units: np.ndarray  # (M,) int32 largest
+    # A depth d (units) is inside when (d - lo) mod 2^16 <= span, one uint16 comparison with
+    # no cast (below lo, d wraps past span): every pixel here has a non-empty interval.
+    lo_u16: np.ndarray  # (M,) uint16 smallest depth (units) in the volume and the band
+    span_u16: np.ndarray  # (M,) uint16 largest less smallest
 
 
 def _scan_table(intrinsics: Intrinsics, params: ScanParams) -> _ScanTable:
@@ -181,8 +183,12 @@ def _scan_table(intrinsics: Intrinsics, params: ScanParams) -> _ScanTable:
         with np.errstate(divide="ignore"):
             band_z = params.band_m / of
         lo, hi = _depth_bounds(sx, sy, band_z, params, intrinsics.depth_scale)
+        # A pixel whose interval is empty never holds a point of the line.
+        some = lo <= hi
+        flat, sx, sy, lo, hi = flat[some], sx[some], sy[some], lo[some], hi[some]
         line = np.full(flat.size, i, dtype=np.int64)
-        parts.append((flat, line, sx, sy, np.cos(phi) * sx + np.sin(phi) * sy, lo, hi))
+        along = np.cos(phi) * sx + np.sin(phi) * sy
+        parts.append((flat, line, sx, sy, along, lo.astype(np.uint16), (hi - lo).astype(np.uint16)))
     columns = [np.ascontiguousarray(np.concatenate(col)) for col in zip(*parts, strict=True)]
     for col in columns:
         col.setflags(write=False)
@@ -234,11 +240,11 @@ class _Geometry:
     table: _ScanTable
     window: _VolumeWindow
     angles_rad: np.ndarray  # read-only, shared by every ScanLines of this geometry
-    d_row: np.ndarray  # _past_offsets of the angles
-    d_col: np.ndarray
-    far_row: np.ndarray  # _past_offsets of the angles at _FAR_STEPS_PX
-    far_col: np.ndarray
-    far_flat: np.ndarray  # the same as flat pixel offsets
+    # Past each line's ends (rows in _past_offsets' order), the _PAST_STEPS_PX offsets and
+    # then the _FAR_STEPS_PX ones, as columns of one array: one gather reads both.
+    ends_row: np.ndarray
+    ends_col: np.ndarray
+    ends_flat: np.ndarray  # the same as flat pixel offsets
     far_units: int  # the deepest depth (units) inside the capture volume's far limit
 
 
@@ -248,8 +254,10 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     angles.setflags(write=False)
     d_row, d_col = _past_offsets(intrinsics, tuple(angles.tolist()))
     far_row, far_col = _past_offsets(intrinsics, tuple(angles.tolist()), far=True)
-    far_flat = far_row * intrinsics.width + far_col
-    far_flat.setflags(write=False)
+    ends_row, ends_col = np.hstack([d_row, far_row]), np.hstack([d_col, far_col])
+    ends_flat = ends_row * intrinsics.width + ends_col
+    for offsets in (ends_row, ends_col, ends_flat):
+        offsets.setflags(write=False)
     # In units, as the depth image holds it: z = units * depth_scale lies beyond the far limit
     # exactly where units exceed this.
     scale, far_m = intrinsics.depth_scale, params.z_limits_m[1]
@@ -257,8 +265,8 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     far_units += (far_units + 1) * scale <= far_m
     far_units -= far_units * scale > far_m
     return _Geometry(
-        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, d_row, d_col,
-        far_row, far_col, far_flat, int(far_units),
+        _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, ends_row,
+        ends_col, ends_flat, int(far_units),
     )  # fmt: skip
 
 
@@ -289,7 +297,7 @@ def cut_scan_lines(
     tab = geometry.table
     units = depth.reshape(-1)[tab.flat_index]
     # The mask's own nonzero, not np.flatnonzero's ravel and Python wrappers: the mask is 1-D.
-    keep = ((units >= tab.lo_units) & (units <= tab.hi_units)).nonzero()[0]
+    keep = (np.subtract(units, tab.lo_u16) <= tab.span_u16).nonzero()[0]
     z = units[keep] * intrinsics.depth_scale
     line = tab.line[keep]
     order = np.lexsort((z * tab.along[keep], line))
@@ -305,8 +313,16 @@ def cut_scan_lines(
     counts = np.bincount(line, minlength=len(params.angles_deg)).tolist()
     bounds = [0, *itertools.accumulate(counts)]
     pixels = tab.flat_index[keep]
-    past = _past_ends(depth, intrinsics, geometry.d_row, geometry.d_col, pixels, bounds)
-    far = _far_past_ends(depth, intrinsics, geometry, pixels, bounds)
+    # The pixels past the ends for both measures in one pass: the far walk reaches farther,
+    # and a pixel outside the image reads 0 (no depth) whichever reach was checked.
+    filled, flat, values = _pixels_past_ends(
+        depth, intrinsics, geometry.ends_row, geometry.ends_col, geometry.ends_flat, pixels,
+        bounds, int(_FAR_STEPS_PX[-1]) + 1,
+    )  # fmt: skip
+    near = len(_PAST_STEPS_PX)
+    count = len(bounds) - 1
+    past = _past_medians(count, filled, values[:, :near], intrinsics.depth_scale)
+    far = _far_points(count, filled, flat[:, near:], values[:, near:], intrinsics, geometry)
     capture_count = -1
     if count_capture:
         win = geometry.window
@@ -405,47 +421,51 @@ def _past_ends(
     bounds: list[int],
 ) -> np.ndarray:
     """``past_line_ends`` with the lines' pixel offsets (``_past_offsets``) given."""
-    count = len(bounds) - 1
-    out = np.zeros((count, 2))
     filled, _, values = _pixels_past_ends(
         depth, intrinsics, d_row, d_col, None, pixels, bounds, int(_PAST_STEPS_PX[-1]) + 1
     )
+    return _past_medians(len(bounds) - 1, filled, values, intrinsics.depth_scale)
+
+
+def _past_medians(
+    count: int, filled: list[int], values: np.ndarray, depth_scale: float
+) -> np.ndarray:
+    """(count, 2) ``past_line_ends`` of the ``filled`` lines' end pixels' depth ``values``
+    (rows as ``_pixels_past_ends`` gives them)."""
+    out = np.zeros((count, 2))
     if not filled:
         return out
-    scale = intrinsics.depth_scale
     medians = []
     for row_values in values.tolist():
         # filter(None, ...) drops the 0s (no depth) in C, where a generator ran Python per
         # value: 8 ends of 12 pixels a frame.
         valid = sorted(filter(None, row_values))
         n = len(valid)
-        medians.append(0.5 * (valid[(n - 1) // 2] + valid[n // 2]) * scale if n else 0.0)
+        medians.append(0.5 * (valid[(n - 1) // 2] + valid[n // 2]) * depth_scale if n else 0.0)
     out[filled] = np.array(medians).reshape(-1, 2)
     return out
 
 
-def _far_past_ends(
-    depth: np.ndarray,
+def _far_points(
+    count: int,
+    filled: list[int],
+    flat: np.ndarray,
+    values: np.ndarray,
     intrinsics: Intrinsics,
     geometry: _Geometry,
-    pixels: np.ndarray,
-    bounds: list[int],
 ) -> np.ndarray:
     """(L, 2, 3): per line, the point of the first pixel within ``_FAR_STEPS_PX`` past its
     first and last point along it whose depth lies beyond the capture volume's far limit
-    (``geometry.far_units``), zeros where none does (or the line has no point).
+    (``geometry.far_units``), zeros where none does (or the line has no point). ``flat`` and
+    ``values``: the ``filled`` lines' end pixels and their depth, as ``_pixels_past_ends``
+    gives them.
 
     The lines hold every pixel of the capture volume along them, so this is the first
     background seen past a line's end beyond what the line holds: an object's silhouette
     lies between the line's last sample on it and that pixel (a matcher fattens an edge
     outward over the background, or leaves a hole beside it, and does not carry the far
     background's depth onto the object)."""
-    count = len(bounds) - 1
     out = np.zeros((count, 2, 3))
-    filled, flat, values = _pixels_past_ends(
-        depth, intrinsics, geometry.far_row, geometry.far_col, geometry.far_flat, pixels, bounds,
-        int(_FAR_STEPS_PX[-1]) + 1,
-    )  # fmt: skip
     if not filled:
         return out
     width = intrinsics.width
@@ -453,8 +473,14 @@ def _far_past_ends(
     # A handful of ends: their points in Python floats (numpy's per-call cost dominates).
     fx, fy, ppx, ppy = intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy
     rows = out.reshape(-1, 3)
-    for k in np.flatnonzero(beyond.any(axis=1)).tolist():
-        step = int(beyond[k].argmax())
+    # The ufunc's reduction and the mask's own nonzero, not .any and np.flatnonzero: their
+    # Python wrappers cost more than the test on a handful of ends.
+    hits = np.logical_or.reduce(beyond, axis=1).nonzero()[0].tolist()
+    if not hits:
+        return out
+    steps = beyond.argmax(axis=1).tolist()
+    for k in hits:
+        step = steps[k]
         r, c = divmod(int(flat[k, step]), width)
         z = float(values[k, step]) * intrinsics.depth_scale
         rows[2 * filled[k // 2] + k % 2] = (z * (c - ppx) / fx, z * (r - ppy) / fy, z)
