@@ -37,6 +37,10 @@ YIELD_AFTER_NS = 2_000_000  # a backlogged subscription yields the loop after th
 # A subscription that is not ``prompt`` (the recorder's) gets the samples of other threads when
 # its loop wakes for something else, or at the latest after this long.
 UNPROMPTED_PERIOD_S = 0.05
+# Samples that wake no one wait in a router's inbox for the loop's next wake-up; past this
+# many the loop is woken to hand them over: its inbox stays bounded on a loop that nothing
+# else wakes (a reader that only takes, no timer of its own), a second of the hand's status.
+INBOX_WAKE = 100
 
 
 # --------------------------------------------------------------------------- clock
@@ -343,7 +347,8 @@ class Subscription:
     loop) and that no prompt subscription of this loop wants does not wake the loop; it is
     handed over at the loop's next wake-up, within ``UNPROMPTED_PERIOD_S``. Nor does a sample
     wake the subscriber's task: that takes what is queued every ``UNPROMPTED_PERIOD_S``, in one
-    go. A sample's receive time is still taken when it arrives.
+    go (the period starts when a task first waits: a reader that only takes, ``take_queued``,
+    starts no timer). A sample's receive time is still taken when it arrives.
     """
 
     def __init__(
@@ -368,6 +373,7 @@ class Subscription:
         self._loop = bus.loop
         self._closed = False
         self._resumed_ns = 0
+        self.awaited = False  # a task has waited in ``receive``
         self._router = bus.router if bus.router is not None and bus.router.covers(key) else None
         self._zsub: zenoh.Subscriber | None = None
         if self._router is not None:
@@ -400,6 +406,10 @@ class Subscription:
                 self._resumed_ns = time.monotonic_ns()
             while not self._queue:
                 self._ready.clear()
+                if not self.awaited:
+                    self.awaited = True
+                    if not self.prompt and self._router is not None:
+                        self._router.hand_over_periodically()
                 await self._ready.wait()
                 self._resumed_ns = time.monotonic_ns()
             got = self._take()
@@ -585,9 +595,6 @@ class Router:
             self._subs.append(sub)
             self._routes.clear()
             self._prompt.clear()
-        if not sub.prompt and self._unprompted is None:
-            # Called on this router's loop (a service's task subscribes): the timer is its own.
-            self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
         if self._wildcard is None and self._host is None:
             if sub.key not in self._by_key:
                 zsub = self._session.declare_subscriber(
@@ -666,6 +673,15 @@ class Router:
                 self._prompt[key] = not subs or any(s.prompt for s in subs)
             return subs, self._prompt[key]
 
+    def hand_over_periodically(self) -> None:
+        """On this router's loop, for a task about to wait on a subscription that is not
+        prompt: hand samples over every ``UNPROMPTED_PERIOD_S`` from now on. Only such a task
+        needs the timer: a reader that takes (``take_queued``, ``Newest.take``) is handed its
+        samples when it takes, and the controller's and the simulated user's timer woke the
+        control loop 20 times a second for nothing."""
+        if self._unprompted is None:
+            self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
+
     def _hand_over(self) -> None:
         # On the loop: what waited for a wake-up is handed over now, at the latest, and the
         # subscribers that are not prompt are woken for all they have queued since the last time.
@@ -673,7 +689,7 @@ class Router:
         for sub in self._subs:
             if not sub.prompt and sub._queue:
                 sub._ready.set()
-        if any(not s.prompt for s in self._subs):
+        if any(not s.prompt and s.awaited for s in self._subs):
             self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
         else:
             self._unprompted = None
@@ -683,7 +699,7 @@ class Router:
         # wake-up for any other reason, or the hand-over timer. One loop wake-up costs more
         # than handing a sample over (the recorder alone took ~300 of them a second).
         self._inbox.append((route, item))
-        if wake and not self._scheduled:
+        if (wake or len(self._inbox) >= INBOX_WAKE) and not self._scheduled:
             self._scheduled = True
             with contextlib.suppress(RuntimeError):  # loop already closed at shutdown
                 self._loop.call_soon_threadsafe(self._drain)

@@ -5,20 +5,74 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextvars
 import os
+import socket
 import time
 
 import pytest
 import zenoh
 
 from schemas import EmgSample, decode, encode
-from services.container import run_container
+from services.container import _RUNNER, ContainerLoop, ServiceRunner, run_container
 from services.runtime import Bus, LoadedService, Router, load_service
 from tests.conftest import until
 
 
 def _args(endpoint: str) -> argparse.Namespace:
     return argparse.Namespace(mode="peer", connect=[endpoint], listen=None, config=None, quiet=True)
+
+
+def test_container_loop_times_the_reader_callbacks_a_service_registers() -> None:
+    """A reader callback runs outside every task: the container's loop adds its CPU time to the
+    service that registered it (the camera's frame socket through its transport, the
+    reconstructor's worker pipes through ``add_reader``), not to no service; a reader
+    registered outside any service stays untimed."""
+    burn_ns = 5_000_000
+
+    def burn() -> None:
+        start = time.thread_time_ns()
+        while time.thread_time_ns() - start < burn_ns:
+            pass
+
+    class Burner(asyncio.Protocol):
+        def data_received(self, data: bytes) -> None:
+            burn()
+            got.set_result(data)
+
+    runner = ServiceRunner.__new__(ServiceRunner)
+    runner.cpu_ns = 0
+    service = contextvars.copy_context()
+    service.run(_RUNNER.set, runner)
+    loop = ContainerLoop()
+    pairs = [socket.socketpair() for _ in range(3)]
+    try:
+        got = loop.create_future()
+        transport, _ = loop.run_until_complete(
+            loop.create_task(loop.create_connection(Burner, sock=pairs[0][0]), context=service)
+        )
+        pairs[0][1].send(b"frame")
+        assert loop.run_until_complete(got) == b"frame"
+        assert runner.cpu_ns >= burn_ns, "the transport's reads are the service's"
+        for (a, b), context in ((pairs[1], service), (pairs[2], contextvars.Context())):
+            before = runner.cpu_ns
+            got = loop.create_future()
+            context.run(
+                loop.add_reader,
+                a.fileno(),
+                lambda a=a, got=got: (a.recv(1), burn(), got.set_result(1)),
+            )
+            b.send(b"x")
+            loop.run_until_complete(got)
+            loop.remove_reader(a.fileno())
+            timed = runner.cpu_ns - before
+            assert timed >= burn_ns if context is service else timed == 0
+        transport.close()
+    finally:
+        loop.close()
+        for a, b in pairs:
+            a.close()
+            b.close()
 
 
 def test_container_load_service_parses_the_services_own_flags() -> None:

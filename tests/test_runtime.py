@@ -17,7 +17,7 @@ import pytest
 import zenoh
 
 from schemas import EmgSample, Health, decode, encode
-from services.runtime import Bus, Router, zenoh_config
+from services.runtime import INBOX_WAKE, UNPROMPTED_PERIOD_S, Bus, Router, zenoh_config
 from tests.conftest import spawn_service, until, wait_for
 
 PUBLISHER = textwrap.dedent(
@@ -241,6 +241,60 @@ def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: 
         assert wakes, "a prompt subscription wakes the loop"
         assert [(await prompt.receive())[1].seq for _ in range(50)] == list(range(50, 100))
         assert [(await lazy.receive())[1].seq for _ in range(50)] == list(range(50, 100))
+        bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())
+
+
+def test_router_hands_over_on_a_timer_only_for_a_task_that_waits(endpoint: str) -> None:
+    """A ``prompt=False`` subscription that is only taken from (``take_queued``: the
+    controller's targets and cues, the simulated user's perceptions) starts no hand-over
+    timer, which woke the control loop 20 times a second for nothing; samples from another
+    thread then wake the loop once per ``INBOX_WAKE`` (its inbox stays bounded), and all
+    arrive, in order. A task that waits in ``receive`` starts the timer."""
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        fired: list[float] = []
+        hand_over = router._hand_over
+
+        def counted() -> None:
+            fired.append(loop.time())
+            hand_over()
+
+        router._hand_over = counted  # type: ignore[method-assign]
+        bus = Bus(session, "controller", loop=loop, router=router, quiet=True)
+        taken = bus.subscribe("lpc/emg", latest=False, capacity=1000, prompt=False)
+        wakes = _counted_wakes(loop)
+        await asyncio.sleep(3 * UNPROMPTED_PERIOD_S)
+        assert fired == [], "no hand-over timer for a reader that takes"
+
+        def publish(first: int, n: int) -> None:  # another thread: the main loop's, say
+            for seq in range(first, first + n):
+                router.deliver("lpc/emg", encode(EmgSample(seq=seq, t_ns=seq + 1, channels=[0.0])))
+
+        for first, n in ((0, INBOX_WAKE - 1), (INBOX_WAKE - 1, 1)):
+            thread = threading.Thread(target=publish, args=(first, n))
+            thread.start()
+            thread.join()
+            assert len(wakes) == (0 if first == 0 else 1), "one wake-up per INBOX_WAKE samples"
+        await asyncio.sleep(0)  # the drain it woke the loop for
+        assert taken.queued == INBOX_WAKE
+        assert [m.seq for _, m, _ in taken.take_queued()] == list(range(INBOX_WAKE))
+
+        waiting = bus.subscribe("lpc/emg", latest=False, prompt=False)
+        task = asyncio.create_task(waiting.receive())
+        thread = threading.Thread(target=publish, args=(INBOX_WAKE, 1))
+        thread.start()
+        thread.join()
+        async with asyncio.timeout(1.0):
+            assert (await task)[1].seq == INBOX_WAKE, "handed over by the timer"
+        assert len(fired) == 1 and len(wakes) == 1
+        assert [m.seq for _, m, _ in taken.take_queued()] == [INBOX_WAKE]
         bus.close()
         router.close()
         session.close()
