@@ -484,7 +484,8 @@ def test_within_support_is_a_band_of_the_plane_not_an_object_on_it() -> None:
     # The jar cap, 15 mm high, lying on its table: it rests on the plane.
     cap = band - np.array([0.0, 0.0, 0.01])
     assert not _within_support(cap, face, PARAMS)
-    assert not _within_support(band, face[:2], PARAMS)
+    # Larger than the plane: the rest of a lying can around the band of it taken for a plane.
+    assert not _within_support(face, band, PARAMS)
 
 
 def test_reconstruct_cloud_can_with_its_lid_in_view():
