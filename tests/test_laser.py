@@ -19,8 +19,14 @@ from lpc_core.perception.laser import (
     LineModels,
     _ball_width,
     _beyond_edges,
+    _circumcircles,
+    _cross,
+    _disc_possible,
+    _disc_shares,
+    _lying_disc,
     _row_medians,
     _short_of_ball,
+    _support_rng,
     analyse_lines,
     principal_direction,
     reconstruct_laser,
@@ -28,7 +34,7 @@ from lpc_core.perception.laser import (
     sphere_from_circles,
 )
 from lpc_core.perception.reconstruction import wrap_half_turn
-from lpc_core.perception.solids import PlaneSolid, SphereSolid
+from lpc_core.perception.solids import PlaneSolid, SphereSolid, orthonormal_basis
 
 Hit = Callable[[np.ndarray], np.ndarray]  # (n, 3) ray directions with z = 1 -> (n,) depth
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -720,3 +726,50 @@ def test_row_medians_are_nanmedians_of_the_rows() -> None:
         present[:, :3] = True
         want = np.nanmedian(np.where(present, values, np.nan), axis=1)
         assert np.array_equal(_row_medians(values, present).view(np.int64), want.view(np.int64))
+
+
+def test_cross_is_np_cross_to_the_bit() -> None:
+    """The round frames' view angles take ``_cross`` for ``np.cross``: the same bits."""
+    rng = np.random.default_rng(0)
+    for trial in range(3000):
+        a = rng.normal(size=3) * 10.0 ** rng.uniform(-4, 2, 3)
+        b = a * rng.normal() if trial % 5 == 0 else rng.normal(size=3)
+        assert np.array_equal(_cross(a, b).view(np.int64), np.cross(a, b).view(np.int64))
+
+
+def _lying_cap() -> tuple[np.ndarray, PlaneSolid]:
+    """A 60 mm cap 16 mm tall lying on a table 250 mm ahead, seen from the front: its band's
+    front arc and its top's front half, and the table it lies on."""
+    centre, radius, tall = np.array([0.0, 0.05, 0.25]), 0.03, 0.016
+    angle, up = np.meshgrid(np.radians(np.linspace(-60, 60, 25)), np.linspace(0, tall, 9))
+    band = np.column_stack([radius * np.sin(angle).ravel(), -up.ravel(),
+                            -radius * np.cos(angle).ravel()])  # fmt: skip
+    across, depth = np.meshgrid(np.linspace(-0.02, 0.02, 9), np.linspace(-0.02, 0.0, 5))
+    top = np.column_stack([across.ravel(), np.full(across.size, -tall), depth.ravel()])
+    table = PlaneSolid(point=centre.copy(), normal=np.array([0.0, -1.0, 0.0]))
+    return centre + np.concatenate([band, top]), table
+
+
+def test_lying_disc_weighs_only_the_circles_that_can_be_a_disc() -> None:
+    """The scored search weighs only the circles ``_disc_possible`` keeps, and finds the disc
+    weighing all of them finds: the same circle, share and solid."""
+    clean, table = _lying_cap()
+    params = LaserParams()
+    found = _lying_disc(clean, table, params, scored=True)
+    assert found is not None
+    solid, fraction = found
+    # Every circle weighed, as before the search kept only the possible ones.
+    d = clean - table.point
+    height = d @ table.normal
+    e1, e2 = orthonormal_basis(table.normal)
+    uv = d @ np.column_stack([e1, e2])
+    camera = -table.point @ np.column_stack([e1, e2])
+    picks = _support_rng().integers(0, len(clean), size=(256, 3))
+    centres, radii = _circumcircles(uv.take(picks, axis=0))
+    possible = _disc_possible(centres, radii, float(height.max()), camera, params)
+    assert 0 < np.count_nonzero(possible) < len(radii)
+    shares = _disc_shares(uv, height, centres, radii, camera, params, scored=True)
+    best = int(np.argmax(shares.sum(axis=1)))
+    assert fraction == np.count_nonzero(shares[best]) / len(clean)
+    assert solid.radius == radii[best]
+    assert abs(solid.radius - 0.03) < 0.002

@@ -3,6 +3,7 @@ on analytic scenes."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -16,6 +17,7 @@ from lpc_core.perception.scans import (
     cut_scan_lines,
     past_line_ends,
     residual_correlation,
+    squared_steps,
 )
 from lpc_core.sim.scene import NoiseModel, Plane, Scene, render_depth, sphere_object
 
@@ -286,3 +288,56 @@ def test_scans_step_follows_a_change_of_intrinsics_mid_stream() -> None:
         assert encode(out) == encode(fresh)
     counts = [len(line.points.data) for line in out.lines]
     assert sum(counts) > 0
+
+
+def _correlation_line_by_line(angles: np.ndarray, points: list[np.ndarray]) -> float:
+    """``residual_correlation`` as it was written, one line at a time (20-sample pieces)."""
+    piece, starts, s_parts, z_parts, offset = 20, [], [], [], 0
+    for phi, pts in zip(angles.tolist(), points, strict=True):
+        n = len(pts)
+        if n < piece:
+            continue
+        s = pts[:, 0] * math.cos(phi) + pts[:, 1] * math.sin(phi)
+        gaps = np.flatnonzero(squared_steps(pts) > 0.008**2) + 1
+        bounds = [0, *gaps.tolist(), n]
+        for a, b in itertools.pairwise(bounds):
+            if (b - a) // piece:
+                starts.append(offset + a + piece * np.arange((b - a) // piece))
+        s_parts.append(s)
+        z_parts.append(pts[:, 2])
+        offset += n
+    if not starts:
+        return 0.0
+    at = np.concatenate(starts)[:, None] + np.arange(piece)
+    s_all, z_all = np.concatenate(s_parts)[at], np.concatenate(z_parts)[at]
+    x = s_all - s_all.mean(axis=1, keepdims=True)
+    x /= np.maximum(np.ptp(x, axis=1, keepdims=True), 1e-12)
+    q, _ = np.linalg.qr(np.stack([x * x, x, np.ones_like(x)], axis=2))
+    r = z_all - np.einsum("pij,pj->pi", q, np.einsum("pij,pi->pj", q, z_all))
+    power = np.einsum("pi,pi->p", r, r)
+    keep = (np.abs(r).max(axis=1) <= 0.0015) & (power > 0)
+    if not keep.any():
+        return 0.0
+    lag1 = np.einsum("pi,pi->p", r[keep, :-1], r[keep, 1:])
+    return float(np.mean(lag1 / power[keep]) * piece / (piece - 1))
+
+
+def test_residual_correlation_takes_the_lines_at_once_to_the_bit() -> None:
+    """All lines in one pass: the value line by line gave, to the bit, with jumps, short
+    lines and single-precision points."""
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        lines = []
+        for _ in range(int(rng.integers(1, 5))):
+            n = int(rng.integers(0, 120))
+            s = np.cumsum(rng.uniform(0.0005, 0.004, n)) - 0.1
+            if n and trial % 2:
+                s[int(rng.integers(0, n)) :] += rng.uniform(0.0, 0.03)  # a jump, maybe a gap
+            z = 0.2 + 0.01 * np.sin(30 * s) + rng.normal(0, 0.0004, n)
+            lines.append(np.column_stack([0.8 * s, 0.6 * s, z]))
+        if trial % 7 == 0:
+            lines = [line.astype(np.float32) for line in lines]
+        angles = rng.uniform(-3.0, 3.0, len(lines))
+        want = np.float64(_correlation_line_by_line(angles, lines))
+        got = np.float64(residual_correlation(angles, lines))
+        assert got.view(np.int64) == want.view(np.int64)

@@ -13,6 +13,7 @@ along each image line through the principal point; their indices are computed on
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from dataclasses import dataclass
@@ -557,32 +558,44 @@ def residual_correlation(
     and the full cloud handles one irregular object fewer on BM 5-9), and reads -0.25 on
     SGBM 7 at 848 x 480, where the quantum swamps the error altogether.
     """
-    angles = np.asarray(angles_rad, dtype=np.float64)
-    starts: list[np.ndarray] = []
-    s_parts: list[np.ndarray] = []
-    z_parts: list[np.ndarray] = []
+    # Every line long enough at once, each its own slice of one array: a frame's few lines
+    # cost numpy's per-call overhead, not arithmetic (the same products, differences and sums
+    # per sample as line by line, so the same value to the bit).
+    kept = [
+        (phi, pts) for phi, pts in zip(np.asarray(angles_rad, dtype=np.float64).tolist(), points,
+                                       strict=True) if len(pts) >= piece
+    ]  # fmt: skip
+    if not kept:
+        return 0.0
+    joined = np.concatenate([pts for _, pts in kept])
+    counts = [len(pts) for _, pts in kept]
+    cos = np.array([math.cos(phi) for phi, _ in kept], dtype=joined.dtype).repeat(counts)
+    sin = np.array([math.sin(phi) for phi, _ in kept], dtype=joined.dtype).repeat(counts)
+    s = joined[:, 0] * cos + joined[:, 1] * sin
+    # Steps across the joins between lines are no line's: passed over below.
+    gaps = np.flatnonzero(squared_steps(joined) > segment_gap_m**2).tolist()
+    starts: list[int] = []
     offset = 0
-    for phi, pts in zip(angles.tolist(), points, strict=True):
-        n = len(pts)
-        if n < piece:
-            continue
-        s = pts[:, 0] * math.cos(phi) + pts[:, 1] * math.sin(phi)
-        gaps = np.flatnonzero(squared_steps(pts) > segment_gap_m**2) + 1
-        bounds = [0, *gaps.tolist(), n]
+    for n in counts:
+        inside = gaps[bisect.bisect_left(gaps, offset) : bisect.bisect_left(gaps, offset + n - 1)]
+        bounds = [offset, *(g + 1 for g in inside), offset + n]
         for a, b in itertools.pairwise(bounds):
-            count = (b - a) // piece
-            if count:
-                starts.append(offset + a + piece * np.arange(count))
-        s_parts.append(s)
-        z_parts.append(pts[:, 2])
+            starts.extend(range(a, a + piece * ((b - a) // piece), piece))
         offset += n
     if not starts:
         return 0.0
-    at = np.concatenate(starts)[:, None] + np.arange(piece)
-    s_all, z_all = np.concatenate(s_parts)[at], np.concatenate(z_parts)[at]
-    x = s_all - s_all.mean(axis=1, keepdims=True)
-    x /= np.maximum(np.ptp(x, axis=1, keepdims=True), 1e-12)
-    vander = np.stack([x * x, x, np.ones_like(x)], axis=2)
+    at = np.array(starts)[:, None] + np.arange(piece)
+    s_all, z_all = s[at], joined[:, 2][at]
+    # The methods' reductions, without np.mean's and np.ptp's Python wrappers (the same sums,
+    # divided by the same count; the maximum less the minimum).
+    x = s_all - np.add.reduce(s_all, axis=1, keepdims=True) / piece
+    x /= np.maximum(
+        np.maximum.reduce(x, axis=1, keepdims=True) - np.minimum.reduce(x, axis=1, keepdims=True),
+        1e-12,
+    )
+    vander = np.empty((*x.shape, 3), dtype=x.dtype)
+    np.multiply(x, x, out=vander[:, :, 0])
+    vander[:, :, 1], vander[:, :, 2] = x, 1.0
     q, _ = np.linalg.qr(vander)
     r = z_all - np.einsum("pij,pj->pi", q, np.einsum("pij,pi->pj", q, z_all))
     power = np.einsum("pi,pi->p", r, r)
