@@ -367,3 +367,31 @@ def _box_width_errors(
         errors.append(result.grasp_width_m - truth)
         before.append(old.grasp_width_m - truth)
     return errors, before
+
+
+def test_a_receding_seed_facing_the_occlusion_side_takes_a_whole_window() -> None:
+    """A box side facing -x (``occlusion``) held two seeds at no occluding edge, their runs
+    ending where the segment falls away toward a far background (``receding``): the fill in
+    the band past the side and its ramp down. As occluding seeds they take a whole window
+    (3 mm here) and the side goes through the median of their edges, 19.5 mm; unflagged it
+    goes through the median of the seeds as they lie, 22.5 mm. A side facing +x keeps them
+    as they lie either way."""
+    seeds = [[-40.0, 0.0], [40.0, 0.0], [0.0, -20.0], [-20.0, -20.5], [-20.0, 22.0], [20.0, 23.0]]
+    pts = [[x / 1000, y / 1000] for x, y in seeds]
+    a = [p[0] for p in pts]
+    b = [p[1] for p in pts]
+    occluding = [True, True, True, True, False, False]
+    shares = [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]
+    receding = [False, False, False, False, True, True]
+
+    def top_mm(occlusion: list[bool], flags: list[bool] | None) -> float:
+        out = laser._consistent_sides(
+            pts, [False] * 6, occluding, (1.0, 0.0), a, b, 0.006, 0.006, shares,
+            (0.003, 0.003), [False] * 4, occlusion, flags,
+        )  # fmt: skip
+        return 1000 * out[3]
+
+    facing_minus_x = [False, False, False, True]
+    assert top_mm(facing_minus_x, receding) == pytest.approx(19.5)
+    assert top_mm(facing_minus_x, None) == pytest.approx(22.5)
+    assert top_mm([False] * 4, receding) == pytest.approx(22.5)

@@ -896,6 +896,18 @@ def test_a_box_side_facing_the_occlusion_side_goes_through_its_median_edge() -> 
         assert abs(error) < bound, (setting, error)  # 10.2 and 12.0 mm before
 
 
+def test_a_box_side_facing_the_occlusion_side_trims_runs_receding_into_the_band() -> None:
+    """The projector at 15 % (the sweep's proj15), the upright box, trial 0 frame 3: its
+    side facing -x held no occluding seed, only runs stopping short of their segments' ends
+    where the segments fall away toward the room behind (the band's fill and its ramp down):
+    that side went through the farthest of them untrimmed, the box 12.8 mm too wide. Taking
+    a whole window as occluding seeds do there (laser._Seeds.receding): 4.8 mm."""
+    view, result = _setting_frame("proj15", "cuboid_upright", 0, 3, suite="functional")
+    assert result.shape == "cuboid", (result.shape, result.reason)
+    error = result.grasp_width_m - view.truth.grasp_width_m
+    assert abs(error) < 0.007, error  # 12.8 mm before
+
+
 def test_a_rounded_side_facing_the_occlusion_side_keeps_its_walk() -> None:
     """SGBM 7, the soap bar (rounded on both sides): its walks past the side facing -x, all on
     the bar, fell away as a matcher's fill does, and were dropped where the line's other end
