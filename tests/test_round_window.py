@@ -124,3 +124,37 @@ def test_a_band_standing_on_the_table_keeps_the_table_past_its_base() -> None:
     assert result.shape == "cylinder"
     error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
     assert error_mm > -5.0, error_mm
+
+
+@pytest.mark.parametrize(
+    ("trial", "frame", "block", "before_mm"),
+    [
+        (1, 1, 7, 6.7),
+        (1, 4, 7, 7.5),
+        (1, 2, 11, 6.5),
+    ],
+)
+def test_a_flat_fit_past_rims_lost_in_holes_is_refitted_bounded_by_the_samples(
+    trial: int, frame: int, block: int, before_mm: float
+) -> None:
+    """Block matching, the 60 mm can upright: its rims end in holes short of the silhouette
+    and do not bow out of the whole arc's fit, the residuals are not correlated like SGBM's
+    and no rim ends in a plateau, so that fit stood, ``before_mm`` wide, its silhouette 5-15
+    px beyond the samples on both sides (laser._flat_fit): the window flattened it. Refitted
+    inside the rims, with no sample seen on the round beyond the refit, within 2.5 mm."""
+    view, result = _bench_frame("cylinder_upright", trial, frame, kind="bm", block_size=block)
+    assert result.shape == "cylinder"
+    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    assert abs(error_mm) < 2.5, (error_mm, before_mm)
+
+
+def test_a_refit_inside_rims_lost_in_holes_keeps_the_samples_within_its_silhouette() -> None:
+    """Block matching (block 5), the 60 mm can upright, trial 1 frame 0: the whole arc's fit
+    lies beyond the samples on both sides and is within 2.5 mm; refitted inside the rims it
+    came out 13 mm narrow, with samples seen on the round more than a pixel beyond its
+    silhouette. Those lie within the round's silhouette (nothing fattened them): the fit
+    stands."""
+    view, result = _bench_frame("cylinder_upright", 1, 0, kind="bm", block_size=5)
+    assert result.shape == "cylinder"
+    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    assert abs(error_mm) < 2.5, error_mm

@@ -3507,6 +3507,7 @@ def _round_width(
 
 # Samples past a round's outermost one across its axis that say its segment goes on there.
 _ROUND_GOES_ON = 3
+_NO_ANGLES = np.empty(0)
 
 # Samples within this many pixels of the silhouette they show: the rim a matcher bows out.
 _RIM_PX = 4.0
@@ -3598,6 +3599,7 @@ def _rim_free(
     counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines)
     solid = full
     kept = None
+    bounded = False
     for attempt in range(3):
         if attempt:
             angle = _across_view(solid, samples)
@@ -3617,15 +3619,14 @@ def _rim_free(
             w = samples.compress(rim, axis=0) - full.point
             across = w - (w @ full.axis)[:, None] * full.axis
             bow = np.sqrt(np.einsum("ij,ij->i", across, across)) - full.radius
-            if (
-                float(np.median(bow)) < params.rim_bow_m
-                and not (
-                    scan_lines is not None
-                    and _flat_fit(full, first, last, pixel_rad)
-                    and _occluding_rims(
-                        lines, angle, residuals, params, pixel_rad, scan_lines, 2 * full.radius
-                    )
+            flat = _flat_fit(full, first, last, pixel_rad)
+            if float(np.median(bow)) < params.rim_bow_m and not (
+                scan_lines is not None
+                and flat
+                and _occluding_rims(
+                    lines, angle, residuals, params, pixel_rad, scan_lines, 2 * full.radius
                 )
+            ):
                 # Residuals correlated like an SGBM window's on a round not lying along a
                 # support: the window flattened the whole arc's fit, and rims fattened along
                 # with it lie on that fit (no bow) while the fit is too wide all the same (the
@@ -3635,26 +3636,31 @@ def _rim_free(
                 # window leaves past a rim it reached (_fattened_rims), correlated or not (BM 7
                 # and 9: the 50 mm bottle 6.5-13.6 mm wide, refitted -0.4 to +7.3; the 60 mm
                 # can 1.8-13.1 mm wide, refitted 2.3-2.7 mm narrow).
-                # Not BM's samples where they stop short of the rims in holes (the can under BM
-                # 5, its fit within 1 mm, refitted 5-13 mm narrow), nor lpc's noise model's,
-                # uncorrelated and unfattened; nor a round lying along a support the lines show,
-                # right behind its rims, where the samples stop short of them (the rotation
-                # suite's 40 mm cylinder refitted without the bow: width MAE 1.0-1.5 -> 1.3-2.3
-                # mm on SGBM 5-9), nor one whose rims stand on a surface behind them
-                # (_rests_behind_rims: the 75 mm one, whose support the lines do not fit as a
-                # plane, refitted went 1.9-3.1 -> 2.2-3.3 mm).
-                and (
-                    _lying_along(full, support, params)
-                    or (
-                        _matched(scan_lines, params) is None
-                        and not _fattened_rims(lines, angle, residuals, params)
-                    )
-                    or _rests_behind_rims(
-                        lines, full, angle, residuals, params, pixel_rad, scan_lines
-                    )
+                # Not a round lying along a support the lines show, right behind its rims,
+                # where the samples stop short of them (the rotation suite's 40 mm cylinder
+                # refitted without the bow: width MAE 1.0-1.5 -> 1.3-2.3 mm on SGBM 5-9), nor
+                # one whose rims stand on a surface behind them (_rests_behind_rims: the 75 mm
+                # one, whose support the lines do not fit as a plane, refitted went 1.9-3.1 ->
+                # 2.2-3.3 mm).
+                if _lying_along(full, support, params):
+                    return None
+                # Nor, uncorrelated and unfattened, lpc's noise model's samples, which reach
+                # the whole arc's silhouette, nor BM's where they stop short of the rims in
+                # holes while the fit passes no further out than they do. Where the fit lies
+                # _FLAT_FIT_PX or more beyond them on both sides (_flat_fit), the window
+                # flattened it (the 60 mm can under BM 7-11: 6-11 mm wide): refitted, bounded
+                # by the samples, which lie within the round's silhouette where nothing
+                # fattened them (the can under BM 5, its fit within 1 mm, came out 5-13 mm
+                # narrow refitted unbounded).
+                holes = _matched(scan_lines, params) is None and not _fattened_rims(
+                    lines, angle, residuals, params
                 )
-            ):
-                return None
+                bounded = holes and flat
+                if (holes and not bounded) or _rests_behind_rims(
+                    lines, full, angle, residuals, params, pixel_rad, scan_lines
+                ):
+                    return None
+                on_seen = on & counted
         if fattened.any():
             # The bow and the arc's least span are read on every sample, as without plateaus:
             # only where the trim starts moves in.
@@ -3685,6 +3691,10 @@ def _rim_free(
             break
         solid, kept = refit, samples.compress(keep, axis=0)
     if kept is None:
+        return None
+    # A sample seen on the round, where nothing fattened it, lies within its silhouette.
+    beyond = -solid.silhouette_distance(samples[on_seen]) if bounded else _NO_ANGLES
+    if len(beyond) and float(beyond.max()) > pixel_rad:
         return None
     # An object only roughly a cylinder (the 62 mm sweet potato, whose ends curve more
     # tightly, 42 -> 31 mm on BM 9) keeps the fit on its whole arc (and _round_width its span).
