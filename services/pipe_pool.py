@@ -39,6 +39,8 @@ from services.children import die_with_parent
 Work = Callable[[bytes], bytes | str]
 
 _RESULT, _ERROR, _READY = b"R", b"E", b"W"
+# Read at most this much of a worker's pipe at once (its results are about 1 kB).
+_READ_SIZE = 65536
 
 
 def _worker_main(fd: int, parent_pid: int) -> None:
@@ -67,6 +69,7 @@ class _Worker:
         self.conn = conn
         self.ready = False
         self.jobs: collections.deque[Any] = collections.deque()  # tags, in the order sent
+        self.partial = b""  # the start of a message not yet whole
 
 
 class PipePool:
@@ -130,15 +133,31 @@ class PipePool:
             self._died(worker)
 
     def _readable(self, worker: _Worker) -> None:
+        # One read of what is there, not ``Connection.recv_bytes``'s two (length, then body)
+        # through two buffers: the loop is told the pipe is readable, so this does not wait.
         try:
-            message = worker.conn.recv_bytes()
-        except (EOFError, OSError):
+            chunk = os.read(worker.conn.fileno(), _READ_SIZE)
+        except OSError:
+            chunk = b""
+        if not chunk:
             self._died(worker)
             return
-        self._handle(worker, message)
+        self._take(worker, chunk)
 
-    def _handle(self, worker: _Worker, message: bytes) -> None:
-        kind, body = message[:1], message[1:]
+    def _take(self, worker: _Worker, chunk: bytes) -> None:
+        # Messages framed as ``Connection.send_bytes`` frames them (a 4-byte big-endian length,
+        # then the body): each whole one is handled, the rest kept for the next read.
+        data = worker.partial + chunk if worker.partial else chunk
+        start, end = 0, len(data)
+        while end - start >= 4:
+            stop = start + 4 + int.from_bytes(data[start : start + 4], "big")
+            if stop > end:
+                break
+            self._handle(worker, data[start + 4 : start + 5], data[start + 5 : stop])
+            start = stop
+        worker.partial = data[start:] if start < end else b""
+
+    def _handle(self, worker: _Worker, kind: bytes, body: bytes) -> None:
         if kind == _READY:
             worker.ready = True
             if all(w.ready for w in self._workers):
@@ -151,8 +170,8 @@ class PipePool:
         # Results it sent before it died may still be in the pipe (a submit that met the
         # closed pipe gets here before the loop has read them): they are results, not losses.
         with contextlib.suppress(EOFError, OSError):
-            while worker.conn.poll(0):
-                self._handle(worker, worker.conn.recv_bytes())
+            while worker.conn.poll(0) and (chunk := os.read(worker.conn.fileno(), _READ_SIZE)):
+                self._take(worker, chunk)
         # Its pipe closed: it is exiting. A moment for it to finish says why, in its exit code.
         self._stop(worker, grace_s=2.0)
         if self._closed or worker not in self._workers:

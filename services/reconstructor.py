@@ -25,6 +25,7 @@ from lpc_core.perception.laser import LaserParams
 from lpc_core.perception.reconstructor import (
     INPUT_TOPICS,
     Dropped,
+    Output,
     PoolParams,
     PoolState,
     ReconstructState,
@@ -56,7 +57,8 @@ def _yield_to_control(pids: list[int]) -> None:
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    inbox: asyncio.Queue[tuple[str, int, object]] = asyncio.Queue()
+    # Workers' results, in the order they came back; ``None`` once the frame pump has stopped.
+    results: asyncio.Queue[tuple[int, bytes | str] | None] = asyncio.Queue()
     # A depth frame (about 600 kB) does not fit the pipe's socket buffer (208 kB): handed to a
     # busy worker, its write would hold the loop until that worker is done. Scans are 4-5 kB.
     ahead = args.ahead if args.method == "laser" else 0
@@ -69,12 +71,38 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     topic = INPUT_TOPICS[args.method]
 
     def finished(seq: int, result: bytes | str) -> None:
-        inbox.put_nowait(("done", seq, result))
+        results.put_nowait((seq, result))
 
     started = time.monotonic()
     pool = PipePool(args.workers, init_worker, (args.method, initial_state(args).params), finished)
+    niced = 0
+
+    def carry_out(outputs: list[Output]) -> None:
+        nonlocal window, niced
+        bus.health.counters["worker_restarts"] = pool.restarts
+        if pool.restarts != niced:  # a restarted worker starts at the service's niceness
+            _yield_to_control(pool.pids)
+            niced = pool.restarts
+        for out in outputs:
+            if isinstance(out, Submit):
+                pool.submit(out.seq, out.job)
+            elif isinstance(out, Dropped):
+                bus.health.counters["dropped_frames"] += 1
+            elif isinstance(out, Release) and isinstance(out.result, bytes):
+                # Decoded for the window; published as the worker encoded it (the same
+                # bytes: encoding is deterministic), not encoded a second time.
+                message = decode("lpc/reconstruction", out.result)
+                reconstructions.put_encoded(message, out.result)
+                window, target = window_message(window, message)
+                targets.put(target)
+            elif isinstance(out, Release):
+                bus.reject(topic, str(out.result))
 
     async def pump() -> None:
+        # A frame is handed on in the pump's own step, not queued for the loop below: one
+        # task hand-over a frame fewer. The bookkeeping runs between awaits, so the two never
+        # interleave.
+        nonlocal state
         # Depth frames are big: keep the newest only. Scans all queue, for in-order release.
         latest = args.method == "cloud"
         frames = bus.subscribe(topic, latest=latest, capacity=256, decode=False)
@@ -84,7 +112,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             if header is None:
                 bus.reject(topic, "no seq/t_ns header")
                 continue
-            inbox.put_nowait(("frame", header[0], payload))
+            state, outputs = frame_arrived(state, header[0], payload)
+            carry_out(outputs)
 
     reader: asyncio.Task[None] | None = None
     try:
@@ -95,30 +124,15 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
         ready_s = time.monotonic() - started
         bus.log("info", f"{args.workers} {args.method} worker(s) ready in {ready_s:.1f} s")
         reader = asyncio.create_task(pump())
+        # The pump's error (a failed pool) stops the service, as the loop's own would.
+        reader.add_done_callback(lambda _: results.put_nowait(None))
         while True:
-            kind, seq, item = await inbox.get()
-            if kind == "frame":
-                state, outputs = frame_arrived(state, seq, item)
-            else:
-                state, outputs = frame_done(state, seq, item)
-            bus.health.counters["worker_restarts"] = pool.restarts
-            if pool.restarts != niced:  # a restarted worker starts at the service's niceness
-                _yield_to_control(pool.pids)
-                niced = pool.restarts
-            for out in outputs:
-                if isinstance(out, Submit):
-                    pool.submit(out.seq, out.job)
-                elif isinstance(out, Dropped):
-                    bus.health.counters["dropped_frames"] += 1
-                elif isinstance(out, Release) and isinstance(out.result, bytes):
-                    # Decoded for the window; published as the worker encoded it (the
-                    # same bytes: encoding is deterministic), not encoded a second time.
-                    message = decode("lpc/reconstruction", out.result)
-                    reconstructions.put_encoded(message, out.result)
-                    window, target = window_message(window, message)
-                    targets.put(target)
-                elif isinstance(out, Release):
-                    bus.reject(topic, str(out.result))
+            done = await results.get()
+            if done is None:
+                reader.result()
+                return
+            state, outputs = frame_done(state, *done)
+            carry_out(outputs)
     finally:
         if reader is not None:
             reader.cancel()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import socket
 
 import pytest
 
@@ -144,3 +145,38 @@ def test_a_worker_that_cannot_start_fails_the_pool_instead_of_respawning() -> No
 
     pool = asyncio.run(run())
     assert pool.restarts == 0
+
+
+def test_results_are_taken_whole_however_the_pipe_splits_or_joins_them() -> None:
+    """The pool reads what the pipe holds: two results in one read, and one result cut at
+    every byte (its length included), come out whole, in order, each with its tag."""
+    from multiprocessing.connection import Connection
+
+    async def run() -> Results:
+        done = Results()
+        pool = PipePool(1, make_work, (b"ok:",), done.on_done)
+        try:
+            async with asyncio.timeout(60):
+                await pool.ready()
+            worker = pool._workers[0]
+            ours, theirs = socket.socketpair()
+            with ours, theirs:
+                # What a worker's Connection.send_bytes writes, read back as raw bytes.
+                sender = Connection(theirs.detach())
+                for body in (b"Rfirst", b"Esecond", b"R" + b"x" * 300):
+                    sender.send_bytes(body)
+                sender.close()
+                wire = ours.recv(4096)
+            assert len(wire) == 3 * 4 + 6 + 7 + 301
+            worker.jobs.extend([0, 1, 2])
+            two = 4 + 6 + 4 + 7
+            pool._take(worker, wire[:two])  # two results in one read
+            for i in range(two, len(wire)):  # the third a byte at a time
+                pool._take(worker, wire[i : i + 1])
+            assert worker.partial == b""
+        finally:
+            pool.close()
+        return done
+
+    done = asyncio.run(run())
+    assert done == {0: b"first", 1: "second", 2: b"x" * 300}

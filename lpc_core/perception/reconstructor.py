@@ -27,7 +27,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from lpc_core.perception.cloud import CloudParams, reconstruct_cloud
-from lpc_core.perception.grip import choose_grip
+from lpc_core.perception.grip import GripRules, choose_grip
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.laser import LaserParams, reconstruct_laser
 from lpc_core.perception.pipeline import depth_image, intrinsics_from_message, intrinsics_to_message
@@ -198,15 +198,20 @@ def _core(message: Reconstruction) -> CoreReconstruction:
     )
 
 
+# The default rules, built and checked once rather than on every frame's grasp target.
+_GRIP_RULES = GripRules()
+
+
 def grasp_target_message(window: WindowResult, message: Reconstruction) -> GraspTarget:
-    choice = choose_grip(window.shape, window.grasp_width_mm, window.wrist_angle_deg)
+    width_mm, angle_deg = window.grasp_width_mm, window.wrist_angle_deg
+    choice = choose_grip(window.shape, width_mm, angle_deg, _GRIP_RULES)
     return GraspTarget(
         seq=message.seq,
         t_ns=message.t_ns,
         frame_seq=message.frame_seq,
         shape=window.shape,
-        grasp_width_mm=window.grasp_width_mm,
-        wrist_angle_deg=window.wrist_angle_deg,
+        grasp_width_mm=width_mm,
+        wrist_angle_deg=angle_deg,
         reconstructed=window.reconstructed,
         frames=window.frames,
         agreement=window.agreement,
@@ -344,23 +349,28 @@ def frame_arrived(state: PoolState, seq: int, job: Any) -> tuple[PoolState, list
     if seq <= state.last_seq:
         return evolve(state, dropped=state.dropped + 1), [Dropped(seq, "out of order")]
     outputs: list[Output] = []
-    running, pending, waiting = state.running, state.pending, (*state.waiting, seq)
-    dropped = state.dropped
-    if len(running) < state.params.in_flight:
-        running = running | {seq}
+    if len(state.running) < state.params.in_flight:
         outputs.append(Submit(seq, job))
-    else:
-        pending = (*pending, (seq, job))
-        if len(pending) > state.params.max_pending:
-            (old, _), pending = pending[0], pending[1:]
-            waiting = tuple(s for s in waiting if s != old)
-            dropped += 1
-            outputs.append(Dropped(old, "the pool fell behind"))
-    state = evolve(
-        state, running=running, pending=pending, waiting=waiting, last_seq=seq, dropped=dropped
-    )
+        return evolve(
+            state, running=state.running | {seq}, waiting=(*state.waiting, seq), last_seq=seq
+        ), outputs
+    pending = (*state.pending, (seq, job))
+    if len(pending) <= state.params.max_pending:
+        return evolve(state, pending=pending, waiting=(*state.waiting, seq), last_seq=seq), []
+    (old, _), pending = pending[0], pending[1:]
+    # The oldest waiting frame is this one when none may wait (``max_pending`` 0).
+    waiting = tuple(s for s in (*state.waiting, seq) if s != old)
+    outputs.append(Dropped(old, "the pool fell behind"))
     # Dropping a waiting frame may unblock results that were held behind it.
-    return _release(state, outputs)
+    waiting, done = _release(waiting, state.done, outputs)
+    return evolve(
+        state,
+        pending=pending,
+        waiting=waiting,
+        done=done,
+        last_seq=seq,
+        dropped=state.dropped + 1,
+    ), outputs
 
 
 def frame_done(state: PoolState, seq: int, result: Any) -> tuple[PoolState, list[Output]]:
@@ -368,27 +378,41 @@ def frame_done(state: PoolState, seq: int, result: Any) -> tuple[PoolState, list
     if seq not in state.running:
         return state, []
     running = state.running - {seq}
-    done = MappingProxyType({**state.done, seq: result})
     outputs: list[Output] = []
     pending = state.pending
     if pending and len(running) < state.params.in_flight:
         (next_seq, job), pending = pending[0], pending[1:]
         running = running | {next_seq}
         outputs.append(Submit(next_seq, job))
-    return _release(evolve(state, running=running, pending=pending, done=done), outputs)
+    waiting, done = state.waiting, state.done
+    if waiting[0] == seq:
+        # The frame next in order (as a single worker's always is) goes out at once, without
+        # passing through ``done``: a copy of that mapping fewer a frame.
+        outputs.append(Release(seq, result))
+        waiting, done = _release(waiting[1:], done, outputs)
+    else:
+        done = MappingProxyType({**done, seq: result})
+    return evolve(state, running=running, pending=pending, waiting=waiting, done=done), outputs
 
 
-def _release(state: PoolState, outputs: list[Output]) -> tuple[PoolState, list[Output]]:
-    waiting, done = state.waiting, dict(state.done)
-    while waiting and waiting[0] in done:
+def _release(
+    waiting: tuple[int, ...], done: MappingProxyType[int, Any], outputs: list[Output]
+) -> tuple[tuple[int, ...], MappingProxyType[int, Any]]:
+    """The results now in order appended to ``outputs`` as releases; ``waiting`` and ``done``
+    without them (the same objects when there are none)."""
+    if not waiting or waiting[0] not in done:
+        return waiting, done
+    rest = dict(done)
+    while waiting and waiting[0] in rest:
         seq, waiting = waiting[0], waiting[1:]
-        outputs.append(Release(seq, done.pop(seq)))
-    return evolve(state, waiting=waiting, done=MappingProxyType(done)), outputs
+        outputs.append(Release(seq, rest.pop(seq)))
+    return waiting, MappingProxyType(rest)
 
 
 __all__ = [
     "INPUT_TOPICS",
     "Dropped",
+    "Output",
     "PoolParams",
     "PoolState",
     "ReconstructState",
