@@ -3561,7 +3561,10 @@ def _rim_free(
     not because the rims were lost (the 60 mm can under SGBM 7: 13.9 mm wide, 1.9 mm
     refitted). A round lying on the table has the table within a diameter behind its rims,
     where a matcher's samples stop 2-7 px short of them (see ``_occluding_rims``): it keeps
-    its fit.
+    its fit. So too, under uncorrelated residuals with no rim fattened (BM's holes), a fit
+    that flat is refitted bounded by the samples: the refit is dropped where an unfattened
+    sample lies more than a pixel beyond its silhouette, since such samples lie inside the
+    round's.
 
     Under residuals correlated like SGBM's (``_matched``) the silhouette the samples show
     leaves out the plateaus a window fattened past it (``_fattened_samples``), unless the
