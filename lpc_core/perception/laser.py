@@ -2620,9 +2620,13 @@ def _raw_axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[
         yield seeds_axis
 
 
-def _seeds_axis(lines: list[LineModels], params: LaserParams) -> np.ndarray | None:
+def _seeds_axis(
+    lines: list[LineModels], params: LaserParams, *, longest: bool = False
+) -> np.ndarray | None:
     """Algorithm 1 on the seeds (the runs' ends: the outline), in the longitudinal plane
-    through them; None when fewer than three are uncut or they give no direction."""
+    through them; with ``longest``, the outline's longest extent instead (the uncut seeds'
+    principal axis: a round's length, wherever its outline is curved and Algorithm 1 finds
+    no straight side). None when fewer than three are uncut or they give no direction."""
     seeds = _collect_seeds(lines, params, extend=False)
     keep = ~seeds.cropped
     if keep.sum() < 3:
@@ -2634,12 +2638,16 @@ def _seeds_axis(lines: list[LineModels], params: LaserParams) -> np.ndarray | No
     origin, e1, e2 = _face_frame(plane)
     d = uncut - origin
     uv = np.column_stack([d @ e1, d @ e2])
-    direction = principal_direction(
+    if longest:
+        u, v = (uv - column_sums(uv) / len(uv)).T
+        direction = _principal_axis(float(u @ u), float(u @ v), float(v @ v), (1.0, 0.0))
+        return direction[0] * e1 + direction[1] * e2
+    found = principal_direction(
         uv[sort_around(uv, np.zeros(2))], params.alpha_max_rad, pick="straightest"
     )
-    if direction is None:
+    if found is None:
         return None
-    return direction[0] * e1 + direction[1] * e2
+    return found[0] * e1 + found[1] * e2
 
 
 def _cylinder_candidate(
@@ -4558,16 +4566,19 @@ def _tapered_tilt(
     toward both ends. A cylinder bends it only by turning its axis about the view, so that
     the line cuts it obliquely, and turning either way bends it alike: the free fit took
     whichever turn its start and the noise favoured, 11-31 degrees either side of the truth
-    (BM 5 and 9, trial 0, where the line along x runs along the torso). The outline (the
-    runs' ends, ``_seeds_axis``) is the round's own and turns with neither. A fit started
-    from the mirror image of the free fit's turn about it that turns the other way, and
-    explains the runs within ``cylinder_margin`` of the free fit, is the same taper's: the
-    axis lies between the two. A true cylinder's fit turns back to its own axis from there
-    (the sweep's functional cylinders under SGBM 7, BM 7 and BM 9: none turned away)."""
+    (BM 5 and 9, trial 0, where the line along x runs along the torso; 8-16 on lpc's noise
+    model). The outline's longest extent (the runs' ends, ``_seeds_axis``) is the round's own
+    and turns with neither; a straight side Algorithm 1 finds on a bumpy round may not be
+    (hh9-uneven, the sweet potato, trial 1 frame 0: 44 degrees off its fit, which was within
+    4 of the truth, and the axis between them 43 off). A fit started from the mirror image
+    of the free fit's turn about it that turns the other way, and explains the runs within
+    ``cylinder_margin`` of the free fit, is the same taper's: the axis lies between the two.
+    A true cylinder's fit turns back to its own axis from there (the functional cylinders
+    under SGBM 7 and 9, BM 7 and HH 9 with uneven dots: none turned away)."""
     solid = cylinder.solid
     if solid is None:
         return None
-    outline = _seeds_axis(lines, params)
+    outline = _seeds_axis(lines, params, longest=True)
     if outline is None:
         return None
     view = solid.point / math.sqrt(float(solid.point @ solid.point))
