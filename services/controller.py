@@ -1,9 +1,10 @@
 """Controller service: ``lpc/emg``, ``lpc/grasp/target``, ``lpc/aim/cue`` and
 ``lpc/prosthesis/state`` in; ``lpc/controller/state`` (every transition, and 10 Hz) and
 ``lpc/prosthesis/command`` (one per hand status, 100 Hz) out. A 100 Hz timer lets the
-controller notice stale inputs when nothing arrives at all; its health counts the timer's
-``ticks`` and the ``late_ticks`` that woke more than a period late (the camera sheds frames
-when there are too many of them)."""
+controller notice stale inputs when nothing arrives at all (it fires with the hand's status
+when that comes within a few ms of it: ``services.runtime.Ticks``); its health counts the
+timer's ``ticks``, the ``paced_ticks`` among them and the ``late_ticks`` that woke more than a
+period late (the camera sheds frames when there are too many of them)."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from lpc_core.control.emg import EmgProfile
 from lpc_core.sim.emg_sim import sim_user_params
 from schemas import ControllerState
 from services.drivers.emg import load_emg_profile
-from services.runtime import Bus, service_main, service_parser
+from services.runtime import Bus, Subscription, Ticks, service_main, service_parser
 
 TICK_NS = 10_000_000
 INPUTS = {EMG: False, HAND: True}  # key -> newest only
@@ -114,27 +115,32 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
     # Each input carries the time it happened (received, or the tick's time), so that a stall
     # of this process is not taken for silence of its inputs.
-    async def pump(key: str, latest: bool) -> None:
-        # EMG is FIFO: the detector's timing rules need every sample, in order.
-        sub = bus.subscribe(key, latest=latest)
+    async def pump(sub: Subscription) -> None:
         while True:
             _, message, received_ns = await sub.receive()
             step(received_ns, message)
 
+    # EMG is FIFO: the detector's timing rules need every sample, in order.
+    subs = {key: bus.subscribe(key, latest=latest) for key, latest in INPUTS.items()}
+    # Started on the clock's 10 ms grid, as the EMG service's samples are, and both paced by
+    # the hand's status: the control loop's two 100 Hz timers fire in the pass that hands the
+    # status over, one wake-up a period where there were two (three before the shared grid).
+    timer = Ticks(bus, TICK_NS, pacing=subs[HAND])
+
     async def ticks() -> None:
-        # On the clock's 10 ms grid, as the EMG service's samples are: the control loop's two
-        # 100 Hz timers then fire in one pass of it, one wake-up where there were two.
         t_ns = bus.clock.now_ns() // TICK_NS * TICK_NS
         while True:
-            t_ns = max(t_ns + TICK_NS, (bus.clock.now_ns() // TICK_NS - 1) * TICK_NS)
-            await bus.clock.sleep_until(t_ns)
+            # At most one period behind after a stall, in the same phase (the EMG's).
+            t_ns += max(1, (bus.clock.now_ns() - t_ns) // TICK_NS - 1) * TICK_NS
+            t_ns, fired_ns = await timer.until(t_ns)
             # Its lateness is the camera's cue to shed frames (lpc_core.perception.shedding).
             bus.health.counters["ticks"] += 1
-            if bus.clock.now_ns() - t_ns > TICK_NS:
+            bus.health.counters["paced_ticks"] += timer.paced
+            if bus.clock.now_ns() - fired_ns > TICK_NS:
                 bus.health.counters["late_ticks"] += 1
-            step(t_ns, Tick(t_ns))
+            step(fired_ns, Tick(fired_ns))
 
-    tasks = [asyncio.create_task(pump(k, latest)) for k, latest in INPUTS.items()]
+    tasks = [asyncio.create_task(pump(sub)) for sub in subs.values()]
     tasks.append(asyncio.create_task(ticks()))
     try:
         # Any task's failure ends the service (its supervisor restarts it).

@@ -27,7 +27,7 @@ from schemas import EmgSample
 from services.drivers.emg import HandEmg, SerialEmg
 from services.drivers.emg_raw import LSL_SCOPES, BrainFlowEmg, LslEmg
 from services.drivers.errors import DriverError
-from services.runtime import Bus, run_service, service_parser
+from services.runtime import Bus, Ticks, run_service, service_parser
 
 RAW = ("lsl", "brainflow")  # sources of raw EMG, filtered here
 
@@ -53,22 +53,22 @@ async def _simulated_user(bus: Bus, args: argparse.Namespace) -> None:
         bus.subscribe(k, latest=False, prompt=False)
         for k in ("lpc/controller/state", "lpc/prosthesis/state", "lpc/aim/cue")
     ]
-    # On the clock's 10 ms grid, as the controller's ticks are: one wake-up of the control
-    # loop for both.
+    # Started on the clock's 10 ms grid and paced by the hand's status, as the controller's
+    # ticks are: in the container the control loop wakes once a period for the status and both.
+    timer = Ticks(bus, PERIOD_NS, pacing=perceived[1])
     t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
     while True:
-        t_ns += PERIOD_NS
-        await bus.clock.sleep_until(t_ns)
+        t_ns, fired_ns = await timer.until(t_ns + PERIOD_NS)
         messages = [got for sub in perceived for got in sub.take_queued()]
         for _, message, received_ns in sorted(messages, key=lambda got: got[2]):
             user, _ = user_step(user, message, received_ns)
-        user, samples = user_step(user, Tick(t_ns), t_ns)
+        user, samples = user_step(user, Tick(fired_ns), fired_ns)
         for sample in samples:
             out.put(sample)
         behind = bus.clock.now_ns() - t_ns
         if behind > 20 * PERIOD_NS:  # stalled for 200 ms: skip ahead, do not burst
             bus.health.counters["skipped_samples"] += behind // PERIOD_NS
-            t_ns = bus.clock.now_ns() // PERIOD_NS * PERIOD_NS
+            t_ns += behind // PERIOD_NS * PERIOD_NS  # in the ticks' phase, the controller's
 
 
 async def _device(bus: Bus, args: argparse.Namespace) -> None:

@@ -28,6 +28,7 @@ from typing import Any, ClassVar, Protocol
 import msgspec
 import zenoh
 
+from lpc_core.control.pacing import PACE_WINDOW_NS, pace
 from schemas import TOPICS, BadMessage, Health, Log, Topic, encode, json_schema, topic_for_key
 from services.heap import keep_freed_memory
 
@@ -374,6 +375,7 @@ class Subscription:
         self._closed = False
         self._resumed_ns = 0
         self.awaited = False  # a task has waited in ``receive``
+        self.paces: Ticks | None = None  # a timer that this subscription's samples pace
         self._router = bus.router if bus.router is not None and bus.router.covers(key) else None
         self._zsub: zenoh.Subscriber | None = None
         if self._router is not None:
@@ -393,6 +395,8 @@ class Subscription:
         self._queue.append(item)
         if self.prompt or self._router is None:
             self._ready.set()
+        if self.paces is not None:
+            self.paces.arrived(item[2])
 
     async def receive(self) -> tuple[str, Any, int]:
         """The next ``(key, message, received_ns)``; bad payloads are counted and skipped."""
@@ -466,6 +470,69 @@ class Subscription:
                 self._zsub.undeclare()
             if self._router is not None:
                 self._router.remove(self)
+
+
+class Ticks:
+    """A service's timer of ``period_ns`` that a subscription's samples may pace
+    (``lpc_core.control.pacing``): the control loop's 10 ms tick fires with the hand's status,
+    in the wake-up the status costs anyway, instead of waking the loop a second time each
+    period; without such samples it keeps its own period. On the subscription's loop."""
+
+    def __init__(self, bus: Bus, period_ns: int, pacing: Subscription | None = None) -> None:
+        self._clock = bus.clock
+        self._loop = bus.loop
+        self.period_ns = period_ns
+        self._t_ns = 0  # the nominal time of the tick waited for
+        self._previous_ns: int | None = None  # the previous pacing sample's receive time
+        self._waited_ns: int | None = None  # the last one handed over while a tick waited
+        self.paced = False  # the last tick fired with a sample
+        self._waiter: asyncio.Future[tuple[int, int, bool]] | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        if pacing is not None:
+            pacing.paces = self
+
+    async def until(self, t_ns: int) -> tuple[int, int]:
+        """Wait for the tick nominally at ``t_ns``: its nominal time (which pacing may move)
+        and the time it fired at (a pacing sample's receive time, or the nominal time)."""
+        self._t_ns = t_ns
+        self._waiter = self._loop.create_future()
+        # While the stream's samples come as the loop waits (not only handed over at this
+        # tick's reads), the timer waits out the window for the next one.
+        running = self._waited_ns is not None and t_ns - self._waited_ns <= 2 * self.period_ns
+        self._arm(t_ns + PACE_WINDOW_NS if running else t_ns, t_ns)
+        try:
+            t_ns, fired_ns, self.paced = await self._waiter
+        finally:
+            self._waiter = None
+            if self._timer is not None:
+                self._timer.cancel()
+        return t_ns, fired_ns
+
+    def arrived(self, received_ns: int) -> None:
+        """A pacing sample was handed over on the loop."""
+        previous, self._previous_ns = self._previous_ns, received_ns
+        waiter = self._waiter
+        if waiter is None or waiter.done():
+            return
+        self._waited_ns = received_ns
+        paced = pace(self.period_ns, self._t_ns, previous, received_ns)
+        if paced is None:
+            return
+        if paced[1] == received_ns:
+            waiter.set_result((*paced, True))
+        else:
+            self._t_ns = paced[0]
+            self._arm(paced[1], paced[0])
+
+    def _arm(self, due_ns: int, t_ns: int) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        delay = max(0.0, (due_ns - self._clock.now_ns()) / 1e9)
+        self._timer = self._loop.call_later(delay, self._fire, t_ns)
+
+    def _fire(self, t_ns: int) -> None:
+        if self._waiter is not None and not self._waiter.done():
+            self._waiter.set_result((t_ns, t_ns, False))
 
 
 class Newest(Subscription):
