@@ -474,12 +474,15 @@ def test_reconstruct_cloud_puts_back_a_face_taken_for_the_table_with_a_band_of_i
     assert result.extra["support_points"] == 0.0
 
 
+def _flat_patch(xs: tuple[float, float], ys: tuple[float, float], z: float) -> np.ndarray:
+    """Points 2 mm apart on a patch across the optical axis at depth ``z``."""
+    x, y = np.meshgrid(np.arange(*xs, 0.002), np.arange(*ys, 0.002))
+    return np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+
+
 def test_within_support_is_a_band_of_the_plane_not_an_object_on_it() -> None:
-    # A face across the optical axis at 0.16 m, points 2 mm apart.
-    x, y = np.meshgrid(np.arange(-0.03, 0.03, 0.002), np.arange(-0.02, 0.02, 0.002))
-    face = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 0.16)])
-    px, py = np.meshgrid(np.arange(0.0, 0.02, 0.002), np.arange(0.0, 0.01, 0.002))
-    band = np.column_stack([px.ravel(), py.ravel(), np.full(px.size, 0.155)])
+    face = _flat_patch((-0.03, 0.03), (-0.02, 0.02), 0.16)
+    band = _flat_patch((0.0, 0.02), (0.0, 0.01), 0.155)
     assert _within_support(band, face, PARAMS)
     # The jar cap, 15 mm high, lying on its table: it rests on the plane.
     cap = band - np.array([0.0, 0.0, 0.01])
@@ -729,17 +732,14 @@ def test_a_lying_box_side_on_the_table_is_not_trimmed_as_an_occluding_edge() -> 
 
 def test_aimed_past_a_plane_the_axis_meets_to_a_patch_beside_it() -> None:
     # A face across the optical axis at 0.16 m, and a 1 cm patch 3 cm below the axis.
-    x, y = np.meshgrid(np.arange(-0.03, 0.03, 0.002), np.arange(-0.02, 0.02, 0.002))
-    face = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 0.16)])
-    px, py = np.meshgrid(np.arange(0.0, 0.01, 0.002), np.arange(0.03, 0.04, 0.002))
-    patch = np.column_stack([px.ravel(), py.ravel(), np.full(px.size, 0.14)])
+    face = _flat_patch((-0.03, 0.03), (-0.02, 0.02), 0.16)
+    patch = _flat_patch((0.0, 0.01), (0.03, 0.04), 0.14)
     assert _aimed_past(patch, face, PARAMS)
     # A segment the axis meets is the object, whatever the plane behind it shows there.
     assert not _aimed_past(patch - np.array([0.0, 0.03, 0.0]), face, PARAMS)
     # A segment in front of the plane's outline hides part of it: a ball aimed beside on its
     # table (test_reconstruct_cloud_forgives_aiming_beside_the_object).
-    px, py = np.meshgrid(np.arange(0.015, 0.025, 0.002), np.arange(0.0, 0.01, 0.002))
-    ball = np.column_stack([px.ravel(), py.ravel(), np.full(px.size, 0.14)])
+    ball = _flat_patch((0.015, 0.025), (0.0, 0.01), 0.14)
     assert not _aimed_past(ball, face, PARAMS)
     # A plane the axis misses (a table beside the object) is the table.
     assert not _aimed_past(patch, face + np.array([0.05, 0.0, 0.0]), PARAMS)

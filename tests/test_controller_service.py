@@ -43,6 +43,19 @@ class Listener:
             sub.undeclare()
 
 
+async def _shut_down(
+    tasks: list[asyncio.Task], buses: list[Bus], router: Router, session: zenoh.Session
+) -> None:
+    """Cancel the services' tasks, then close their buses, the router and the session."""
+    for task in tasks:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+    for bus in buses:
+        bus.close()
+    router.close()
+    session.close()
+
+
 def test_controller_service_follows_the_cycle_and_stops_on_stale_emg(
     rendezvous: zenoh.Session, endpoint: str
 ) -> None:
@@ -211,11 +224,7 @@ def test_emg_service_sim_user_perceives_at_its_tick_in_one_task(
         cue = AimCue(seq=1, t_ns=time.time_ns(), frame_seq=1, state="on_target")
         router.deliver("lpc/aim/cue", encode(cue))
         await asyncio.sleep(0.03)
-        service.cancel()
-        await asyncio.gather(service, return_exceptions=True)
-        bus.close()
-        router.close()
-        session.close()
+        await _shut_down([service], [bus], router, session)
         return tasks
 
     assert asyncio.run(main()) == 1
@@ -273,13 +282,7 @@ def test_controller_steps_vision_with_its_next_input_and_no_vision_wakes_the_loo
             router.deliver("lpc/grasp/target", encode(target))
         del stepped[:start]
         await asyncio.sleep(0.03)
-        for task in (user, service):
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
-        for bus in buses:
-            bus.close()
-        router.close()
-        session.close()
+        await _shut_down([user, service], buses, router, session)
         return tasks, wakes
 
     tasks, wakes = asyncio.run(main())
@@ -339,13 +342,7 @@ def test_control_loop_ticks_follow_the_hands_status(
             )
             router.deliver("lpc/prosthesis/state", encode(state))
             at_ns += 10_000_000
-        for task in services:
-            task.cancel()
-            await asyncio.gather(task, return_exceptions=True)
-        for bus in buses:
-            bus.close()
-        router.close()
-        session.close()
+        await _shut_down(services, buses, router, session)
 
     asyncio.run(main())
     settled = {k: t[6:] for k, t in ticks.items()}  # met within period / window ticks
