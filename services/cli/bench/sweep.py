@@ -312,9 +312,9 @@ SETTINGS: dict[str, Setting] = {
         rig={"baseline_m": 0.045, "supersample": 2},
         matcher={"min_texture": 3.0, "disp12_max_diff": 2, "uniqueness": 12},
     ),
-    # Held out from every helper of stop 38: only the lead's before -> after runs on them.
-    "fresh-bm7w": Setting(
-        "fresh",
+    # Held out from every helper of stop 38 (then its "fresh" group); studied from stop 39.
+    "bm7-w": Setting(
+        "untuned",
         "BM 7, uniqueness 12, texture threshold 8, speckle window 80, 0.07 dots/px² of "
         "0.7 px, a thirteenth pattern",
         rig={"dot_density": 0.07, "dot_sigma_px": 0.7, "pattern_seed": 13},
@@ -326,14 +326,14 @@ SETTINGS: dict[str, Setting] = {
             "speckle_window": 80,
         },
     ),
-    "fresh-p1w": Setting(
-        "fresh",
+    "p1w-shot": Setting(
+        "untuned",
         "SGBM 7, P1 x 0.75 and P2 x 2, 1.7 times the shot noise, a fourteenth pattern",
         rig={"electrons_per_dn": 6.0, "pattern_seed": 14},
         smoothness=(0.75, 2.0),
     ),
-    "fresh-proj35": Setting(
-        "fresh",
+    "b52-p35": Setting(
+        "untuned",
         "SGBM 9, uniqueness 8, 52 mm baseline, projector 35 mm from the left imager, "
         "optics 0.6 px, albedo 0.7, 1.25 times the room light",
         rig={
@@ -345,8 +345,8 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"block_size": 9, "uniqueness": 8},
     ),
-    "fresh-hh7x3": Setting(
-        "fresh",
+    "hh7-x3": Setting(
+        "untuned",
         "SGBM 7, HH mode, IR 3x supersampled, 0.04 dots/px² of brightness 0.5-1, "
         "a fifteenth pattern",
         rig={
@@ -357,8 +357,8 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"sgbm_mode": "hh"},
     ),
-    "fresh-3way9g": Setting(
-        "fresh",
+    "3way9-g": Setting(
+        "untuned",
         "SGBM 9, 3-way mode, texture check 6, speckle range 1, 80 % of the signal, read noise 2",
         rig={"gain_dn": 260.0, "read_noise_dn": 2.0},
         matcher={
@@ -367,6 +367,65 @@ SETTINGS: dict[str, Setting] = {
             "min_texture": 6.0,
             "speckle_range": 1,
         },
+    ),
+    # Held out from every helper of stop 39: only the lead's before -> after runs on them.
+    "fresh-bm9c": Setting(
+        "fresh",
+        "BM 9, uniqueness 10, texture threshold 12, prefilter cap 25, 0.045 dots/px², "
+        "a sixteenth pattern",
+        rig={"dot_density": 0.045, "pattern_seed": 16},
+        matcher={
+            "kind": "bm",
+            "block_size": 9,
+            "uniqueness": 10,
+            "texture_threshold": 12,
+            "pre_filter_cap": 25,
+        },
+    ),
+    "fresh-sg5s": Setting(
+        "fresh",
+        "SGBM 5, P1 x 0.5 and P2 x 1.5, uniqueness 15, speckle window 150 of range 1, "
+        "a seventeenth pattern",
+        rig={"pattern_seed": 17},
+        matcher={"block_size": 5, "uniqueness": 15, "speckle_window": 150, "speckle_range": 1},
+        smoothness=(0.5, 1.5),
+    ),
+    "fresh-b48": Setting(
+        "fresh",
+        "SGBM 7, 48 mm baseline, projector 10 mm from the left imager, albedo 0.6, "
+        "optics 0.55 px, an eighteenth pattern",
+        rig={
+            "baseline_m": 0.048,
+            "projector_x_m": 0.01,
+            "albedo": 0.6,
+            "blur_sigma_px": 0.55,
+            "pattern_seed": 18,
+        },
+    ),
+    "fresh-hh5x2": Setting(
+        "fresh",
+        "SGBM 5, HH mode, IR 2x supersampled, 0.065 dots/px² of 0.5 px, 1.4 times the shot "
+        "noise, read noise 1.8",
+        rig={
+            "supersample": 2,
+            "dot_density": 0.065,
+            "dot_sigma_px": 0.5,
+            "electrons_per_dn": 7.0,
+            "read_noise_dn": 1.8,
+        },
+        matcher={"block_size": 5, "sgbm_mode": "hh"},
+    ),
+    "fresh-3way7a": Setting(
+        "fresh",
+        "SGBM 7, 3-way mode, uniqueness 6, left-right 2 px, 1.75 times the room light, "
+        "dots of brightness 0.7-1, 75 % of the signal, a nineteenth pattern",
+        rig={
+            "ambient": 0.14,
+            "dot_brightness": (0.7, 1.0),
+            "gain_dn": 240.0,
+            "pattern_seed": 19,
+        },
+        matcher={"sgbm_mode": "3way", "uniqueness": 6, "disp12_max_diff": 2},
     ),
 }
 
