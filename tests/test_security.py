@@ -86,7 +86,11 @@ def test_up_listens_only_on_loopback(tmp_path: Path) -> None:
     reader = threading.Thread(target=lambda: lines.extend(up.stderr or []), daemon=True)
     reader.start()
     try:
-        wait_for(lambda: any("services up" in ln for ln in lines), 90, "lpc up to start")
+        try:
+            wait_for(lambda: any("services up" in ln for ln in lines), 90, "lpc up to start")
+        except pytest.fail.Exception:
+            # A stall seen once under CI load: keep what lpc up said, to tell why next time.
+            pytest.fail("lpc up did not start within 90 s; its stderr:\n" + "".join(lines[-40:]))
         wait_for(lambda: expected <= _listening_ports(up.pid), 20, "the listening sockets")
         children = psutil.Process(up.pid).children(recursive=True)
         assert len(children) >= 4
