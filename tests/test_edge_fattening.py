@@ -395,3 +395,60 @@ def test_a_receding_seed_facing_the_occlusion_side_takes_a_whole_window() -> Non
     assert top_mm(facing_minus_x, receding) == pytest.approx(19.5)
     assert top_mm(facing_minus_x, None) == pytest.approx(22.5)
     assert top_mm([False] * 4, receding) == pytest.approx(22.5)
+
+
+def test_a_side_facing_the_occlusion_side_drops_the_rows_fill_to_the_capture_volume() -> None:
+    """A box side facing -x (``occlusion``) held one uncut seed, at no occluding edge (its
+    segment ran on off the face's plane past it), and a cut seed 22 mm beyond it: a row along
+    which a semi-global matcher carried the face's disparity across the occlusion band to the
+    capture volume's side. The cut seed lies more than ``cut_apart_m`` beyond the seed: it is
+    dropped and the side goes through the seed, -25 mm; otherwise it bounds the side, -47 mm.
+    Where the seed's segment comes back onto the plane past it (``resuming``: an excursion
+    inside the face), or the side faces +x, the cut seed bounds it."""
+    seeds = [[-25.0, 0.0], [-47.0, 0.0], [25.0, 0.0], [25.0, 10.0]]
+    seeds += [[0.0, -40.0], [10.0, -40.5], [0.0, 40.0], [-5.0, 39.0]]
+    pts = [[x / 1000, y / 1000] for x, y in seeds]
+    a = [p[0] for p in pts]
+    b = [p[1] for p in pts]
+    cropped = [False, True] + [False] * 6
+    occluding = [False, True, True, True, True, True, True, True]
+    shares = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+
+    def left_mm(occlusion: list[bool], resuming: list[bool] | None) -> float:
+        out = laser._consistent_sides(
+            pts, cropped, occluding, (1.0, 0.0), a, b, 0.006, 0.006, shares,
+            (0.003, 0.003), [False] * 4, occlusion, [False] * 8, resuming,
+        )  # fmt: skip
+        return 1000 * out[0]
+
+    facing_minus_x = [True, False, False, False]
+    assert left_mm(facing_minus_x, [False] * 8) == pytest.approx(-25.0)
+    assert left_mm(facing_minus_x, [True] + [False] * 7) == pytest.approx(-47.0)
+    assert left_mm(facing_minus_x, None) == pytest.approx(-47.0)
+    assert left_mm([False] * 4, [False] * 8) == pytest.approx(-47.0)
+
+
+def test_the_box_tilted_left_drops_a_rows_fill_past_its_side_facing_minus_x(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SGBM 7 at P1 x 3, P2 x 6, the box tilted left, trial 1 frame 1: the row line's cut seed
+    lay 22.8 mm past the side facing -x (the face's disparity carried across the occlusion
+    band to the capture volume), the side's one uncut seed 8.6 mm (its segment on 1.6-1.9 mm
+    off the face's plane past it). Through the cut seed the width came out 21.9 mm wide;
+    through the uncut seed (``laser._row_fill``) 7.7 mm."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    sensor = SETTINGS["p1x3p2x6"].sensor()
+    for view in lv.views("functional", 2, 5, 0, names=["cuboid_tilt_left"], sensor=sensor):
+        if (view.trial, view.frame) == (1, 1):
+            break
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    result = reconstruct_laser(lines, seed=view.seq)
+    monkeypatch.setattr(laser, "_row_fill", lambda *_: False)
+    before = reconstruct_laser(lines, seed=view.seq)
+    assert result.shape == before.shape == "cuboid"
+    truth = view.truth.grasp_width_m
+    assert before.grasp_width_m - truth > 0.020
+    assert 0.0 < result.grasp_width_m - truth < 0.009
