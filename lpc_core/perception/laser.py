@@ -3596,6 +3596,10 @@ def _rim_free(
     leaves out the plateaus a window fattened past it (``_fattened_samples``), unless the
     round lies along ``support`` or rests on a surface right behind its rims
     (``_rests_behind_rims``).
+
+    The refit's silhouette lies within ``_RIM_PX`` of the rims the lines show on at least one
+    side, else it is widened to that (``_reaching_rims``; rims without what a window carried
+    past them, ``_past_rims``).
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
