@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from lpc_core.perception.laser import reconstruct_laser
+from lpc_core.perception.scans import cut_scan_lines
 from tests.test_stereo_shapes import _bench_frame
 
 
@@ -158,3 +160,47 @@ def test_a_refit_inside_rims_lost_in_holes_keeps_the_samples_within_its_silhouet
     assert result.shape == "cylinder"
     error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
     assert abs(error_mm) < 2.5, error_mm
+
+
+@pytest.mark.parametrize(
+    ("name", "trial", "frame", "rig", "matcher", "before_mm", "within_mm"),
+    [
+        # SGBM 7 with P1 x 0.75 and P2 x 2, 1.7 times the shot noise, a fourteenth pattern
+        (
+            "cylinder_upright",
+            1,
+            2,
+            {"electrons_per_dn": 6.0, "pattern_seed": 14},
+            {"p1": 294, "p2": 3136},
+            -10.0,
+            6.0,
+        ),
+        ("cylinder_lying", 0, 0, {}, {}, -5.8, 2.5),  # SGBM 7
+    ],
+)
+def test_a_refit_reaches_the_rims_its_lines_show(
+    name: str,
+    trial: int,
+    frame: int,
+    rig: dict[str, object],
+    matcher: dict[str, object],
+    before_mm: float,
+    within_mm: float,
+) -> None:
+    """SGBM 7: the refit inside the rims fitted a crest more curved than the round and came
+    out ``before_mm`` narrow, its silhouette more than _RIM_PX inside the rims the lines show
+    on both sides, left out the samples a window carried past a rim (laser._past_rims). The
+    band a window bows a rim over bounds how far inside them the silhouette can lie: widened
+    to it (laser._reaching_rims), the width is within ``within_mm``."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.sim.stereo import StereoSensor
+    from lpc_core.sim.stereo_settings import Matcher, StereoRig
+    from services.cli import _laser_views as lv
+
+    sensor = StereoSensor(rig=StereoRig(**rig), matcher=Matcher(**matcher))  # type: ignore[arg-type]
+    views = lv.views("functional", 2, 5, 0, names=[name], sensor=sensor)
+    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
+    result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+    assert result.shape == "cylinder"
+    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    assert abs(error_mm) < within_mm, (error_mm, before_mm)

@@ -3682,6 +3682,10 @@ def _rim_free(
     leaves out the plateaus a window fattened past it (``_fattened_samples``), unless the
     round lies along ``support`` or rests on a surface right behind its rims
     (``_rests_behind_rims``).
+
+    The refit's silhouette lies within ``_RIM_PX`` of the rims the lines show on at least one
+    side, else it is widened to that (``_reaching_rims``; rims without what a window carried
+    past them, ``_past_rims``).
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
@@ -3712,6 +3716,10 @@ def _rim_free(
     # Samples that run on past the round only in a window's smear toward a background far
     # behind (see _smeared_past) show no support the round's segment goes on onto.
     counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines)
+    # The samples at the rims the lines show: on the round, not smeared past it, nor in a
+    # plateau or ramp a window carried past a rim (_past_rims).
+    on_full = residuals <= 4 * thr
+    rims = on_full & counted & unfattened & ~_past_rims(lines, on_full)
     solid = full
     kept = None
     bounded = False
@@ -3815,7 +3823,70 @@ def _rim_free(
     # tightly, 42 -> 31 mm on BM 9) keeps the fit on its whole arc (and _round_width its span).
     if _narrower_than_runs(solid, clean, pixel_rad):
         return None
-    return solid
+    # The window pulls the flanks toward the camera, so the refit may only narrow the whole
+    # arc's: but where the crest alone is more curved than the can (the 60 mm can refitted
+    # 8-12 mm narrow at SGBM 7 with a weak pattern or a projector beside the left imager,
+    # whole-arc fits within 3 mm), its silhouette lies inside the rims the lines show.
+    return _reaching_rims(solid, samples.compress(rims, axis=0), pixel_rad)
+
+
+# How many on-round samples at each end of a line's run show where its rim is, and how fast
+# (of the steepest rise among them) the depth must still rise outward at a rim.
+_RIM_RISE_SAMPLES = 12
+_RIM_RISE = 0.5
+
+
+def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
+    """Whether each of the lines' samples (laid end to end) lies past the rim at an end of its
+    line's run of ``on`` samples: past the outermost step, among the run's last
+    ``_RIM_RISE_SAMPLES`` (a third of the run at most), whose depth rises outward by at least
+    ``_RIM_RISE`` of the steepest such step there.
+
+    A round's depth rises fastest at its silhouette, and a window that averages the rim's
+    depth with the background's still rises fastest there: samples past that step, rising
+    slower or not at all, are what the window carried past the rim, whether as a plateau
+    (``_fattened_end``) or a slow ramp toward the background that stays on the whole arc's
+    fit (the 50 mm bottle tilted right at SGBM 7: 195 mm over five samples past a rim at
+    about 202 mm, then 197 mm, 2-8 px past the true silhouette; unmarked by
+    ``_fattened_end``, whose plateau must end the segment and a rim follow it)."""
+    marks = []
+    start = 0
+    for ln in lines:
+        z = ln.sz[:, 1]
+        mark = np.zeros(len(z), dtype=bool)
+        run = np.flatnonzero(on[start : start + len(z)])
+        start += len(z)
+        count = min(_RIM_RISE_SAMPLES, len(run) // 3)
+        if count >= 2:
+            for end in (run[:count][::-1], run[-count:]):  # each from inside outward
+                rise = np.diff(z[end])
+                steepest = float(rise.max())
+                if steepest > 0:
+                    rim = int(np.flatnonzero(rise >= _RIM_RISE * steepest)[-1])
+                    mark[end[rim + 2 :]] = True
+        marks.append(mark)
+    return np.concatenate(marks) if marks else np.zeros(0, dtype=bool)
+
+
+def _reaching_rims(solid: CylinderSolid, rims: np.ndarray, pixel_rad: float) -> CylinderSolid:
+    """``solid`` widened about its axis's distance until its silhouette lies within
+    ``_RIM_PX`` of the outermost of ``rims`` on both sides, where it lies farther inside them
+    on both: the band a window bows a rim over (see ``_rim_free``) bounds how far inside its
+    own rims a round's samples can place its silhouette; a refit narrower than that took a
+    crest more curved than the round for the round."""
+    view = _axis_in_view(solid)
+    if view is None or len(rims) == 0:
+        return solid
+    distance, half = view
+    angle = _across_view(solid, rims)
+    if angle is None:
+        return solid
+    slack = _RIM_PX * pixel_rad
+    below, above = -half - float(angle.min()), float(angle.max()) - half
+    if min(below, above) <= slack:
+        return solid
+    reach = min(half + 0.5 * (below + above) - slack, 0.5 * math.pi)
+    return replace(solid, radius=distance * math.sin(reach))
 
 
 def _smeared_past(
