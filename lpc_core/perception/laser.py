@@ -4630,7 +4630,7 @@ def _turned_about_view(axis: np.ndarray, outline: np.ndarray, view: np.ndarray) 
     o = outline - (outline @ view) * view
     if a @ o < 0:
         a = -a
-    return math.atan2(float(np.cross(o, a) @ view), float(o @ a))
+    return math.atan2(float(_cross(o, a) @ view), float(o @ a))
 
 
 def _tapered_tilt(
@@ -4663,7 +4663,7 @@ def _tapered_tilt(
     turn = _turned_about_view(axis, outline, view)
     # Rodrigues' rotation of the axis by -2 turn about the view: its mirror image.
     c, s = math.cos(-2 * turn), math.sin(-2 * turn)
-    mirror = axis * c + np.cross(view, axis) * s + view * float(view @ axis) * (1 - c)
+    mirror = axis * c + _cross(view, axis) * s + view * float(view @ axis) * (1 - c)
     other = CylinderSolid.estimate(clean, mirror, iterations=params.cylinder_iterations)
     if not other:
         return None
@@ -5260,8 +5260,10 @@ def _across_face_holes(line: LineModels, plane: PlaneSolid, params: LaserParams)
 def _plateau_end(z: np.ndarray, end: int, inward: int, tolerance_m: float) -> int:
     """The last sample, walking from the segment's ``end`` in direction ``inward`` (+1 or -1),
     whose neighbours all lie within ``tolerance_m`` of the end sample's depth ``z[end]``."""
-    j, last = end, len(z) - 1
-    while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= tolerance_m:
+    # Python floats (``item``): the walk is a few samples on most ends but the whole segment
+    # on a flat one, and numpy's scalars cost twice as much per step (same values, same test).
+    depth, j, last = z.item(end), end, len(z) - 1
+    while 0 <= j + inward <= last and abs(z.item(j + inward) - depth) <= tolerance_m:
         j += inward
     return j
 
