@@ -486,9 +486,9 @@ def _runs(
     idx = inliers.nonzero()[0]
     if len(idx) < 2:
         return [idx] if len(idx) else []
+    if idx.item(-1) - idx.item(0) == len(idx) - 1:
+        return [idx]  # no outlier between the inliers (most lines' runs): no gap to measure
     skip = (idx[1:] - idx[:-1] > 1).nonzero()[0]
-    if not len(skip):
-        return [idx]
     # The inliers either side of each gap, and their squared distance, in Python floats:
     # a line has a few gaps, and numpy's calls on arrays that short cost more than the sums
     # (the same sums as squared_norms, in the same order). Both ends' points in one gather.
@@ -636,11 +636,15 @@ def _second_lines(
 
 
 def _prepare_lines(
-    angles: list[float], raw: list[np.ndarray], params: LaserParams
+    angles: list[float],
+    raw: list[np.ndarray],
+    params: LaserParams,
+    joined: np.ndarray | None = None,
 ) -> list[LineModels]:
     """Each line's points sorted along it, in its plane as (s, z), and the segment the optical
     axis pierces (split at jumps of more than ``segment_gap_m``), or the reason it has none.
-    All lines in one pass over their concatenated points."""
+    All lines in one pass over their concatenated points (``joined``: ``raw`` concatenated,
+    where the caller has it)."""
     need = params.min_points_per_line
     lines = [
         LineModels(index=i, angle=a, total=len(p))
@@ -655,7 +659,10 @@ def _prepare_lines(
     if not ok:
         return lines
     counts = [line.total for line in ok]
-    points = np.concatenate([raw[line.index] for line in ok])
+    if joined is not None and len(ok) == len(lines):
+        points = joined
+    else:
+        points = np.concatenate([raw[line.index] for line in ok])
     c = np.array([math.cos(line.angle) for line in ok]).repeat(counts)
     s_ = np.array([math.sin(line.angle) for line in ok]).repeat(counts)
     s = points[:, 0] * c + points[:, 1] * s_
@@ -2823,9 +2830,11 @@ def analyse_lines(
     raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
-    if raw and not np.isfinite(np.concatenate(raw)).all():
+    joined = np.concatenate(raw) if raw else None
+    # The ufunc's reduce, not ndarray.all's Python wrapper.
+    if joined is not None and not np.logical_and.reduce(np.isfinite(joined), axis=None):
         raise ValueError("scan_lines.points must be finite")
-    lines = _prepare_lines(angles.tolist(), raw, params)
+    lines = _prepare_lines(angles.tolist(), raw, params, joined)
     if any(ln.reason for ln in lines):
         # A line the optical axis does not pierce (or too short) already decides the frame:
         # no shape. While the hand is still aiming this is most frames; fit nothing.
