@@ -3314,8 +3314,9 @@ def _support_plane(
     mask = find_support_plane(points, search, _support_rng(), beside.hypotheses)
     if mask is None:
         return None
-    owner = np.repeat(beside.owners, beside.counts).compress(mask)
-    far = np.repeat(beside.far, beside.counts).compress(mask)
+    # The arrays' method: np.repeat of a list goes through its wrapper's fallback (5 -> 2 us).
+    owner = np.array(beside.owners).repeat(beside.counts).compress(mask)
+    far = np.array(beside.far).repeat(beside.counts).compress(mask)
     per_line = np.bincount(owner, minlength=len(lines))
     per_line_far = np.bincount(owner.compress(far), minlength=len(lines))
     shown = (per_line >= min_line_points) | (per_line_far >= _SUPPORT_MIN_FAR_POINTS)

@@ -574,7 +574,7 @@ def residual_correlation(
     sin = np.array([math.sin(phi) for phi, _ in kept], dtype=joined.dtype).repeat(counts)
     s = joined[:, 0] * cos + joined[:, 1] * sin
     # Steps across the joins between lines are no line's: passed over below.
-    gaps = np.flatnonzero(squared_steps(joined) > segment_gap_m**2).tolist()
+    gaps = (squared_steps(joined) > segment_gap_m**2).nonzero()[0].tolist()
     starts: list[int] = []
     offset = 0
     for n in counts:
@@ -600,11 +600,14 @@ def residual_correlation(
     q = _orthonormal_columns(vander)
     r = z_all - np.einsum("pij,pj->pi", q, np.einsum("pij,pi->pj", q, z_all))
     power = np.einsum("pi,pi->p", r, r)
-    keep = (np.abs(r).max(axis=1) <= smooth_m) & (power > 0)
-    if not keep.any():
+    # The ufuncs' reductions, not the methods' and np.mean's Python wrappers (the same
+    # maximum; the same sum over the same count, in the points' precision).
+    keep = (np.maximum.reduce(np.abs(r), axis=1) <= smooth_m) & (power > 0)
+    if not np.logical_or.reduce(keep):
         return 0.0
     lag1 = np.einsum("pi,pi->p", r[keep, :-1], r[keep, 1:])
-    return float(np.mean(lag1 / power[keep]) * piece / (piece - 1))
+    shares = lag1 / power[keep]
+    return float(np.add.reduce(shares) / len(shares) * piece / (piece - 1))
 
 
 def _orthonormal_columns(a: np.ndarray) -> np.ndarray:
