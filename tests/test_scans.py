@@ -13,6 +13,7 @@ from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
 from lpc_core.perception.scans import (
     ScanLines,
     ScanParams,
+    _orthonormal_columns,
     capture_points,
     cut_scan_lines,
     past_line_ends,
@@ -341,3 +342,18 @@ def test_residual_correlation_takes_the_lines_at_once_to_the_bit() -> None:
         want = np.float64(_correlation_line_by_line(angles, lines))
         got = np.float64(residual_correlation(angles, lines))
         assert got.view(np.int64) == want.view(np.int64)
+
+
+def test_orthonormal_columns_is_qr_to_the_bit() -> None:
+    """The Q of ``np.linalg.qr`` without its R: the same bits in double and single precision,
+    and a stack that is not all finite gives what ``qr`` gives."""
+    rng = np.random.default_rng(5)
+    for shape in ((1, 20, 3), (37, 20, 3), (4, 7, 2)):
+        a = rng.normal(size=shape)
+        for m in (a, a.astype(np.float32)):
+            got, want = _orthonormal_columns(m), np.linalg.qr(m)[0]
+            assert got.dtype == want.dtype
+            assert got.tobytes() == want.tobytes()
+    a = rng.normal(size=(3, 20, 3))
+    a[1, 4, 2] = np.inf
+    np.testing.assert_array_equal(_orthonormal_columns(a), np.linalg.qr(a)[0])

