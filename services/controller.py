@@ -30,11 +30,13 @@ from services.drivers.emg import load_emg_profile
 from services.runtime import Bus, Subscription, Ticks, service_main, service_parser
 
 TICK_NS = 10_000_000
-INPUTS = {EMG: False, HAND: True}  # key -> newest only
-# Stepped when the controller next steps for one of INPUTS or its tick (within 10 ms), not on
-# arrival: the commands follow the hand's status anyway, and each grasp target woke the
-# control loop on its own (90 a second, from the reconstructor's result on the main loop).
-VISION = (TARGET, "lpc/aim/cue")
+# Stepped when the controller next steps for the hand's status or its tick (within 10 ms), not
+# on arrival, every one in the order and at the time it arrived: the commands follow the hand's
+# status anyway. Each grasp target woke the control loop on its own (90 a second, from the
+# reconstructor's result on the main loop); each EMG sample (the simulated user's, published
+# on the same loop at the tick) cost a task wake-up and an event-loop pass of its own, 100 a
+# second, to step what the next status or tick would have stepped first anyway.
+QUEUED = (EMG, TARGET, "lpc/aim/cue")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -102,13 +104,17 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             if isinstance(out, ControllerState) and out.event:
                 bus.log("info", f"{out.previous} -> {out.state} on {out.event}: {out.reason}")
 
-    # Every target and cue, in order (FIFO), at the time it arrived; they wake no one.
-    vision = [bus.subscribe(k, latest=False, capacity=64, prompt=False) for k in VISION]
+    # Every EMG sample, target and cue, in order (FIFO), at the time it arrived; they wake no
+    # one. EMG keeps the default capacity: the detector's timing rules need every sample.
+    queues = [
+        bus.subscribe(k, latest=False, capacity=4096 if k == EMG else 64, prompt=False)
+        for k in QUEUED
+    ]
 
     def step(t_ns: int, message: object) -> None:
-        # The vision messages queued meanwhile go first, in the order they arrived and at the
-        # time they did, as they were stepped when each woke a task of its own.
-        queued = [got for sub in vision for got in sub.take_queued()]
+        # The messages queued meanwhile go first, in the order they arrived and at the time
+        # they did, as they were stepped when each woke a task of its own.
+        queued = [got for sub in queues for got in sub.take_queued()]
         queued.append(("", message, t_ns))
         for _, got, received_ns in sorted(queued, key=lambda got: got[2]):
             handle(received_ns, got)
@@ -120,12 +126,11 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             _, message, received_ns = await sub.receive()
             step(received_ns, message)
 
-    # EMG is FIFO: the detector's timing rules need every sample, in order.
-    subs = {key: bus.subscribe(key, latest=latest) for key, latest in INPUTS.items()}
+    hand = bus.subscribe(HAND, latest=True)
     # Started on the clock's 10 ms grid, as the EMG service's samples are, and both paced by
     # the hand's status: the control loop's two 100 Hz timers fire in the pass that hands the
     # status over, one wake-up a period where there were two (three before the shared grid).
-    timer = Ticks(bus, TICK_NS, pacing=subs[HAND])
+    timer = Ticks(bus, TICK_NS, pacing=hand)
 
     async def ticks() -> None:
         t_ns = bus.clock.now_ns() // TICK_NS * TICK_NS
@@ -140,8 +145,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 bus.health.counters["late_ticks"] += 1
             step(fired_ns, Tick(fired_ns))
 
-    tasks = [asyncio.create_task(pump(sub)) for sub in subs.values()]
-    tasks.append(asyncio.create_task(ticks()))
+    tasks = [asyncio.create_task(pump(hand)), asyncio.create_task(ticks())]
     try:
         # Any task's failure ends the service (its supervisor restarts it).
         await asyncio.gather(*tasks)

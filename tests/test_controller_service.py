@@ -236,13 +236,14 @@ def test_emg_service_sim_user_perceives_at_its_tick_in_one_task(
     assert times == sorted(times) and times[-1] <= stepped[first + 6][2] + 10_000_000
 
 
-def test_controller_steps_vision_with_its_next_input_and_no_vision_wakes_the_loop(
+def test_controller_steps_vision_and_emg_with_its_next_input_and_they_wake_no_one(
     endpoint: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Grasp targets and aim cues wake neither the control loop nor a task (main: a task each,
-    and a target from the main loop's reconstructor result woke the loop, 90 a second); the
-    controller steps them before its next hand status, EMG sample or tick, every one in the
-    order it arrived and at the time it did."""
+    """Grasp targets, aim cues and EMG samples wake neither the control loop nor a task (a
+    task each once, and a target from the main loop's reconstructor result woke the loop, 90
+    a second; an EMG sample from the simulated user on the same loop cost a task wake-up and a
+    loop pass, 100 a second); the controller steps them before its next hand status or tick,
+    every one in the order it arrived and at the time it did."""
     stepped: list[tuple[str, int, int]] = []
 
     def controller_step(core, message, now_ns):  # type: ignore[no-untyped-def]
@@ -266,7 +267,7 @@ def test_controller_steps_vision_with_its_next_input_and_no_vision_wakes_the_loo
             emg.serve(buses[1], argparse.Namespace(source="sim", seed=0, no_wrist=False))
         )
         await asyncio.sleep(0.03)
-        wakes = [router._wakes(k) for k in ("lpc/grasp/target", "lpc/aim/cue")]
+        wakes = [router._wakes(k) for k in ("lpc/emg", "lpc/grasp/target", "lpc/aim/cue")]
         start = len(stepped)
         for seq in range(1, 4):  # as the main loop's aim and reconstructor would
             cue = AimCue(seq=seq, t_ns=time.time_ns(), frame_seq=seq, state="on_target")
@@ -286,14 +287,19 @@ def test_controller_steps_vision_with_its_next_input_and_no_vision_wakes_the_loo
         return tasks, wakes
 
     tasks, wakes = asyncio.run(main())
-    assert tasks == 4  # serve, EMG, the hand's status, the tick (main: 6)
-    assert wakes == [False, False]
+    assert tasks == 3  # serve, the hand's status, the tick (809f0bd: 4, with EMG's)
+    assert wakes == [False, False, False]  # 809f0bd: [True, False, False]
     vision = [(kind, seq) for kind, seq, _ in stepped if kind in ("AimCue", "GraspTarget")]
     assert vision == [(k, s) for s in range(1, 4) for k in ("AimCue", "GraspTarget")]
     first = next(i for i, (kind, _, _) in enumerate(stepped) if kind in ("AimCue", "GraspTarget"))
     times = [t for _, _, t in stepped[first : first + 6]]
     assert times == sorted(times)
     assert stepped[first + 6][0] in ("Tick", "EmgSample", "ProsthesisState")
+    # Every EMG sample stepped in order, each before the status or tick that took it, at the
+    # time it arrived: the controller's time never went back.
+    assert [t for _, _, t in stepped] == sorted(t for _, _, t in stepped)
+    emg_seqs = [seq for kind, seq, _ in stepped if kind == "EmgSample"]
+    assert len(emg_seqs) >= 3 and emg_seqs == sorted(emg_seqs)
 
 
 def test_control_loop_ticks_follow_the_hands_status(
