@@ -656,6 +656,33 @@ def test_beyond_edges_drops_a_walk_along_the_rows_that_keeps_the_edges_depth() -
     assert len(beyond) == 1
 
 
+def test_beyond_edges_walks_no_step_across_a_rows_gap_wider_than_the_fattening() -> None:
+    """Past a box's side a matcher left a row's pixels unmatched, more of them than its
+    window's reach fills, and carried the face's disparity on past them: the walk along the
+    rows stops at the gap (SGBM 5, the box tilted left, trial 0 frame 2: 7.1 mm too wide with
+    the fill past the gap kept as a bevel, 0.2 so). What is left of it, no longer than the
+    fattening, is the smear. A gap no wider than the fattening does not stop it, nor does one
+    on a vertical line (a block matcher's holes on the hexagonal prism's steep next face)."""
+    params = replace(LaserParams(), edge_fattening_px=3.0)
+
+    def walk(degrees: float, gap: int) -> tuple[int, bool]:
+        line, face = _face_then_flat(math.radians(degrees), flat=12)
+        z = line.points[:, 2].copy()
+        z[20:] += 0.0006 * np.arange(1, 13)  # falling away from the face: a bevel's shape
+        scale = z / line.points[:, 2]
+        keep = np.r_[0:21, 21 + gap : len(z)]
+        line = replace(line, points=(line.points * scale[:, None])[keep],
+                       sz=(line.sz * scale[:, None])[keep])  # fmt: skip
+        beyond, smeared = _beyond_edges([line], face, params)
+        return len(beyond), smeared
+
+    assert walk(0.0, 5) == (0, True)
+    assert walk(180.0, 5) == (0, True)
+    assert walk(0.0, 0) == (1, False)
+    assert walk(0.0, 3) == (1, False)
+    assert walk(90.0, 5) == (1, False)
+
+
 def test_a_hole_the_optical_axis_pierces_joins_the_segments_either_side() -> None:
     """A block matcher's hole where the optical axis pierces a round (the jar cap from the
     front under BM 9, trial 0 frame 0: no samples from 3 mm left of the axis to 7 mm right of
