@@ -438,6 +438,10 @@ class LineModels:
     # Median change of s/z between neighbouring samples of the run (``step``), computed when
     # first asked for: only a cuboid's seeds use it.
     _step: float | None = field(default=None, repr=False)
+    # The segment's end plateaus (``_end_plateaus``) with the ``sz`` they were read from.
+    _end_plateaus: tuple[np.ndarray, tuple[int, int]] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
 
     @property
     def step(self) -> float:
@@ -4326,7 +4330,7 @@ def _near_rim_ends(
     slack = {}
     for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True):
         last = len(ln.points) - 1
-        if k in (0, last) and _fattened_end(ln.sz[:, 1], k, 1 if k == 0 else -1) != k:
+        if k in (0, last) and _fattened_end(ln, 0 if k == 0 else 1) != k:
             slack[sign] = _NEAR_RIM_SLACK_PX * pixel_rad
         elif k in (0, last) and _smoothed_rim(ln, k, full, pixel_rad):
             # A window that smoothed the rim mixed it with the background both ways: on
@@ -4545,21 +4549,35 @@ def _fattened(lines: list[LineModels]) -> bool:
     SGBM 7), while the points' median radial error is under 0.5 mm."""
     count = 0
     for ln in lines:
-        z = ln.sz[:, 1]
-        for end, inward in ((0, 1), (len(z) - 1, -1)):
-            count += _fattened_end(z, end, inward) != end
+        last = len(ln.sz) - 1
+        count += (_fattened_end(ln, 0) != 0) + (_fattened_end(ln, 1) != last)
     return count >= _FATTENED_ENDS
 
 
-def _fattened_end(z: np.ndarray, end: int, inward: int) -> int:
-    """The last sample of the plateau that ends a segment at ``end`` (walking ``inward``, +1
-    or -1, along its depths ``z``) where that end shows a matcher's fattening, else ``end``:
-    three or more samples within the depth quantum (``_plateau_end``), then a rim, the surface
-    nearer by two quanta or more over as many samples again inward."""
-    j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+def _end_plateaus(ln: LineModels) -> tuple[int, int]:
+    """``_plateau_end`` within ``_END_PLATEAU_M`` from the first and from the last sample of
+    ``ln``'s segment, read once a segment: the round rules ask for them up to four times."""
+    cached = ln._end_plateaus
+    if cached is not None and cached[0] is ln.sz:
+        return cached[1]
+    z = ln.sz[:, 1]
+    ends = (_plateau_end(z, 0, 1, _END_PLATEAU_M), _plateau_end(z, len(z) - 1, -1, _END_PLATEAU_M))
+    ln._end_plateaus = (ln.sz, ends)
+    return ends
+
+
+def _fattened_end(ln: LineModels, side: int) -> int:
+    """The last sample of the plateau that ends ``ln``'s segment at its first (``side`` 0)
+    or last (1) sample where that end shows a matcher's fattening, else that end: three or
+    more samples within the depth quantum (``_end_plateaus``), then a rim, the surface nearer
+    by two quanta or more over as many samples again inward."""
+    z = ln.sz[:, 1]
+    end, inward = (len(z) - 1, -1) if side else (0, 1)
+    j = _end_plateaus(ln)[side]
     span = abs(j - end)
     k = j + inward * span
-    if span >= 2 and 0 <= k < len(z) and z[j] - z[k] >= 2 * _END_PLATEAU_M:
+    # Python floats (``item``): the same difference as numpy's scalars, at half the cost.
+    if span >= 2 and 0 <= k < len(z) and z.item(j) - z.item(k) >= 2 * _END_PLATEAU_M:
         return j
     return end
 
@@ -4569,10 +4587,9 @@ def _fattened_samples(lines: list[LineModels]) -> np.ndarray:
     segment and shows a matcher's fattening (``_fattened_end``)."""
     marks = []
     for ln in lines:
-        z = ln.sz[:, 1]
-        mark = np.zeros(len(z), dtype=bool)
-        for end, inward in ((0, 1), (len(z) - 1, -1)):
-            j = _fattened_end(z, end, inward)
+        mark = np.zeros(len(ln.sz), dtype=bool)
+        for side, end in enumerate((0, len(ln.sz) - 1)):
+            j = _fattened_end(ln, side)
             if j != end:
                 mark[min(j, end) : max(j, end) + 1] = True
         marks.append(mark)
@@ -4595,12 +4612,9 @@ def _plateau_free(
     kept = []
     trimmed = False
     for ln in lines:
-        z = ln.sz[:, 1]
-        last = len(z) - 1
-        keep = np.zeros(len(z), dtype=bool)
+        keep = np.zeros(len(ln.sz), dtype=bool)
         keep[ln.run] = True
-        for end, inward in ((0, 1), (last, -1)):
-            j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+        for end, j in zip((0, len(ln.sz) - 1), _end_plateaus(ln), strict=True):
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
                 trimmed = True
