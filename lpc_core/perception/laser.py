@@ -2613,7 +2613,8 @@ def _occlusion_side_fill(
 
 
 def _canonical_axis(axis: np.ndarray) -> np.ndarray:
-    axis = axis / np.linalg.norm(axis)
+    # np.linalg.norm of a 1-D vector is this root of its dot product, without its checks.
+    axis = axis / math.sqrt(float(axis @ axis))
     i = int(np.argmax(np.abs(axis)))
     return -axis if axis[i] < 0 else axis
 
@@ -3646,7 +3647,7 @@ def _across_view(solid: CylinderSolid, points: np.ndarray) -> np.ndarray | None:
     the cross-section (the plane across the axis), from the foot of the axis's perpendicular
     through the camera; ``None`` when the axis passes through the camera."""
     foot = solid.point - (solid.point @ solid.axis) * solid.axis
-    norm = float(np.linalg.norm(foot))
+    norm = math.sqrt(float(foot @ foot))
     if norm < 1e-9:
         return None
     towards = foot / norm
@@ -4111,7 +4112,7 @@ def _axis_in_view(solid: CylinderSolid) -> tuple[float, float] | None:
     """The distance from the camera to ``solid``'s axis and the half-angle its silhouette
     subtends across the axis; ``None`` where the camera lies within the round."""
     foot = solid.point - float(solid.point @ solid.axis) * solid.axis
-    distance = float(np.linalg.norm(foot))
+    distance = math.sqrt(float(foot @ foot))
     if distance <= solid.radius:
         return None
     return distance, math.asin(solid.radius / distance)
