@@ -3544,7 +3544,8 @@ def _camera_facing(
         residuals = None  # those of the refit, next pass
         if np.count_nonzero(trusted) < need:
             break
-        if solid is not full and np.array_equal(trusted, keep):
+        # Two boolean masks of clean's length: np.array_equal's own test, without its checks.
+        if solid is not full and bool((trusted == keep).all()):
             # The trim has settled: it keeps the points the refit was fitted on, and the passes
             # left would refit them again, which moves the radius by at most _SETTLED_M (see
             # there). A refit that far inside the tolerance still would be: the solid stands.
