@@ -3731,7 +3731,7 @@ def _rim_free(
     unfattened = ~fattened
     # Samples that run on past the round only in a window's smear toward a background far
     # behind (see _smeared_past) show no support the round's segment goes on onto.
-    counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines)
+    counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines, samples, residuals)
     # The samples at the rims the lines show: on the round, not smeared past it, nor in a
     # plateau or ramp a window carried past a rim (_past_rims).
     on_full = residuals <= 4 * thr
@@ -3875,7 +3875,8 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
         count = min(_RIM_RISE_SAMPLES, len(run) // 3)
         if count >= 2:
             for end in (run[:count][::-1], run[-count:]):  # each from inside outward
-                rise = np.diff(z[end])
+                depths = z[end]
+                rise = depths[1:] - depths[:-1]  # np.diff's own subtraction, without its wrapper
                 steepest = float(rise.max())
                 if steepest > 0:
                     rim = int(np.flatnonzero(rise >= _RIM_RISE * steepest)[-1])
@@ -3911,17 +3912,20 @@ def _smeared_past(
     params: LaserParams,
     pixel_rad: float,
     scan_lines: ScanLinesLike | None,
+    samples: np.ndarray,
+    residuals: np.ndarray,
 ) -> np.ndarray:
-    """Whether each of the lines' samples (laid end to end) lies off ``full`` (beyond four
-    inlier bands) past the line's last inlier toward a segment end that is an occluding edge
-    before a background more than ``full``'s diameter behind it, or before nothing (the
-    line's own samples beyond the segment within ``background_reach_px``, else the scans'
-    ``past_ends_m``, as ``_occluding_rims`` reads them), or none of them farther than the last
-    inlier by more than the depth quantum (``_END_PLATEAU_M``), whatever lies past the end,
-    where that inlier is a rim beside the round: not within ``_RIM_PX`` (of its pixel
-    footprint) of the round's ends along its axis, where its base may stand on a support
-    whose near side comes nearer past the contact (the jar cap from the front, SGBM 5: the
-    table 29 mm nearer over 17 samples; marked, its band came out 45 mm for 60, unmarked 71).
+    """Whether each of the lines' ``samples`` (laid end to end, ``full``'s ``residuals`` on
+    them) lies off ``full`` (beyond four inlier bands) past the line's last inlier toward a
+    segment end that is an occluding edge before a background more than ``full``'s diameter
+    behind it, or before nothing (the line's own samples beyond the segment within
+    ``background_reach_px``, else the scans' ``past_ends_m``, as ``_occluding_rims`` reads
+    them), or none of them farther than the last inlier by more than the depth quantum
+    (``_END_PLATEAU_M``), whatever lies past the end, where that inlier is a rim beside the
+    round: not within ``_RIM_PX`` (of its pixel footprint) of the round's ends along its axis,
+    where its base may stand on a support whose near side comes nearer past the contact (the jar
+    cap from the front, SGBM 5: the table 29 mm nearer over 17 samples; marked, its band came
+    out 45 mm for 60, unmarked 71).
 
     Such samples are a matcher's smear from the rim toward the far background, whose depth
     its smoothness carries over a few pixels (they part from the fit by about 1 mm a pixel),
@@ -3930,8 +3934,7 @@ def _smeared_past(
     marks = []
     past = getattr(scan_lines, "past_ends_m", None)
     reach = params.background_reach_px * pixel_rad
-    samples = np.concatenate([ln.points for ln in lines])
-    along = (samples @ full.axis).compress(full.residuals(samples) <= 4 * params.solid_threshold_m)
+    along = (samples @ full.axis).compress(residuals <= 4 * params.solid_threshold_m)
     lowest, highest = (float(along.min()), float(along.max())) if len(along) else (0.0, 0.0)
     for ln in lines:
         mark = np.zeros(len(ln.points), dtype=bool)
