@@ -452,3 +452,28 @@ def test_the_box_tilted_left_drops_a_rows_fill_past_its_side_facing_minus_x(
     truth = view.truth.grasp_width_m
     assert before.grasp_width_m - truth > 0.020
     assert 0.0 < result.grasp_width_m - truth < 0.009
+
+
+def test_a_segments_end_plateaus_are_read_again_when_its_samples_are_replaced() -> None:
+    """``laser._end_plateaus`` keeps a line's two end plateaus for the round rules that read
+    them (``_fattened``, ``_fattened_samples``, ``_plateau_free``) but reads them again from
+    samples that replaced the line's (a hole joined across, ``_across_pierced_hole``), and a
+    fattened end is a plateau of three or more samples, then a rim two quanta nearer."""
+    q = laser._END_PLATEAU_M
+    # Depths (m): a 4-sample plateau at 0.300, a rim 2 quanta nearer a sample for 5 samples,
+    # the crest, and a last end that falls off with no plateau.
+    z = np.array([0.300] * 4 + [0.300 - 2 * q * k for k in range(1, 6)] + [0.290, 0.295, 0.300])
+    ln = laser.LineModels(index=0, angle=0.0, total=len(z))
+    ln.sz = np.column_stack([np.zeros(len(z)), z])
+    assert laser._end_plateaus(ln) == (3, len(z) - 1)
+    assert laser._fattened_end(ln, 0) == 3
+    assert laser._fattened_end(ln, 1) == len(z) - 1
+    # Replaced by samples whose first end is flat for two samples only: no fattening there.
+    flat2 = np.concatenate([[0.300, 0.300], z[4:]])
+    ln.sz = np.column_stack([np.zeros(len(flat2)), flat2])
+    assert laser._end_plateaus(ln) == (
+        laser._plateau_end(flat2, 0, 1, q),
+        laser._plateau_end(flat2, len(flat2) - 1, -1, q),
+    )
+    assert laser._end_plateaus(ln)[0] == 1
+    assert laser._fattened_end(ln, 0) == 0

@@ -438,6 +438,10 @@ class LineModels:
     # Median change of s/z between neighbouring samples of the run (``step``), computed when
     # first asked for: only a cuboid's seeds use it.
     _step: float | None = field(default=None, repr=False)
+    # The segment's end plateaus (``_end_plateaus``) with the ``sz`` they were read from.
+    _end_plateaus: tuple[np.ndarray, tuple[int, int]] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
 
     @property
     def step(self) -> float:
@@ -2636,7 +2640,8 @@ def _occlusion_side_fill(
 
 
 def _canonical_axis(axis: np.ndarray) -> np.ndarray:
-    axis = axis / np.linalg.norm(axis)
+    # np.linalg.norm of a 1-D vector is this root of its dot product, without its checks.
+    axis = axis / math.sqrt(float(axis @ axis))
     i = int(np.argmax(np.abs(axis)))
     return -axis if axis[i] < 0 else axis
 
@@ -3590,7 +3595,8 @@ def _camera_facing(
         residuals = None  # those of the refit, next pass
         if np.count_nonzero(trusted) < need:
             break
-        if solid is not full and np.array_equal(trusted, keep):
+        # Two boolean masks of clean's length: np.array_equal's own test, without its checks.
+        if solid is not full and bool((trusted == keep).all()):
             # The trim has settled: it keeps the points the refit was fitted on, and the passes
             # left would refit them again, which moves the radius by at most _SETTLED_M (see
             # there). A refit that far inside the tolerance still would be: the solid stands.
@@ -3693,7 +3699,7 @@ def _across_view(solid: CylinderSolid, points: np.ndarray) -> np.ndarray | None:
     the cross-section (the plane across the axis), from the foot of the axis's perpendicular
     through the camera; ``None`` when the axis passes through the camera."""
     foot = solid.point - (solid.point @ solid.axis) * solid.axis
-    norm = float(np.linalg.norm(foot))
+    norm = math.sqrt(float(foot @ foot))
     if norm < 1e-9:
         return None
     towards = foot / norm
@@ -3776,7 +3782,7 @@ def _rim_free(
     unfattened = ~fattened
     # Samples that run on past the round only in a window's smear toward a background far
     # behind (see _smeared_past) show no support the round's segment goes on onto.
-    counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines)
+    counted = ~_smeared_past(lines, full, params, pixel_rad, scan_lines, samples, residuals)
     # The samples at the rims the lines show: on the round, not smeared past it, nor in a
     # plateau or ramp a window carried past a rim (_past_rims).
     on_full = residuals <= 4 * thr
@@ -3920,7 +3926,8 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
         count = min(_RIM_RISE_SAMPLES, len(run) // 3)
         if count >= 2:
             for end in (run[:count][::-1], run[-count:]):  # each from inside outward
-                rise = np.diff(z[end])
+                depths = z[end]
+                rise = depths[1:] - depths[:-1]  # np.diff's own subtraction, without its wrapper
                 steepest = float(rise.max())
                 if steepest > 0:
                     rim = int(np.flatnonzero(rise >= _RIM_RISE * steepest)[-1])
@@ -3956,17 +3963,20 @@ def _smeared_past(
     params: LaserParams,
     pixel_rad: float,
     scan_lines: ScanLinesLike | None,
+    samples: np.ndarray,
+    residuals: np.ndarray,
 ) -> np.ndarray:
-    """Whether each of the lines' samples (laid end to end) lies off ``full`` (beyond four
-    inlier bands) past the line's last inlier toward a segment end that is an occluding edge
-    before a background more than ``full``'s diameter behind it, or before nothing (the
-    line's own samples beyond the segment within ``background_reach_px``, else the scans'
-    ``past_ends_m``, as ``_occluding_rims`` reads them), or none of them farther than the last
-    inlier by more than the depth quantum (``_END_PLATEAU_M``), whatever lies past the end,
-    where that inlier is a rim beside the round: not within ``_RIM_PX`` (of its pixel
-    footprint) of the round's ends along its axis, where its base may stand on a support
-    whose near side comes nearer past the contact (the jar cap from the front, SGBM 5: the
-    table 29 mm nearer over 17 samples; marked, its band came out 45 mm for 60, unmarked 71).
+    """Whether each of the lines' ``samples`` (laid end to end, ``full``'s ``residuals`` on
+    them) lies off ``full`` (beyond four inlier bands) past the line's last inlier toward a
+    segment end that is an occluding edge before a background more than ``full``'s diameter
+    behind it, or before nothing (the line's own samples beyond the segment within
+    ``background_reach_px``, else the scans' ``past_ends_m``, as ``_occluding_rims`` reads
+    them), or none of them farther than the last inlier by more than the depth quantum
+    (``_END_PLATEAU_M``), whatever lies past the end, where that inlier is a rim beside the
+    round: not within ``_RIM_PX`` (of its pixel footprint) of the round's ends along its axis,
+    where its base may stand on a support whose near side comes nearer past the contact (the jar
+    cap from the front, SGBM 5: the table 29 mm nearer over 17 samples; marked, its band came
+    out 45 mm for 60, unmarked 71).
 
     Such samples are a matcher's smear from the rim toward the far background, whose depth
     its smoothness carries over a few pixels (they part from the fit by about 1 mm a pixel),
@@ -3975,8 +3985,7 @@ def _smeared_past(
     marks = []
     past = getattr(scan_lines, "past_ends_m", None)
     reach = params.background_reach_px * pixel_rad
-    samples = np.concatenate([ln.points for ln in lines])
-    along = (samples @ full.axis).compress(full.residuals(samples) <= 4 * params.solid_threshold_m)
+    along = (samples @ full.axis).compress(residuals <= 4 * params.solid_threshold_m)
     lowest, highest = (float(along.min()), float(along.max())) if len(along) else (0.0, 0.0)
     for ln in lines:
         mark = np.zeros(len(ln.points), dtype=bool)
@@ -4158,7 +4167,7 @@ def _axis_in_view(solid: CylinderSolid) -> tuple[float, float] | None:
     """The distance from the camera to ``solid``'s axis and the half-angle its silhouette
     subtends across the axis; ``None`` where the camera lies within the round."""
     foot = solid.point - float(solid.point @ solid.axis) * solid.axis
-    distance = float(np.linalg.norm(foot))
+    distance = math.sqrt(float(foot @ foot))
     if distance <= solid.radius:
         return None
     return distance, math.asin(solid.radius / distance)
@@ -4377,7 +4386,7 @@ def _near_rim_ends(
     slack = {}
     for sign, (ln, k) in zip((-1.0, 1.0), outermost, strict=True):
         last = len(ln.points) - 1
-        if k in (0, last) and _fattened_end(ln.sz[:, 1], k, 1 if k == 0 else -1) != k:
+        if k in (0, last) and _fattened_end(ln, 0 if k == 0 else 1) != k:
             slack[sign] = _NEAR_RIM_SLACK_PX * pixel_rad
         elif k in (0, last) and _smoothed_rim(ln, k, full, pixel_rad):
             # A window that smoothed the rim mixed it with the background both ways: on
@@ -4596,21 +4605,35 @@ def _fattened(lines: list[LineModels]) -> bool:
     SGBM 7), while the points' median radial error is under 0.5 mm."""
     count = 0
     for ln in lines:
-        z = ln.sz[:, 1]
-        for end, inward in ((0, 1), (len(z) - 1, -1)):
-            count += _fattened_end(z, end, inward) != end
+        last = len(ln.sz) - 1
+        count += (_fattened_end(ln, 0) != 0) + (_fattened_end(ln, 1) != last)
     return count >= _FATTENED_ENDS
 
 
-def _fattened_end(z: np.ndarray, end: int, inward: int) -> int:
-    """The last sample of the plateau that ends a segment at ``end`` (walking ``inward``, +1
-    or -1, along its depths ``z``) where that end shows a matcher's fattening, else ``end``:
-    three or more samples within the depth quantum (``_plateau_end``), then a rim, the surface
-    nearer by two quanta or more over as many samples again inward."""
-    j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+def _end_plateaus(ln: LineModels) -> tuple[int, int]:
+    """``_plateau_end`` within ``_END_PLATEAU_M`` from the first and from the last sample of
+    ``ln``'s segment, read once a segment: the round rules ask for them up to four times."""
+    cached = ln._end_plateaus
+    if cached is not None and cached[0] is ln.sz:
+        return cached[1]
+    z = ln.sz[:, 1]
+    ends = (_plateau_end(z, 0, 1, _END_PLATEAU_M), _plateau_end(z, len(z) - 1, -1, _END_PLATEAU_M))
+    ln._end_plateaus = (ln.sz, ends)
+    return ends
+
+
+def _fattened_end(ln: LineModels, side: int) -> int:
+    """The last sample of the plateau that ends ``ln``'s segment at its first (``side`` 0)
+    or last (1) sample where that end shows a matcher's fattening, else that end: three or
+    more samples within the depth quantum (``_end_plateaus``), then a rim, the surface nearer
+    by two quanta or more over as many samples again inward."""
+    z = ln.sz[:, 1]
+    end, inward = (len(z) - 1, -1) if side else (0, 1)
+    j = _end_plateaus(ln)[side]
     span = abs(j - end)
     k = j + inward * span
-    if span >= 2 and 0 <= k < len(z) and z[j] - z[k] >= 2 * _END_PLATEAU_M:
+    # Python floats (``item``): the same difference as numpy's scalars, at half the cost.
+    if span >= 2 and 0 <= k < len(z) and z.item(j) - z.item(k) >= 2 * _END_PLATEAU_M:
         return j
     return end
 
@@ -4620,10 +4643,9 @@ def _fattened_samples(lines: list[LineModels]) -> np.ndarray:
     segment and shows a matcher's fattening (``_fattened_end``)."""
     marks = []
     for ln in lines:
-        z = ln.sz[:, 1]
-        mark = np.zeros(len(z), dtype=bool)
-        for end, inward in ((0, 1), (len(z) - 1, -1)):
-            j = _fattened_end(z, end, inward)
+        mark = np.zeros(len(ln.sz), dtype=bool)
+        for side, end in enumerate((0, len(ln.sz) - 1)):
+            j = _fattened_end(ln, side)
             if j != end:
                 mark[min(j, end) : max(j, end) + 1] = True
         marks.append(mark)
@@ -4646,12 +4668,9 @@ def _plateau_free(
     kept = []
     trimmed = False
     for ln in lines:
-        z = ln.sz[:, 1]
-        last = len(z) - 1
-        keep = np.zeros(len(z), dtype=bool)
+        keep = np.zeros(len(ln.sz), dtype=bool)
         keep[ln.run] = True
-        for end, inward in ((0, 1), (last, -1)):
-            j = _plateau_end(z, end, inward, _END_PLATEAU_M)
+        for end, j in zip((0, len(ln.sz) - 1), _end_plateaus(ln), strict=True):
             if j != end:
                 keep[min(j, end) : max(j, end) + 1] = False
                 trimmed = True

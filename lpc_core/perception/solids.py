@@ -86,17 +86,18 @@ def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
     n = len(uv)
     # (u, v, u^2 + v^2) about the mean as contiguous rows (3, N).
     rows = np.ascontiguousarray(uv.T)
-    mean = rows.sum(axis=1) / n
+    # np.add.reduce: ndarray.sum's own reduction, without its Python wrapper.
+    mean = np.add.reduce(rows, axis=1) / n
     d = np.empty((3, n))
     np.subtract(rows, mean[:, None], out=d[:2])
     np.add(d[0] * d[0], d[1] * d[1], out=d[2])
-    scale2 = float(d[2].sum()) / n
+    scale2 = float(np.add.reduce(d[2])) / n
     if not (math.isfinite(scale2) and scale2 > 0):
         return None
     # The normal equations of [2u, 2v, 1] . sol = u^2 + v^2 on the points scaled to unit RMS,
     # from the moments of (u, v, u^2 + v^2) in one product (scaled afterwards, in floats).
     (guu, guv, guz), (_, gvv, gvz), (_, _, _) = (d @ d.T).tolist()
-    su, sv, sz = d.sum(axis=1).tolist()
+    su, sv, sz = np.add.reduce(d, axis=1).tolist()
     k1, k2 = 1.0 / math.sqrt(scale2), 1.0 / scale2
     guu, guv, gvv, su, sv = guu * k2, guv * k2, gvv * k2, su * k1, sv * k1
     guz, gvz, sz = guz * k1 * k2, gvz * k1 * k2, sz * k2
