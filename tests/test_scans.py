@@ -357,3 +357,12 @@ def test_orthonormal_columns_is_qr_to_the_bit() -> None:
     a = rng.normal(size=(3, 20, 3))
     a[1, 4, 2] = np.inf
     np.testing.assert_array_equal(_orthonormal_columns(a), np.linalg.qr(a)[0])
+
+
+def test_orthonormal_columns_without_numpys_gufuncs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a numpy whose private gufuncs are not those of 2.x, ``np.linalg.qr`` itself."""
+    import lpc_core.perception.scans as scans
+
+    monkeypatch.setattr(scans, "_QR_R_RAW", None)
+    a = np.random.default_rng(6).normal(size=(5, 20, 3))
+    assert _orthonormal_columns(a).tobytes() == np.linalg.qr(a)[0].tobytes()

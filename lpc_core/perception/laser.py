@@ -3751,8 +3751,8 @@ def _rim_free(
     (``_rests_behind_rims``).
 
     The refit's silhouette lies within ``_RIM_PX`` of the rims the lines show on at least one
-    side, else it is widened to that (``_reaching_rims``; rims without what a window carried
-    past them, ``_past_rims``).
+    side, else it is widened until it lies that far inside them on the two sides' mean
+    (``_reaching_rims``; rims without what a window carried past them, ``_past_rims``).
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
@@ -3937,11 +3937,12 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
 
 
 def _reaching_rims(solid: CylinderSolid, rims: np.ndarray, pixel_rad: float) -> CylinderSolid:
-    """``solid`` widened about its axis's distance until its silhouette lies within
-    ``_RIM_PX`` of the outermost of ``rims`` on both sides, where it lies farther inside them
-    on both: the band a window bows a rim over (see ``_rim_free``) bounds how far inside its
-    own rims a round's samples can place its silhouette; a refit narrower than that took a
-    crest more curved than the round for the round."""
+    """``solid`` widened about its axis's distance, where its silhouette lies more than
+    ``_RIM_PX`` inside the outermost of ``rims`` on both sides, until it lies ``_RIM_PX``
+    inside them on the two sides' mean (the widening moves both sides alike): the band a
+    window bows a rim over (see ``_rim_free``) bounds how far inside its own rims a round's
+    samples can place its silhouette; a refit narrower than that took a crest more curved
+    than the round for the round."""
     view = _axis_in_view(solid)
     if view is None or len(rims) == 0:
         return solid

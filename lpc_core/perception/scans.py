@@ -20,7 +20,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from numpy.linalg import _umath_linalg
+
+try:  # numpy's private gufuncs behind np.linalg.qr: qr_r_raw from numpy 2.0 (1.x split it in two)
+    from numpy.linalg import _umath_linalg
+
+    _QR_R_RAW = getattr(_umath_linalg, "qr_r_raw", None)
+except ImportError:
+    _QR_R_RAW = None
 
 from lpc_core.perception.intrinsics import Intrinsics
 
@@ -615,11 +621,12 @@ def _orthonormal_columns(a: np.ndarray) -> np.ndarray:
     factorisation and the same Q built from it in double (the gufuncs ``qr`` calls), cast back
     to ``a``'s type, without the R that ``qr`` forms and drops (a ``triu``), its checks and
     its two error states (42 -> 20 us a call on a frame's pieces). Matrices that are not all
-    finite go through ``np.linalg.qr``, which raises or warns as it always did."""
-    if not np.isfinite(np.add.reduce(a, axis=None)):
+    finite go through ``np.linalg.qr``, which raises or warns as it always did, and so does
+    every matrix on a numpy without those gufuncs."""
+    if _QR_R_RAW is None or not np.isfinite(np.add.reduce(a, axis=None)):
         return np.linalg.qr(a)[0]
     work = a.astype(np.float64)  # a copy: the factorisation overwrites it
-    tau = _umath_linalg.qr_r_raw(work, signature="d->d")
+    tau = _QR_R_RAW(work, signature="d->d")
     return _umath_linalg.qr_reduced(work, tau, signature="dd->d").astype(a.dtype, copy=False)
 
 
