@@ -4060,7 +4060,7 @@ def _fattened_rims(
 ) -> bool:
     """Whether the round's two outermost samples (by ``angle``, among those within four inlier
     bands) each end their segment in a plateau of three or more samples within the depth
-    quantum (``_plateau_end``, as ``_fattened`` reads a segment's end): a round's depth changes
+    quantum (``_end_plateaus``, as ``_fattened`` reads a segment's end): a round's depth changes
     fastest at its silhouette, so the samples reached both rims and a matcher's window carried
     the rim's depth past them, as it pulled the arc inside them toward the camera."""
     on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
@@ -4069,8 +4069,7 @@ def _fattened_rims(
     for ln, k in _outermost_samples(lines, angle, on):
         if k not in (0, len(ln.points) - 1):
             return False  # the segment goes on past the round: no rim there
-        inward = 1 if k == 0 else -1
-        if abs(_plateau_end(ln.sz[:, 1], k, inward, _END_PLATEAU_M) - k) < 2:
+        if abs(_end_plateaus(ln)[0 if k == 0 else 1] - k) < 2:
             return False
     return True
 
