@@ -30,13 +30,14 @@ from services.drivers.emg import load_emg_profile
 from services.runtime import Bus, Subscription, Ticks, service_main, service_parser
 
 TICK_NS = 10_000_000
-# Stepped when the controller next steps for the hand's status or its tick (within 10 ms), not
-# on arrival, every one in the order and at the time it arrived: the commands follow the hand's
-# status anyway. Each grasp target woke the control loop on its own (90 a second, from the
-# reconstructor's result on the main loop); each EMG sample (the simulated user's, published
-# on the same loop at the tick) cost a task wake-up and an event-loop pass of its own, 100 a
-# second, to step what the next status or tick would have stepped first anyway.
-QUEUED = (EMG, TARGET, "lpc/aim/cue")
+# These and every EMG sample are stepped when the controller next steps for the hand's status
+# or its tick (within 10 ms), not on arrival, every one in the order and at the time it
+# arrived: the commands follow the hand's status anyway. Each grasp target woke the control
+# loop on its own (90 a second, from the reconstructor's result on the main loop); each EMG
+# sample (the simulated user's, published on the same loop at the tick) cost a task wake-up
+# and an event-loop pass of its own, 100 a second, to step what the next status or tick would
+# have stepped first anyway.
+VISION = (TARGET, "lpc/aim/cue")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -106,9 +107,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
 
     # Every EMG sample, target and cue, in order (FIFO), at the time it arrived; they wake no
     # one. EMG keeps the default capacity: the detector's timing rules need every sample.
-    queues = [
-        bus.subscribe(k, latest=False, capacity=4096 if k == EMG else 64, prompt=False)
-        for k in QUEUED
+    queues = [bus.subscribe(EMG, latest=False, prompt=False)] + [
+        bus.subscribe(k, latest=False, capacity=64, prompt=False) for k in VISION
     ]
 
     def step(t_ns: int, message: object) -> None:
