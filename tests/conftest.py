@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 import zenoh
 
+from schemas import decode
 from services.runtime import zenoh_config
 
 
@@ -49,6 +50,29 @@ async def until(condition: Callable[[], bool], timeout: float = 10.0, what: str 
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         await asyncio.sleep(0.005)
+
+
+class Listener:
+    """Decodes what arrives on ``keys`` into ``messages`` (and the arrival times into
+    ``received_ns``), on Zenoh's callback thread while the test reads them."""
+
+    def __init__(self, session: zenoh.Session, *keys: str) -> None:
+        self.messages: dict[str, list] = {k: [] for k in keys}
+        self.received_ns: dict[str, list[int]] = {k: [] for k in keys}
+        self._subs = [session.declare_subscriber(k, lambda s, k=k: self._on(k, s)) for k in keys]
+
+    def _on(self, key: str, sample: zenoh.Sample) -> None:
+        self.received_ns[key].append(time.monotonic_ns())
+        self.messages[key].append(decode(str(sample.key_expr), sample.payload.to_bytes()))
+
+    def snapshot(self, key: str) -> list:
+        """The messages so far, copied in one step: two passes over ``messages[key]`` itself
+        can see different lengths, since the callback thread appends between them."""
+        return list(self.messages[key])
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
 
 
 def spawn_service(module: str, endpoint: str, *args: str) -> subprocess.Popen[bytes]:

@@ -22,25 +22,11 @@ from schemas import (
     GraspTarget,
     ProsthesisCommand,
     ProsthesisState,
-    decode,
     encode,
 )
 from services import controller, emg
 from services.runtime import Bus, Router, zenoh_config
-from tests.conftest import spawn_service, wait_for
-
-
-class Listener:
-    def __init__(self, session: zenoh.Session, *keys: str) -> None:
-        self.messages: dict[str, list] = {k: [] for k in keys}
-        self._subs = [session.declare_subscriber(k, lambda s, k=k: self._on(k, s)) for k in keys]
-
-    def _on(self, key: str, sample: zenoh.Sample) -> None:
-        self.messages[key].append(decode(key, sample.payload.to_bytes()))
-
-    def close(self) -> None:
-        for sub in self._subs:
-            sub.undeclare()
+from tests.conftest import Listener, spawn_service, wait_for
 
 
 async def _shut_down(
@@ -175,7 +161,7 @@ def test_emg_service_sim_user_answers_the_ready_pulse(
             time.sleep(0.05)
         n = len(listen.messages["lpc/emg"])
         wait_for(lambda: len(listen.messages["lpc/emg"]) > n + 150, 10.0, "1.5 s more of EMG")
-        samples: list[EmgSample] = listen.messages["lpc/emg"]
+        samples: list[EmgSample] = listen.snapshot("lpc/emg")
         raw = np.array([s.channels for s in samples])
         t_ns = np.array([s.t_ns for s in samples])
         p = MuscleParams()

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import zenoh
 
-from schemas import EmgSample, decode
+from schemas import EmgSample
 from services.drivers.emg_lsl_sim import GAIN, SIM_ENVELOPE_V
 from services.drivers.emg_raw import BrainFlowEmg, LslEmg, brainflow_board_id, import_pylsl
 from services.drivers.errors import DeviceUnavailable, InitialisationError, OperationError
-from tests.conftest import spawn_service, wait_for
+from tests.conftest import Listener, spawn_service, wait_for
 
 MAV = np.sqrt(2 / np.pi)  # mean absolute value of a unit Gaussian
 
@@ -49,21 +49,6 @@ def outlet() -> Iterator[tuple[str, subprocess.Popen[bytes]]]:
     finally:
         process.terminate()
         process.wait(timeout=10)
-
-
-class Listener:
-    def __init__(self, session: zenoh.Session, *keys: str) -> None:
-        self.messages: dict[str, list] = {k: [] for k in keys}
-        self.received_ns: dict[str, list[int]] = {k: [] for k in keys}
-        self._subs = [session.declare_subscriber(k, lambda s, k=k: self._on(k, s)) for k in keys]
-
-    def _on(self, key: str, sample: zenoh.Sample) -> None:
-        self.received_ns[key].append(time.monotonic_ns())
-        self.messages[key].append(decode(str(sample.key_expr), sample.payload.to_bytes()))
-
-    def close(self) -> None:
-        for sub in self._subs:
-            sub.undeclare()
 
 
 def test_lsl_emg_maps_the_asked_channels(outlet: tuple[str, subprocess.Popen[bytes]]) -> None:
