@@ -368,9 +368,9 @@ SETTINGS: dict[str, Setting] = {
             "speckle_range": 1,
         },
     ),
-    # Held out from every helper of stop 39: only the lead's before -> after runs on them.
-    "fresh-bm9c": Setting(
-        "fresh",
+    # Held out from every helper of stop 39 (then its "fresh" group); studied from stop 40.
+    "bm9-c25": Setting(
+        "untuned",
         "BM 9, uniqueness 10, texture threshold 12, prefilter cap 25, 0.045 dots/px², "
         "a sixteenth pattern",
         rig={"dot_density": 0.045, "pattern_seed": 16},
@@ -382,16 +382,16 @@ SETTINGS: dict[str, Setting] = {
             "pre_filter_cap": 25,
         },
     ),
-    "fresh-sg5s": Setting(
-        "fresh",
+    "sg5-s150": Setting(
+        "untuned",
         "SGBM 5, P1 x 0.5 and P2 x 1.5, uniqueness 15, speckle window 150 of range 1, "
         "a seventeenth pattern",
         rig={"pattern_seed": 17},
         matcher={"block_size": 5, "uniqueness": 15, "speckle_window": 150, "speckle_range": 1},
         smoothness=(0.5, 1.5),
     ),
-    "fresh-b48": Setting(
-        "fresh",
+    "b48-p10": Setting(
+        "untuned",
         "SGBM 7, 48 mm baseline, projector 10 mm from the left imager, albedo 0.6, "
         "optics 0.55 px, an eighteenth pattern",
         rig={
@@ -402,8 +402,8 @@ SETTINGS: dict[str, Setting] = {
             "pattern_seed": 18,
         },
     ),
-    "fresh-hh5x2": Setting(
-        "fresh",
+    "hh5-x2": Setting(
+        "untuned",
         "SGBM 5, HH mode, IR 2x supersampled, 0.065 dots/px² of 0.5 px, 1.4 times the shot "
         "noise, read noise 1.8",
         rig={
@@ -415,8 +415,8 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"block_size": 5, "sgbm_mode": "hh"},
     ),
-    "fresh-3way7a": Setting(
-        "fresh",
+    "3way7-a": Setting(
+        "untuned",
         "SGBM 7, 3-way mode, uniqueness 6, left-right 2 px, 1.75 times the room light, "
         "dots of brightness 0.7-1, 75 % of the signal, a nineteenth pattern",
         rig={
@@ -426,6 +426,57 @@ SETTINGS: dict[str, Setting] = {
             "pattern_seed": 19,
         },
         matcher={"sgbm_mode": "3way", "uniqueness": 6, "disp12_max_diff": 2},
+    ),
+    # Held out from every helper of stop 40: only the lead's before -> after runs on them.
+    "fresh-bm7t": Setting(
+        "fresh",
+        "BM 7, uniqueness 8, texture threshold 6, prefilter cap 45, speckle window 60 of "
+        "range 3, 0.055 dots/px² of 0.65 px, a twentieth pattern",
+        rig={"dot_density": 0.055, "dot_sigma_px": 0.65, "pattern_seed": 20},
+        matcher={
+            "kind": "bm",
+            "block_size": 7,
+            "uniqueness": 8,
+            "texture_threshold": 6,
+            "pre_filter_cap": 45,
+            "speckle_window": 60,
+            "speckle_range": 3,
+        },
+    ),
+    "fresh-sg9w": Setting(
+        "fresh",
+        "SGBM 9, P1 x 1.25 and P2 x 2.5, uniqueness 12, left-right 3 px, dots of brightness "
+        "0.5-0.9, a twenty-first pattern",
+        rig={"dot_brightness": (0.5, 0.9), "pattern_seed": 21},
+        matcher={"block_size": 9, "uniqueness": 12, "disp12_max_diff": 3},
+        smoothness=(1.25, 2.5),
+    ),
+    "fresh-b56": Setting(
+        "fresh",
+        "SGBM 7, 56 mm baseline, projector 40 mm from the left imager, optics 0.7 px, "
+        "1.4 times the room light, 1.25 times the shot noise, a twenty-second pattern",
+        rig={
+            "baseline_m": 0.056,
+            "projector_x_m": 0.04,
+            "blur_sigma_px": 0.7,
+            "ambient": 0.11,
+            "electrons_per_dn": 8.0,
+            "pattern_seed": 22,
+        },
+    ),
+    "fresh-hh7d": Setting(
+        "fresh",
+        "SGBM 7, HH mode, albedo 0.65, 87 % of the signal, read noise 1.5, texture check 4, "
+        "a twenty-third pattern",
+        rig={"albedo": 0.65, "gain_dn": 280.0, "read_noise_dn": 1.5, "pattern_seed": 23},
+        matcher={"sgbm_mode": "hh", "min_texture": 4.0},
+    ),
+    "fresh-3way5x3": Setting(
+        "fresh",
+        "SGBM 5, 3-way mode, IR 3x supersampled, 0.05 dots/px² of 0.8 px, uniqueness 9, "
+        "speckle window 120, a twenty-fourth pattern",
+        rig={"supersample": 3, "dot_density": 0.05, "dot_sigma_px": 0.8, "pattern_seed": 24},
+        matcher={"block_size": 5, "sgbm_mode": "3way", "uniqueness": 9, "speckle_window": 120},
     ),
 }
 
