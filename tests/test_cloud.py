@@ -27,6 +27,7 @@ from lpc_core.perception.cloud import (
     _within_support,
     crop_points,
     estimate_normals,
+    find_support,
     find_support_plane,
     fit_cuboid,
     fit_cylinder,
@@ -45,7 +46,7 @@ if TYPE_CHECKING:
     from lpc_core.sim.stereo import StereoSensor
     from services.cli._laser_views import View
 from lpc_core.perception.intrinsics import Intrinsics
-from lpc_core.perception.solids import silhouette_distance
+from lpc_core.perception.solids import PlaneSolid, silhouette_distance
 
 INTR = Intrinsics()
 PARAMS = CloudParams()
@@ -201,6 +202,20 @@ def test_find_support_plane_removes_the_table_under_a_ball():
     on_table = cloud[:, 2] > 0.2285
     assert mask[on_table].mean() > 0.98
     assert mask[cloud[:, 2] < 0.22].mean() < 0.01  # the ball stays
+
+
+def test_find_support_gives_its_fit_of_the_support_points():
+    """Where the search's refit kept the points it was fitted on, ``find_support`` hands that
+    fit over: the plane ``PlaneSolid.estimate`` fits to the support's points, to the bit."""
+    depth = _frame(_hit_sphere((0.0, 0.0, 0.2), 0.03), _hit_plane((0, 0, 1), (0, 0, 0.23)))
+    cloud, _ = voxel_downsample(crop_points(depth, INTR, PARAMS), PARAMS.voxel_m)
+    found = find_support(cloud, PARAMS, np.random.default_rng(0))
+    assert found is not None and found.plane is not None
+    assert np.array_equal(found.mask, find_support_plane(cloud, PARAMS, np.random.default_rng(0)))
+    own = PlaneSolid.estimate(cloud[found.mask])
+    assert found.plane.point.tolist() == own.point.tolist()
+    assert found.plane.normal.tolist() == own.normal.tolist()
+    np.testing.assert_allclose(found.plane.normal, [0.0, 0.0, -1.0], atol=1e-3)  # the table
 
 
 def test_find_support_plane_skips_a_box_face_with_the_table_behind_it():

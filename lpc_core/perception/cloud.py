@@ -512,15 +512,24 @@ def _support_refit(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     frame of the aim step and every resting round). Where the points are (nearly) collinear,
     or their plane passes through the camera (one scan line's own plane: no side of it is
     behind the other), PlaneModel's own test and its SVD's sign decide, as before."""
-    if len(points) >= 3:
-        solid = PlaneSolid.estimate(points)
-        if solid:
-            normal = -solid.normal
-            offset = -float(normal @ solid.point)
-            if offset < -1e-9:
-                return normal, offset
+    return _support_fit(points)[0]
+
+
+def _support_fit(
+    points: np.ndarray,
+) -> tuple[tuple[np.ndarray, float] | None, PlaneSolid | None]:
+    """``_support_refit``'s plane, and the ``PlaneSolid`` fitted on the way (None where none
+    was, or it failed)."""
+    solid = PlaneSolid.estimate(points) if len(points) >= 3 else None
+    if not solid:
+        solid = None
+    else:
+        normal = -solid.normal
+        offset = -float(normal @ solid.point)
+        if offset < -1e-9:
+            return (normal, offset), solid
     model = PlaneModel.estimate(points)
-    return (model.normal, model.offset) if model else None
+    return ((model.normal, model.offset) if model else None), solid
 
 
 def _column_counts(hits: np.ndarray) -> np.ndarray:
@@ -579,13 +588,32 @@ def support_hypotheses(
     return SupportHypotheses(normals, offsets, valid, signed, sampled, behind, front - behind)
 
 
+class Support(NamedTuple):
+    """A support search's plane: its points (``mask``), and ``PlaneSolid.estimate`` of exactly
+    those points where the search fitted that on its way (``plane``), else ``None``."""
+
+    mask: np.ndarray
+    plane: PlaneSolid | None
+
+
 def find_support_plane(
     points: np.ndarray,
     params: CloudParams,
     rng: np.random.Generator,
     hypotheses: SupportHypotheses | None = None,
 ) -> np.ndarray | None:
-    """Mask of the supporting plane's points, or ``None`` when there is no such plane.
+    """Mask of the supporting plane's points (``find_support``'s), or ``None``."""
+    found = find_support(points, params, rng, hypotheses)
+    return None if found is None else found.mask
+
+
+def find_support(
+    points: np.ndarray,
+    params: CloudParams,
+    rng: np.random.Generator,
+    hypotheses: SupportHypotheses | None = None,
+) -> Support | None:
+    """The supporting plane's points (``Support``), or ``None`` when there is no such plane.
 
     The supporting plane is the largest plane that has (almost) no point behind it as seen from
     the camera: the table under an object qualifies; the front face of a box standing on it
@@ -607,10 +635,14 @@ def find_support_plane(
     best = int(np.where(ok, hypotheses.inliers, -1).argmax())
     signed_all = points @ normals[:, best] + offsets[best]
     mask = np.abs(signed_all) <= threshold
-    refit = _support_refit(points[mask])
+    refit, plane = _support_fit(points[mask])
     if refit is not None:
         signed_all = points @ refit[0] + refit[1]
-        mask = np.abs(signed_all) <= threshold
+        fitted, mask = mask, np.abs(signed_all) <= threshold
+        # The fit is the refit plane's own only where its points are those it was fitted on
+        # (about half the resting rounds' searches): the caller need not fit them again.
+        if plane is not None and not bool((mask == fitted).all()):
+            plane = None
     behind_all = np.count_nonzero(signed_all > threshold)
     # The hypothesis passed on the sample; the whole cloud may hold a little more behind by the
     # sample's chance alone: three standard deviations of the sampled fraction, with the finite
@@ -621,7 +653,7 @@ def find_support_plane(
     allowed = f + 3.0 * math.sqrt(f * (1.0 - f) / s * (n - s) / max(n - 1, 1))
     if np.count_nonzero(mask) < params.support_min_points or behind_all > allowed * n:
         return None
-    return mask
+    return Support(mask, plane)
 
 
 def grid_clusters(points: np.ndarray, cell_m: float) -> np.ndarray:
@@ -2058,9 +2090,11 @@ __all__ = [
     "FitModel",
     "PlaneModel",
     "SphereModel",
+    "Support",
     "SupportHypotheses",
     "crop_points",
     "estimate_normals",
+    "find_support",
     "find_support_plane",
     "fit_cuboid",
     "fit_cylinder",

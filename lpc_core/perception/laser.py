@@ -58,7 +58,7 @@ from lpc_core.perception.cloud import (
     SCAN_LINE_SUPPORT,
     CloudParams,
     SupportHypotheses,
-    find_support_plane,
+    find_support,
     support_hypotheses,
 )
 from lpc_core.perception.reconstruction import LineSummary, Reconstruction, median, wrap_half_turn
@@ -3402,7 +3402,7 @@ def _support_plane(
     """The support the lines show beside the round, or ``None`` (or when resting is off,
     ``rest_gap_ratio`` 0).
 
-    The support is the cloud method's (``cloud.find_support_plane``: the largest plane with
+    The support is the cloud method's (``cloud.find_support``: the largest plane with
     almost no sample behind it) among the lines' samples off the round's runs, on at least two
     lines so that it is a plane and not one line's trace. ``search`` and ``min_line_points``
     (the samples it needs on each of those two lines) are the disc's where the plain search
@@ -3417,9 +3417,10 @@ def _support_plane(
     if not isinstance(beside, _Beside) or beside.hypotheses is None:
         return None
     points = beside.points
-    mask = find_support_plane(points, search, _support_rng(), beside.hypotheses)
-    if mask is None:
+    found = find_support(points, search, _support_rng(), beside.hypotheses)
+    if found is None:
         return None
+    mask = found.mask
     # The arrays' method: np.repeat of a list goes through its wrapper's fallback (5 -> 2 us).
     owner = np.array(beside.owners).repeat(beside.counts).compress(mask)
     far = np.array(beside.far).repeat(beside.counts).compress(mask)
@@ -3428,7 +3429,8 @@ def _support_plane(
     shown = (per_line >= min_line_points) | (per_line_far >= _SUPPORT_MIN_FAR_POINTS)
     if np.count_nonzero(shown) < 2:
         return None
-    support = PlaneSolid.estimate(points.compress(mask, axis=0))
+    # The search's own fit where it was on these very points (half the resting rounds).
+    support = found.plane or PlaneSolid.estimate(points.compress(mask, axis=0))
     return support if support else None
 
 

@@ -346,13 +346,17 @@ class CylinderSolid:
         # The state (centre, axis, basis across it, radius) is kept in Python floats: each
         # Levenberg-Marquardt step is a handful of 3-vectors besides the normal equations.
         state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
-        cost, jtj, jtr = _cylinder_normal_equations(rows, *state)
+        aug = np.empty((6, rows.shape[1]))
+        aug[4] = 1.0
+        cost, jtj, rhs = _cylinder_normal_equations(rows, *state, aug)
         damping = 1e-4
         for _ in range(iterations):
             h = jtj.copy()
-            h.flat[::6] *= 1.0 + damping  # + damping * diag(J'J): Marquardt's scaling
+            # + damping * diag(J'J): Marquardt's scaling, on the diagonal as a view of the copy.
+            diagonal = h.reshape(25)[::6]
+            diagonal *= 1.0 + damping
             try:
-                s0, s1, s2, s3, s4 = _solve(h, -jtr)
+                s0, s1, s2, s3, s4 = _solve(h, rhs)
             except np.linalg.LinAlgError:
                 break
             (cx, cy, cz), (dx, dy, dz), (ax, ay, az), (bx, by, bz), radius = state
@@ -369,9 +373,9 @@ class CylinderSolid:
             f2 = (dy * fz - dz * fy, dz * fx - dx * fz, dx * fy - dy * fx)
             cn = (cx + ax * s0 + bx * s1, cy + ay * s0 + by * s1, cz + az * s0 + bz * s1)
             new_state = (cn, (dx, dy, dz), (fx, fy, fz), f2, radius + s4)
-            new_cost, new_jtj, new_jtr = _cylinder_normal_equations(rows, *new_state)
+            new_cost, new_jtj, new_rhs = _cylinder_normal_equations(rows, *new_state, aug)
             if new_cost < cost:
-                state, cost, jtj, jtr = new_state, new_cost, new_jtj, new_jtr
+                state, cost, jtj, rhs = new_state, new_cost, new_jtj, new_rhs
                 damping = max(damping / 4, 1e-9)
                 if max(abs(s0), abs(s1), abs(s2), abs(s3), abs(s4)) < 1e-6:
                     break
@@ -465,14 +469,21 @@ def _tangent_angle(points: np.ndarray, centre: np.ndarray, radius: float) -> np.
 
 
 def _cylinder_normal_equations(
-    rows: np.ndarray, c: Sequence[float], d: Sequence[float], e1: _Vec3, e2: _Vec3, radius: float
+    rows: np.ndarray,
+    c: Sequence[float],
+    d: Sequence[float],
+    e1: _Vec3,
+    e2: _Vec3,
+    radius: float,
+    aug: np.ndarray,
 ) -> tuple[float, np.ndarray, np.ndarray]:
-    """Cost, J^T J and J^T r of the orthogonal residuals |q| - r of the points ``rows``
-    (3, N).
+    """Cost, J^T J and -J^T r of the orthogonal residuals |q| - r of the points ``rows``
+    (3, N): the cost and the two sides of the Gauss-Newton step J^T J s = -J^T r.
 
     For c += e1 u + e2 v and d += e1 a + e2 b (e1, e2 span the plane across d), the Jacobian
     rows are (-n.e1, -n.e2, -t n.e1, -t n.e2, -1), with n the unit radial direction and t the
-    position along the axis.
+    position along the axis. ``aug`` is a (6, N) workspace whose row 4 holds 1.0 (the
+    caller's, kept over the passes of one fit).
     """
     # (t, w . e1, w . e2) for every point in one product, as rows.
     m = np.array([d, e1, e2])
@@ -484,12 +495,13 @@ def _cylinder_normal_equations(
     rho = qb * qb
     rho = np.add(rho[0], rho[1])
     np.sqrt(rho, out=rho)
-    # [J | r] as rows: J'J, J'r and r'r from one product.
-    aug = np.empty((6, rows.shape[1]))
-    np.divide(qb, -np.maximum(rho, 1e-12), out=aug[:2])
-    np.multiply(aug[:2], t, out=aug[2:4])
-    aug[4] = -1.0
+    # [-J | r] as rows (r taken before rho is clamped in place): J'J, -J'r and r'r from one
+    # product. Negating J flips the sign of every product with it and of their sums, exactly:
+    # the right-hand side comes out negated, without negating the radial directions or J'r
+    # (a numpy call each).
     np.subtract(rho, radius, out=aug[5])
+    np.divide(qb, np.maximum(rho, 1e-12, out=rho), out=aug[:2])
+    np.multiply(aug[:2], t, out=aug[2:4])
     normal = aug @ aug.T
     return float(normal[5, 5]), normal[:5, :5], normal[:5, 5]
 
