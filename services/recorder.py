@@ -43,7 +43,14 @@ chunk CRC, and every chunk is built in one buffer instead of a ``BytesIO`` that 
 each depth payload grew it: 6.20 -> 5.22 M instructions, about three quarters of them zstd's
 (``services.mcap_log._ChunkZstd``, ``_ChunkBuffer``). Of the recorder's footprint row, the
 loop's own share is small (0.5 % of a core at 90 Hz, about 7 us a message); the rest is the
-writer thread.
+writer thread. The thread then writes each batch in one call (``LogWriter.write_many``), packs
+each message head in place and a chunk's message indexes in one pack each: its work beside
+zstd 864k -> 569k instructions a depth frame on a live recording's stream (18 messages a
+frame), the whole writer about 5.1 -> 4.85 M, zstd level 1 4.3 M of it. zstd is the floor: on
+the same chunks every setting lies on one curve of CPU against size (level -1 8 % fewer
+instructions for 13 % more bytes, -5 21 % for 36 %; LZ4 with a checksum takes the CPU time of
+level -3 for the ratio of -5), so level 1 stays. On the loop, ``gap_step`` is most of the rest
+(about 24k of 39k instructions a message).
 """
 
 from __future__ import annotations
