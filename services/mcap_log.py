@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import heapq
 import io
+import itertools
 import json
 import os
 import queue
@@ -36,7 +37,7 @@ import lz4.frame
 import mcap.writer
 import msgspec
 import zstandard
-from mcap.data_stream import ReadDataStream
+from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.exceptions import McapError, UnsupportedCompressionError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Message, MessageIndex, Schema
@@ -223,14 +224,45 @@ class _ChunkBuffer:
         n = len(data)
         end = self._position + n
         if end > len(self._data):
-            # A new array, not a resize: a view handed out earlier may still be alive.
-            grown = memoryview(bytearray(max(end, 2 * len(self._data))))
-            grown[: self._size] = self._data[: self._size]
-            self._data = grown
+            self._grow(end)
         self._data[self._position : end] = data
         self._position = end
         self._size = max(self._size, end)
         return n
+
+    def write_message(
+        self, channel: int, sequence: int, log_time: int, publish_time: int, data: bytes
+    ) -> int:
+        """Append one message record (as mcap's ``Message.write`` lays it out), its head packed
+        in place; returns the record's offset in the chunk."""
+        if not isinstance(data, bytes):
+            data = memoryview(data).cast("B")
+        offset = self._position
+        start = offset + _MESSAGE_RECORD.size
+        end = start + len(data)
+        if end > len(self._data):
+            self._grow(end)
+        _MESSAGE_RECORD.pack_into(
+            self._data,
+            offset,
+            Opcode.MESSAGE,
+            _MESSAGE_HEAD.size + len(data),
+            channel,
+            sequence & 0xFFFFFFFF,
+            log_time,
+            publish_time,
+        )
+        self._data[start:end] = data
+        self._position = end
+        if end > self._size:
+            self._size = end
+        return offset
+
+    def _grow(self, end: int) -> None:
+        # A new array, not a resize: a view handed out earlier may still be alive.
+        grown = memoryview(bytearray(max(end, 2 * len(self._data))))
+        grown[: self._size] = self._data[: self._size]
+        self._data = grown
 
     def tell(self) -> int:
         return self._position
@@ -282,44 +314,53 @@ class _FastMessages:
         return fast if fast._chunks is not None else None
 
     def add(self, channel: int, log_time: int, data: bytes, publish_time: int, seq: int) -> None:
+        # mcap's min and max, as comparisons: the same values, a call fewer each.
         stats = self._statistics
-        if stats.message_count == 0:
+        if stats.message_count == 0 or log_time < stats.message_start_time:
             stats.message_start_time = log_time
-        else:
-            stats.message_start_time = min(log_time, stats.message_start_time)
-        stats.message_end_time = max(log_time, stats.message_end_time)
+        if log_time > stats.message_end_time:
+            stats.message_end_time = log_time
         stats.channel_message_counts[channel] += 1
         stats.message_count += 1
         chunks = self._chunks
-        if chunks.num_messages == 0:
+        if chunks.num_messages == 0 or log_time < chunks.message_start_time:
             chunks.message_start_time = log_time
-        else:
-            chunks.message_start_time = min(chunks.message_start_time, log_time)
-        chunks.message_end_time = max(chunks.message_end_time, log_time)
+        if log_time > chunks.message_end_time:
+            chunks.message_end_time = log_time
+        chunks.num_messages += 1
         index = chunks.message_indices.get(channel)
         if index is None:
-            index = chunks.message_indices[channel] = MessageIndex(channel_id=channel, records=[])
+            index = chunks.message_indices[channel] = _MessageIndex(channel_id=channel, records=[])
         # mcap gives its record builder a new BytesIO whenever a chunk ends: ours goes back in.
-        buffer = self._stream._buffer
-        if buffer is not self._buffer:
-            self._buffer.adopt(buffer.getvalue())
-            buffer = self._stream._buffer = self._buffer
-        offset = buffer.tell()
-        index.records.append((log_time, offset))
-        chunks.num_messages += 1
-        buffer.write(
-            _MESSAGE_RECORD.pack(
-                Opcode.MESSAGE,
-                _MESSAGE_HEAD.size + len(data),
-                channel,
-                seq & 0xFFFFFFFF,
-                log_time,
-                publish_time,
+        stream = self._stream
+        buffer = self._buffer
+        if stream._buffer is not buffer:
+            buffer.adopt(stream._buffer.getvalue())
+            stream._buffer = buffer
+        index.records.append(
+            (log_time, buffer.write_message(channel, seq, log_time, publish_time, data))
+        )
+        if buffer._position > self._chunk_size:
+            self._finalize()
+
+
+class _MessageIndex(MessageIndex):
+    """A chunk's message index for one channel, written as mcap's ``MessageIndex.write`` writes
+    it (opcode, length, channel, entries' length, then each entry's log time and offset), in
+    one pack instead of two stream writes an entry."""
+
+    def write(self, stream: RecordBuilder) -> None:
+        n = 2 * len(self.records)
+        stream.write(
+            struct.pack(
+                f"<BQHI{n}Q",
+                Opcode.MESSAGE_INDEX,
+                6 + 8 * n,
+                self.channel_id,
+                8 * n,
+                *itertools.chain.from_iterable(self.records),
             )
         )
-        buffer.write(data)
-        if buffer.tell() > self._chunk_size:
-            self._finalize()
 
 
 class _Payloads:
@@ -448,34 +489,48 @@ class LogWriter(_Payloads):
         sequence: int = 0,
     ) -> None:
         """Append one payload; ``sequence`` keeps its low 32 bits (MCAP's field is 32-bit)."""
-        if self._writer is None:
-            raise ValueError(f"{self.path}: write after finish()")
+        self.write_many(((key, payload, log_time, publish_time, sequence),))
+
+    def write_many(self, items: Iterable[tuple[str, bytes, int, int, int]]) -> None:
+        """``write_raw`` for each ``(key, payload, log_time, publish_time, sequence)`` in turn:
+        the same file, with the per-call bookkeeping once for all (the background writer's
+        batches)."""
         _CHUNK_ZSTD.level = self.zstd_level  # a full chunk is compressed inside add_message
         try:
-            if self._fast is not None:
-                self._fast.add(self._channel(key), log_time, payload, publish_time, sequence)
-            else:
-                self._writer.add_message(
-                    self._channel(key),
-                    log_time=log_time,
-                    data=payload,
-                    publish_time=publish_time,
-                    sequence=sequence & 0xFFFFFFFF,
-                )
+            for key, payload, log_time, publish_time, sequence in items:
+                if self._writer is None:
+                    raise ValueError(f"{self.path}: write after finish()")
+                channel = self._channels.get(key)
+                if channel is None:
+                    channel = self._channel(key)
+                if self._fast is not None:
+                    self._fast.add(channel, log_time, payload, publish_time, sequence)
+                else:
+                    self._writer.add_message(
+                        channel,
+                        log_time=log_time,
+                        data=payload,
+                        publish_time=publish_time,
+                        sequence=sequence & 0xFFFFFFFF,
+                    )
+                self.messages += 1
+                if (
+                    self.max_bytes is not None
+                    and self._sink
+                    and self._sink.tell() >= self.max_bytes
+                ):
+                    self._close_file()
+                    self._open()
         finally:
             _CHUNK_ZSTD.level = None
-        self.messages += 1
-        if self.max_bytes is not None and self._sink and self._sink.tell() >= self.max_bytes:
-            self._close_file()
-            self._open()
 
     def _close_file(self) -> None:
         if self._writer is not None:
-            _CHUNK_ZSTD.level = self.zstd_level
+            level, _CHUNK_ZSTD.level = _CHUNK_ZSTD.level, self.zstd_level
             try:
                 self._writer.finish()
             finally:
-                _CHUNK_ZSTD.level = None
+                _CHUNK_ZSTD.level = level  # inside write_many: still this writer's
                 self._writer = None
                 if self._sink is not None:
                     self._sink.close()
@@ -604,18 +659,12 @@ class BackgroundLogWriter(_Payloads):
                 continue
             if failed:
                 continue  # the caller hears of the first error; the rest would repeat it
+            before = log.messages
             try:
-                for key, payload, log_time, publish_time, sequence in batch:
-                    log.write_raw(
-                        key,
-                        payload,
-                        log_time=log_time,
-                        publish_time=publish_time,
-                        sequence=sequence,
-                    )
-                    self.written += 1
+                log.write_many(batch)
             except BaseException as exc:  # handed to the caller's thread
                 self._error, failed = exc, True
+            self.written += log.messages - before
             self.cpu_ns = time.thread_time_ns()
         try:
             log.finish()

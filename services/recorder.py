@@ -43,7 +43,14 @@ chunk CRC, and every chunk is built in one buffer instead of a ``BytesIO`` that 
 each depth payload grew it: 6.20 -> 5.22 M instructions, about three quarters of them zstd's
 (``services.mcap_log._ChunkZstd``, ``_ChunkBuffer``). Of the recorder's footprint row, the
 loop's own share is small (0.5 % of a core at 90 Hz, about 7 us a message); the rest is the
-writer thread.
+writer thread. The thread then writes each batch in one call (``LogWriter.write_many``), packs
+each message head in place and a chunk's message indexes in one pack each: its work beside
+zstd 864k -> 569k instructions a depth frame on a live recording's stream (18 messages a
+frame), the whole writer about 5.1 -> 4.85 M, zstd level 1 4.3 M of it. zstd is the floor: on
+the same chunks every setting lies on one curve of CPU against size (level -1 8 % fewer
+instructions for 13 % more bytes, -5 21 % for 36 %; LZ4 with a checksum takes the CPU time of
+level -3 for the ratio of -5), so level 1 stays. On the loop, ``gap_step`` is most of the rest
+(about 24k of 39k instructions a message).
 """
 
 from __future__ import annotations
@@ -91,6 +98,9 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     level = f" level {args.zstd_level}" if args.compression == "zstd" else ""
     bus.log("info", f"recording lpc/** to {out} ({args.compression}{level})")
     gaps = GapState()
+    # Set per message only where they change (gaps, missing) or at each hand-over (files: the
+    # thread rotates), not on every message.
+    bus.health.counters.update(files=len(writer.paths), gaps=0, missing=0)
     try:
         while True:
             key, payload, received_ns = await sub.receive()
@@ -98,6 +108,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             if not sub.queued:  # the batch the loop handed over is queued: the thread's turn
                 writer.hand_over()
                 bus.health.counters["writer_cpu_ms"] = writer.cpu_ns // 1_000_000
+                bus.health.counters["files"] = len(writer.paths)
                 if writer.backlog > QUEUE_CAPACITY:  # a slow disk: the subscription's queue fills
                     await asyncio.to_thread(writer.drain)
     finally:
@@ -110,6 +121,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 gaps = _record(bus, writer, gaps, key, payload, received_ns)
         writer.finish()  # on the loop: a second cancellation must not leave the file unfinished
         bus.health.counters["writer_cpu_ms"] = writer.cpu_ns // 1_000_000
+        bus.health.counters["files"] = len(writer.paths)
         dropped = sum(s.dropped for s in bus.health.received.values())
         rejected = sum(s.rejected for s in bus.health.received.values())
         files = ", ".join(str(p) for p in writer.paths)
@@ -129,17 +141,18 @@ def _record(
     received_ns: int,
 ) -> GapState:
     header = writer.write_received(key, payload, received_ns)
+    counters = bus.health.counters
+    counters["written"] += 1
     if header is None:
         bus.health.received[key].rejected += 1
         bus.reject(key, "no readable seq/t_ns header; kept raw on lpc/_rejected/" + key)
-    bus.health.counters["written"] += 1
-    bus.health.counters["files"] = len(writer.paths)
-    if header is not None and not key.startswith("lpc/log/recorder"):
+    elif not key.startswith("lpc/log/recorder"):
         gaps, found = gap_step(gaps, key, header[0], received_ns)
-        for gap in found:
-            bus.log("warning", gap.describe())
-        bus.health.counters["gaps"] = gaps.gaps
-        bus.health.counters["missing"] = gaps.missing
+        if found:
+            for gap in found:
+                bus.log("warning", gap.describe())
+            counters["gaps"] = gaps.gaps
+            counters["missing"] = gaps.missing
     return gaps
 
 

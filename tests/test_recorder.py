@@ -68,8 +68,14 @@ def test_recorder_round_trip_keeps_every_message_in_order(
     bus = asyncio.run(main())
     assert sum(s.dropped for s in bus.health.received.values()) == 0
     with McapLog(out) as log:
-        got = [m for m in log.messages(ordered=False) if not m.key.startswith("lpc/log/")]
+        everything = list(log.messages(ordered=False))
         assert log.complete and log.cut is None
+    got = [m for m in everything if not m.key.startswith("lpc/log/")]
+    # The health counters as the recorder leaves them: each message counted once as written,
+    # one file, no gap (each key's seq runs 0, 1, 2...).
+    counters = bus.health.counters
+    assert counters["written"] == len(everything)
+    assert (counters["files"], counters["gaps"], counters["missing"]) == (1, 0, 0)
     # One subscriber keeps per-key order; the file holds exactly what was sent.
     for key in ("lpc/emg", "lpc/prosthesis/state"):
         assert [m.payload for m in got if m.key == key] == [
