@@ -695,15 +695,14 @@ class Router:
     def deliver(self, key: str, payload: bytes) -> None:
         """A sample published in this process, for the subscriptions of this router that want
         it: pushed at once from this router's own loop, queued for it from any other thread."""
-        item = (key, payload, self._clock.now_ns())
-        try:
-            here = asyncio.get_running_loop() is self._loop
-        except RuntimeError:
-            here = False
         subs = self._subs_for(key)
         if not subs:
             return  # a loop woken for nothing costs more than the check
-        if not here:
+        item = (key, payload, self._clock.now_ns())
+        # Whether this thread runs the loop (``asyncio.get_running_loop() is self._loop``)
+        # without asking asyncio: its answer costs a getpid system call, at every put of the
+        # process for each of its routers.
+        if self._loop._thread_id != threading.get_ident():  # type: ignore[attr-defined]
             self._enqueue(None, item, self._wakes(key))
             return
         for sub in subs:
@@ -827,7 +826,16 @@ class Bus:
         self.health = HealthCounters(service, argv)
         self.quiet = quiet
         self.status = "starting"
-        self._health_pub = session.declare_publisher(f"lpc/health/{service}")
+        # In the container the health goes to this process's routers as a ``Publisher``'s
+        # samples do (``Router.deliver``), and through Zenoh only to other processes: through
+        # Zenoh's local routing each report took a Zenoh thread, the GIL and a wake-up of the
+        # main loop (the camera's shedder reads every report), eight reports a second.
+        self._health_key = f"lpc/health/{service}"
+        self._health_local = Router.on_session(session) if router is not None else []
+        self._health_pub = session.declare_publisher(
+            self._health_key,
+            allowed_destination=zenoh.Locality.REMOTE if self._health_local else zenoh.Locality.ANY,
+        )
         self._log_pub = session.declare_publisher(f"lpc/log/{service}")
         self._log_seq = 0
         self._reject_reports: collections.Counter[str] = collections.Counter()
@@ -886,8 +894,11 @@ class Bus:
 
     def publish_health(self) -> None:
         snapshot = self.health.snapshot(self.clock.now_ns(), self.status)
+        payload = encode(snapshot)
         with contextlib.suppress(zenoh.ZError):
-            self._health_pub.put(encode(snapshot))
+            self._health_pub.put(payload)
+        for router in self._health_local:
+            router.deliver(self._health_key, payload)
 
     async def health_loop(self) -> None:
         while True:
