@@ -277,3 +277,51 @@ def test_container_hands_outside_samples_to_both_loops_through_one_subscriber(
     pub.undeclare()
     for where, seqs in heard.items():
         assert seqs == list(range(1, 201)), f"{where}: every sample once, in order"
+
+
+def test_container_hands_its_health_over_once(endpoint: str, rendezvous: zenoh.Session) -> None:
+    """A service's health report reaches the health subscriptions of both loops once each and
+    in order (handed over in the process, as the camera's shedder reads it) and an outside
+    subscriber once through Zenoh."""
+    heard: dict[str, list[int]] = {"main": [], "control": []}
+    outside: list[int] = []
+
+    def listener(where: str) -> LoadedService:
+        async def serve(bus: Bus, args: argparse.Namespace) -> None:
+            async for health in bus.subscribe("lpc/health/*"):
+                if health.service == "reporter":
+                    heard[where].append(health.seq)
+
+        return LoadedService(f"listener_{where}", serve, argparse.Namespace(argv=[]))
+
+    async def report(bus: Bus, args: argparse.Namespace) -> None:
+        await asyncio.Event().wait()  # its runner reports its health, once a second
+
+    def on_health(sample: zenoh.Sample) -> None:
+        health = decode(str(sample.key_expr), sample.payload.to_bytes())
+        if health.service == "reporter":
+            outside.append(health.seq)
+
+    sub = rendezvous.declare_subscriber("lpc/health/*", on_health)
+    services = [
+        listener("main"),
+        listener("control"),
+        LoadedService("reporter", report, argparse.Namespace(argv=[])),
+    ]
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        container = asyncio.create_task(
+            run_container(services, _args(endpoint), stop, control_loop=("listener_control",))
+        )
+        await until(lambda: min(map(len, heard.values())) >= 3, 30, "three reports in both")
+        await until(lambda: len(outside) >= 2, 10, "the reports outside")
+        stop.set()
+        async with asyncio.timeout(10):
+            assert await container == 0
+
+    asyncio.run(main())
+    sub.undeclare()
+    for where, seqs in heard.items():
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), f"{where}: once each, in order"
+    assert outside == sorted(set(outside)), "outside: no report twice"

@@ -215,9 +215,13 @@ def test_router_hands_unprompted_samples_over_without_waking_the_loop(endpoint: 
         bus = Bus(session, "recorder", loop=loop, router=router, quiet=True)
         lazy = bus.subscribe("lpc/emg", latest=False, prompt=False)
         stamps: list[tuple[int, int]] = []
+        waiting = asyncio.create_task(lazy.receive())
+        await asyncio.sleep(0)  # the task waits (and the hand-over timer starts)
         router.deliver("lpc/emg", encode(EmgSample(seq=1000, t_ns=1, channels=[0.0])))
-        assert lazy._queue and not lazy._ready.is_set(), "its task is not woken per sample"
-        assert (await lazy.receive())[1].seq == 1000, "but within the hand-over period"
+        await asyncio.sleep(0)
+        await asyncio.sleep(0)
+        assert lazy._queue and not waiting.done(), "its task is not woken per sample"
+        assert (await waiting)[1].seq == 1000, "but within the hand-over period"
 
         def publish(first: int) -> None:  # another thread: the control loop's, say
             for seq in range(first, first + 50):
