@@ -1019,34 +1019,6 @@ def test_column_counts_match_a_wide_sum_past_the_byte_range(rows: int) -> None:
     assert counts[0] == rows and counts[1] == 0
 
 
-@pytest.mark.parametrize(
-    ("setting", "name", "trial", "frame"),
-    [("bm7", "cylinder_lying", 0, 0), ("bm9-c25", "cylinder_upright", 0, 4)],
-)
-def test_a_block_matched_can_refits_its_leading_cylinder_hypotheses(
-    setting: str, name: str, trial: int, frame: int
-) -> None:
-    """Block matching's depth, with no smoothness term, turns the ten-neighbour normals, so
-    the two-point hypothesis with most inliers on the scored sample may refit into a wrong
-    round and stay there: BM 7's lying 40 mm can (trial 0 frame 0) came out 16 mm narrow,
-    BM 9's upright 60 mm can on sparse dots with a prefilter cap of 25 (trial 0 frame 4) a
-    43 mm cylinder on 0.39 of the segment, which lost to a face: a box 38 mm narrow. The
-    leading ``cylinder_refits`` hypotheses are refitted and the one holding most inliers
-    kept: within 6 mm either way, each a cylinder."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from services.cli import _laser_views as lv
-    from services.cli.bench.sweep import SETTINGS
-
-    views = lv.views("functional", 2, 5, 0, names=[name], sensor=SETTINGS[setting].sensor())
-    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
-    truth = view.truth.grasp_width_m
-    result = reconstruct_cloud(view.depth, INTR, seed=view.seq)
-    single = reconstruct_cloud(view.depth, INTR, replace(PARAMS, cylinder_refits=1), view.seq)
-    assert result.shape == "cylinder", (result.shape, result.reason)
-    assert abs(1000 * (result.grasp_width_m - truth)) < 6.0, result.grasp_width_m
-    assert single.shape != "cylinder" or abs(1000 * (single.grasp_width_m - truth)) > 10.0
-
-
 def test_a_ball_whose_cap_fit_floats_off_the_table_is_fitted_touching_it(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

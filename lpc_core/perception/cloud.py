@@ -73,9 +73,6 @@ class CloudParams:
     radius_max_m: float = 0.060
     sphere_trials: int = 128
     cylinder_trials: int = 128
-    # The cylinder hypotheses with most inliers on the scored sample that are refitted; the
-    # refit holding most inliers wins (see fit_cylinder). 1: the leading one alone.
-    cylinder_refits: int = 8
     face_trials: int = 96
     score_sample: int = 384
     fit_points: int = 1000  # the models are fitted on at most this many points of the segment
@@ -751,13 +748,6 @@ def _best(counts: np.ndarray, valid: np.ndarray) -> int | None:
     return None if scored[best] <= 0 else best
 
 
-def _leading(counts: np.ndarray, valid: np.ndarray, k: int) -> list[int]:
-    """The ``k`` valid hypotheses with most inliers (at least one), most first."""
-    scored = np.where(valid, counts, -1)
-    order = np.argsort(-scored, kind="stable")[: max(1, k)]
-    return [int(i) for i in order if scored[i] > 0]
-
-
 def _score_round(
     points: np.ndarray,
     normals: np.ndarray,
@@ -858,14 +848,6 @@ def fit_cylinder(
     The inliers also take in the end cap when one is in view (points on a plane across the
     axis, within the radius, with normals along the axis): a can seen from above shows its lid,
     and leaving it out would hand the lid to the cuboid's planes.
-
-    The ``cylinder_refits`` hypotheses with most inliers on the scored sample are each refitted
-    on their inliers, and the refit holding most of the segment wins. A block matcher's depth
-    (no smoothness term) turns the ten-neighbour normals by several degrees, so a hypothesis's
-    axis and radius scatter and the sample's count ranks them loosely: the leader's refit may
-    settle on a wrong round that no refit leaves (BM 9 with a prefilter cap of 25, the upright
-    60 mm can: a 43 mm cylinder on 0.39 of the segment, which a face beat; BM 7's lying 40 mm
-    can 16 mm narrow), where another of the leading few refits onto the can.
     """
     n = len(points)
     if n < 3:
@@ -889,23 +871,19 @@ def fit_cylinder(
     centers = p1 + t[:, None] * n1
     valid &= (t < 0) & (s < 0) & (radii >= params.radius_min_m) & (radii <= params.radius_max_m)
     counts = _score_round(points, normals, centers, radii, axes, params, rng)
-    if _best(counts, valid) is None:
+    best = _best(counts, valid)
+    if best is None:
         return FailedFit("no cylinder hypothesis")
-    found: tuple[CylinderModel, np.ndarray] | None = None
-    for best in _leading(counts, valid, params.cylinder_refits):
-        model = CylinderModel(centers[best], axes[best], float(radii[best]))
-        inliers = _cylinder_inliers(points, normals, model, params)
-        for _ in range(params.refine_iterations):
-            refined = CylinderModel.estimate(points[inliers], normals[inliers])
-            if not refined or not params.radius_min_m <= refined.radius <= params.radius_max_m:
-                break
-            refined_inliers = _cylinder_inliers(points, normals, refined, params)
-            if refined_inliers.sum() < inliers.sum():
-                break
-            model, inliers = refined, refined_inliers
-        if found is None or inliers.sum() > found[1].sum():
-            found = (model, inliers)
-    model, inliers = found
+    model = CylinderModel(centers[best], axes[best], float(radii[best]))
+    inliers = _cylinder_inliers(points, normals, model, params)
+    for _ in range(params.refine_iterations):
+        refined = CylinderModel.estimate(points[inliers], normals[inliers])
+        if not refined or not params.radius_min_m <= refined.radius <= params.radius_max_m:
+            break
+        refined_inliers = _cylinder_inliers(points, normals, refined, params)
+        if refined_inliers.sum() < inliers.sum():
+            break
+        model, inliers = refined, refined_inliers
     return _Fit(model, inliers | _cap_inliers(points, normals, model, inliers, params))
 
 
