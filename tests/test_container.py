@@ -173,7 +173,11 @@ def test_container_services_talk_over_the_bus(endpoint: str, rendezvous: zenoh.S
     for sub in subs:
         sub.undeclare()
     assert {"lpc/alive/scans", "lpc/alive/camera", "lpc/alive/container"} <= alive
-    assert set(scans) <= set(depth), "every scan comes from a frame seen on the bus"
+    # The outside subscriber learns of the camera's publisher over the loopback link, so the
+    # first frames may reach the scans service in the container before it: compare from the
+    # first frame it saw.
+    seen = [s for s in scans if s >= min(depth)]
+    assert len(seen) >= 8 and set(seen) <= set(depth), "every scan comes from a frame on the bus"
 
 
 def test_container_hands_its_own_samples_over_once(
