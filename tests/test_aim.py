@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from lpc_core.control import aim
 from lpc_core.control.aim import (
     AimParams,
     AimState,
@@ -235,6 +236,25 @@ def test_convex_hull_matches_qhull(seed: int) -> None:
         assert sorted(map(tuple, hull)) == sorted(map(tuple, expected))
         start = int(np.flatnonzero((expected == hull[0]).all(axis=1))[0])
         assert np.array_equal(hull, np.roll(expected, -start, axis=0))  # same cyclic order
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_convex_hull_filter_keeps_every_vertex_of_projected_scan_lines(seed: int) -> None:
+    """The Akl-Toussaint filter only drops points that cannot be vertices: the hull equals
+    the monotone chain of all the points, on scan lines as the scans service sends them
+    (float32, exactly on the axes and diagonals: many exact ties) with repeated points."""
+    rng = np.random.default_rng(seed)
+    lines = []
+    for angle in (0, 45, 90, 135):
+        r = rng.uniform(-0.05, 0.05, int(rng.integers(5, 80))).astype(np.float32)
+        c, s = round(math.cos(math.radians(angle))), round(math.sin(math.radians(angle)))
+        lines.append(np.column_stack([r * c if c else 0 * r, r * s if s else 0 * r]))
+    points = np.concatenate(lines).astype(float)
+    points = np.concatenate([points, points[rng.integers(0, len(points), 10)]])
+    points = points[rng.permutation(len(points))]
+    expected = aim._monotone_chain(points.tolist())
+    assert len(expected) >= 3  # the four lines span an area
+    assert convex_hull(points).tolist() == [list(p) for p in expected]
 
 
 def test_convex_hull_collinear_gives_the_far_ends() -> None:

@@ -194,29 +194,33 @@ def cluster_points(points: np.ndarray, gap_m: float) -> np.ndarray:
 
 
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:
-    """Connected-component labels of ``n`` nodes joined by ``pairs`` (E, 2), each component
-    labelled by its smallest node. Shiloach-Vishkin in array operations: each pass hooks the
-    larger root of every pair under the smaller, then jumps every pointer to its root, until
-    every pair shares its root (scipy's csgraph costs more in set-up than this whole loop).
-    Min-label propagation, which it replaced, took six passes of the edges on a recorded
-    frame; this takes two or three."""
+    """Connected-component labels of ``n`` nodes joined by ``pairs`` (E, 2), each row
+    ``i < j`` as query_pairs gives them, each component labelled by its smallest node.
+    Shiloach-Vishkin in array operations: each pass hooks the larger root of every pair under
+    the smaller, then jumps every pointer to its root, until every pair shares its root
+    (scipy's csgraph costs more in set-up than this whole loop). Min-label propagation, which
+    it replaced, took six passes of the edges on a recorded frame; this takes two or three."""
     parent = np.arange(n)
     if len(pairs) == 0:
         return parent
     i, j = pairs[:, 0], pairs[:, 1]
-    roots_i, roots_j = i, j  # every node is its own root to begin with
+    # Every node is its own root to begin with, and query_pairs gives each pair as i < j: the
+    # first pass hooks j under i without sorting the roots of each pair.
+    high, low = j, i
     while True:
-        np.minimum.at(parent, np.maximum(roots_i, roots_j), np.minimum(roots_i, roots_j))
-        # np.logical_and.reduce is what .all() runs, without its Python wrapper: these loops
-        # turn two to seven times a frame.
+        np.minimum.at(parent, high, low)
+        # Two jumps for each test: a pointer already at its root stays there, so jumping past
+        # the fixed point costs one gather, against the test's comparison and reduction.
+        # np.logical_and.reduce is what .all() runs, without its Python wrapper.
         while True:
             jumped = parent[parent]
             if np.logical_and.reduce(jumped == parent):
                 break
-            parent = jumped
+            parent = jumped[jumped]
         roots_i, roots_j = parent[i], parent[j]
         if np.logical_and.reduce(roots_i == roots_j):
             return parent
+        high, low = np.maximum(roots_i, roots_j), np.minimum(roots_i, roots_j)
 
 
 # Unit directions every 45 degrees, counter-clockwise, for the Akl-Toussaint filter.
