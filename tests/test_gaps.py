@@ -151,3 +151,15 @@ def test_gaps_step_agrees_with_the_reference_on_random_streams(seed: int) -> Non
     for key, seq, t_ns in stream[len(stream) // 2 + 1 :]:
         replayed, _ = gap_step(replayed, key, seq, t_ns)
     assert replayed == state
+
+
+def test_gaps_step_agrees_with_the_reference_where_the_pace_is_not_a_number() -> None:
+    # Messages all at one time have period 0, and an infinite silence_periods makes 0 * inf:
+    # the floor (min_silence_ms) decides, as max(floor, nan) does.
+    params = GapParams(silence_periods=float("inf"))
+    stream = [("lpc/emg", s, 0) for s in range(1, 31)] + [("lpc/emg", 31, 2000 * MS)]
+    state, ref_tracks = GapState(params=params), {}
+    for key, seq, t_ns in stream:
+        state, gaps = gap_step(state, key, seq, t_ns)
+        assert gaps == _reference_step(params, ref_tracks, key, seq, t_ns)
+    assert [(g.silent, g.start_ns, g.end_ns) for g in gaps] == [(True, 0, 2000 * MS)]
