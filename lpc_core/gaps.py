@@ -18,10 +18,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from lpc_core.control.state import evolve
-
 # Keys whose seq is their source frame's: jumps are skipped frames, not losses.
 SOURCE_SEQ_KEYS = frozenset({"lpc/reconstruction", "lpc/grasp/target"})
+
+_set_attribute = object.__setattr__  # a frozen dataclass refuses plain assignment
 
 
 @dataclass(frozen=True)
@@ -64,12 +64,9 @@ class Gap:
         return f"gap on {self.key} from {start:.3f} s: {what}, {self.missing} missing by seq"
 
 
-@dataclass(frozen=True)
-class _Track:
-    seq: int
-    last_ns: int
-    period_ns: float | None = None
-    count: int = 1
+# A track is (seq, last_ns, period_ns, count): a plain tuple, because the recorder takes one
+# step per message it writes and a tuple is the cheapest immutable record to build and unpack.
+_Track = tuple[int, int, float | None, int]
 
 
 @dataclass(frozen=True)
@@ -82,47 +79,47 @@ class GapState:
 
 def gap_step(state: GapState, key: str, seq: int, received_ns: int) -> tuple[GapState, list[Gap]]:
     """One message of ``key`` (its ``seq``, received at ``received_ns``); the gaps it closes."""
-    p = state.params
-    track = state.tracks.get(key)
+    tracks = state.tracks
+    track = tracks.get(key)
     gaps: list[Gap] = []
     if track is None:
-        new = _track(seq, received_ns, None, 1)
+        new = (seq, received_ns, None, 1)
     else:
-        dt = received_ns - track.last_ns
-        missing = seq - track.seq - 1 if seq > track.seq and key not in SOURCE_SEQ_KEYS else 0
+        p = state.params
+        last_seq, last_ns, period, count = track
+        dt = received_ns - last_ns
+        missing = seq - last_seq - 1 if seq > last_seq and key not in SOURCE_SEQ_KEYS else 0
         steady = (
-            track.period_ns is not None
-            and track.count >= p.steady_count
-            and track.period_ns <= 1e9 / p.steady_hz
+            period is not None
+            and count >= p.steady_count
+            and period <= 1e9 / p.steady_hz
             and not key.startswith("lpc/log/")
         )
-        silent = steady and dt > max(p.min_silence_ms * 1e6, p.silence_periods * track.period_ns)
+        silent = False
+        if steady:
+            floor, pace = p.min_silence_ms * 1e6, p.silence_periods * period
+            # max(floor, pace) spelt out as max decides (floor unless pace is larger, so a NaN
+            # pace gives floor): the builtin's call was ~1k of a step's ~14k instructions.
+            silent = dt > (pace if pace > floor else floor)
         if silent or missing > 0:
-            gaps.append(Gap(key, track.last_ns, received_ns, missing, silent))
+            gaps.append(Gap(key, last_ns, received_ns, missing, silent))
         # The period follows the topic's normal pace: a silence does not stretch it.
-        period = track.period_ns
         if not silent:
             period = float(dt) if period is None else 0.9 * period + 0.1 * dt
-        new = _track(seq, received_ns, period, track.count + 1)
+        new = (seq, received_ns, period, count + 1)
     # The proxy's copy() is its dict's: dict(proxy) would go key by key through the proxy.
-    tracks = (
-        state.tracks.copy() if isinstance(state.tracks, MappingProxyType) else dict(state.tracks)
-    )
+    tracks = tracks.copy() if isinstance(tracks, MappingProxyType) else dict(tracks)
     tracks[key] = new
     if not gaps:
-        return evolve(state, tracks=MappingProxyType(tracks)), gaps
-    state = evolve(
-        state,
-        tracks=MappingProxyType(tracks),
-        gaps=state.gaps + len(gaps),
-        missing=state.missing + sum(g.missing for g in gaps),
-    )
-    return state, gaps
+        return _state(state.params, MappingProxyType(tracks), state.gaps, state.missing), gaps
+    lost = state.missing + sum(g.missing for g in gaps)
+    return _state(state.params, MappingProxyType(tracks), state.gaps + len(gaps), lost), gaps
 
 
-def _track(seq: int, last_ns: int, period_ns: float | None, count: int) -> _Track:
-    """``_Track(...)`` without the frozen dataclass's ``__init__``, whose ``object.__setattr__``
-    per field made it most of a step: the recorder takes one step per message it writes."""
-    track = object.__new__(_Track)
-    track.__dict__.update(seq=seq, last_ns=last_ns, period_ns=period_ns, count=count)
-    return track
+def _state(params: GapParams, tracks: Mapping[str, _Track], gaps: int, missing: int) -> GapState:
+    """``GapState(...)`` without the frozen dataclass's ``__init__`` (an ``object.__setattr__``
+    per field) or ``evolve``'s keyword merge: one step per message the recorder writes."""
+    state = object.__new__(GapState)
+    fields = {"params": params, "tracks": tracks, "gaps": gaps, "missing": missing}
+    _set_attribute(state, "__dict__", fields)
+    return state
