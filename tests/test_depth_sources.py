@@ -353,3 +353,62 @@ def test_sim_device_frames_read_on_the_loop_stay_intact_while_later_ones_arrive(
     for reading, depth in zip(kept, sent, strict=True):
         np.testing.assert_array_equal(reading.depth, depth)
         assert reading.wire is not None and bytes(reading.wire.data) == depth.tobytes()
+
+
+def test_sim_device_read_times_out_at_its_own_deadline_on_a_stalled_device(
+    tmp_path: Path,
+) -> None:
+    """``read_async`` gives ``None`` no sooner than its timeout after it began when the device
+    sends nothing, also when a timer set for an earlier read's deadline fires first; a frame
+    sent after a timeout is read."""
+    import asyncio
+    import socket
+    import threading
+
+    from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
+    from schemas import CameraIntrinsics, to_wire
+    from services.drivers.depth import SimDeviceSource
+
+    intrinsics = CameraIntrinsics(width=8, height=4, fx=213.0, fy=213.0, ppx=4.0, ppy=2.0)
+    path = str(tmp_path / "device.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(path)
+    server.listen(1)
+    accepted: list[socket.socket] = []
+
+    def hello() -> None:
+        conn, _ = server.accept()
+        conn.sendall(encode(DeviceHello(intrinsics=intrinsics, rate_hz=90.0)))
+        accepted.append(conn)
+
+    greeter = threading.Thread(target=hello)
+    greeter.start()
+    source = SimDeviceSource(path)
+    greeter.join()
+    device = accepted[0]
+    depth = np.arange(32, dtype=np.uint16).reshape(4, 8)
+
+    async def reads() -> list[tuple[bool, float, float]]:
+        loop = asyncio.get_running_loop()
+        out = []
+        try:
+            for timeout, send in ((0.1, False), (0.3, True), (0.6, False), (0.1, True)):
+                if send:
+                    device.sendall(encode(DeviceFrame(seq=1, t_ns=7, depth=to_wire(depth))))
+                began = loop.time()
+                reading = await source.read_async(timeout)
+                out.append((reading is not None, loop.time() - began, timeout))
+        finally:
+            source.shutdown()
+        return out
+
+    try:
+        got = asyncio.run(reads())
+    finally:
+        device.close()
+        server.close()
+    assert [read for read, _, _ in got] == [False, True, False, True]
+    for read, waited, timeout in got:
+        if not read:  # the third outlives the timer the second set (0.3 s); the loop's
+            # timers may run up to its clock's resolution early
+            assert waited >= timeout - 0.001, (waited, timeout)
