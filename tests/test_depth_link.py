@@ -102,3 +102,21 @@ def test_depth_link_frames_do_not_view_the_reused_receive_buffer() -> None:
     record = encode(second)
     out = parser.feed(record[:10]) + parser.feed(record[10:])  # through the parser's buffer
     assert out == [second] and parser.pending == 0
+
+
+def test_depth_link_frames_view_a_piece_nothing_writes_again() -> None:
+    # bytes, or a buffer handed over, are decoded in place: the depth is a view of the piece
+    # (no copy of the frame), and ``viewing`` tells the caller not to refill that buffer.
+    record = encode(_frame(3))
+    for piece, handed_over, views in (
+        (record, False, True),
+        (bytearray(record), True, True),
+        (bytearray(record), False, False),
+    ):
+        parser = LinkParser()
+        (frame,) = parser.feed(memoryview(piece) if handed_over else piece, handed_over=handed_over)
+        assert frame == _frame(3) and parser.viewing is views
+        depth = np.frombuffer(frame.depth.data, dtype=np.uint16)
+        assert np.shares_memory(depth, np.frombuffer(piece, dtype=np.uint8)) is views
+    parser.feed(record[:10])
+    assert parser.feed(record[10:]) == [_frame(3)] and not parser.viewing  # through its buffer

@@ -294,3 +294,121 @@ def test_a_frame_clock_behind_skips_the_slots_it_missed() -> None:
     assert skip_missed_slots(0, 3, 10, 41) == (10, 1)
     assert skip_missed_slots(0, 3, 10, 75) == (40, 4)
     assert skip_missed_slots(5, 3, 10, 20) == (5, 0)  # early is no skip
+
+
+def test_sim_device_frames_read_on_the_loop_stay_intact_while_later_ones_arrive(
+    tmp_path: Path,
+) -> None:
+    """``read_async`` decodes a frame that arrived whole where it lies in the receive buffer:
+    frames kept while the next pieces arrive (three to a piece here) keep their own depth."""
+    import asyncio
+    import socket
+    import threading
+
+    from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
+    from schemas import CameraIntrinsics, to_wire
+    from services.drivers.depth import SimDeviceSource
+
+    intrinsics = CameraIntrinsics(width=8, height=4, fx=213.0, fy=213.0, ppx=4.0, ppy=2.0)
+    path = str(tmp_path / "device.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(path)
+    server.listen(1)
+    accepted: list[socket.socket] = []
+
+    def hello() -> None:
+        conn, _ = server.accept()
+        conn.sendall(encode(DeviceHello(intrinsics=intrinsics, rate_hz=90.0)))
+        accepted.append(conn)
+
+    greeter = threading.Thread(target=hello)
+    greeter.start()
+    source = SimDeviceSource(path)
+    greeter.join()
+    device = accepted[0]
+    sent = [np.arange(32, dtype=np.uint16).reshape(4, 8) * (k + 1) for k in range(9)]
+
+    async def read_all() -> list:
+        kept = []
+        try:
+            for first in range(0, 9, 3):
+                device.sendall(
+                    b"".join(
+                        encode(DeviceFrame(seq=k, t_ns=100 + k, depth=to_wire(sent[k])))
+                        for k in range(first, first + 3)
+                    )
+                )
+                for _ in range(3):
+                    kept.append(await source.read_async(5.0))
+        finally:
+            source.shutdown()
+        return kept
+
+    try:
+        kept = asyncio.run(read_all())
+    finally:
+        device.close()
+        server.close()
+    assert [r.t_ns for r in kept] == [100 + k for k in range(9)]
+    for reading, depth in zip(kept, sent, strict=True):
+        np.testing.assert_array_equal(reading.depth, depth)
+        assert reading.wire is not None and bytes(reading.wire.data) == depth.tobytes()
+
+
+def test_sim_device_read_times_out_at_its_own_deadline_on_a_stalled_device(
+    tmp_path: Path,
+) -> None:
+    """``read_async`` gives ``None`` no sooner than its timeout after it began when the device
+    sends nothing, also when a timer set for an earlier read's deadline fires first; a frame
+    sent after a timeout is read."""
+    import asyncio
+    import socket
+    import threading
+
+    from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
+    from schemas import CameraIntrinsics, to_wire
+    from services.drivers.depth import SimDeviceSource
+
+    intrinsics = CameraIntrinsics(width=8, height=4, fx=213.0, fy=213.0, ppx=4.0, ppy=2.0)
+    path = str(tmp_path / "device.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(path)
+    server.listen(1)
+    accepted: list[socket.socket] = []
+
+    def hello() -> None:
+        conn, _ = server.accept()
+        conn.sendall(encode(DeviceHello(intrinsics=intrinsics, rate_hz=90.0)))
+        accepted.append(conn)
+
+    greeter = threading.Thread(target=hello)
+    greeter.start()
+    source = SimDeviceSource(path)
+    greeter.join()
+    device = accepted[0]
+    depth = np.arange(32, dtype=np.uint16).reshape(4, 8)
+
+    async def reads() -> list[tuple[bool, float, float]]:
+        loop = asyncio.get_running_loop()
+        out = []
+        try:
+            for timeout, send in ((0.1, False), (0.3, True), (0.6, False), (0.1, True)):
+                if send:
+                    device.sendall(encode(DeviceFrame(seq=1, t_ns=7, depth=to_wire(depth))))
+                began = loop.time()
+                reading = await source.read_async(timeout)
+                out.append((reading is not None, loop.time() - began, timeout))
+        finally:
+            source.shutdown()
+        return out
+
+    try:
+        got = asyncio.run(reads())
+    finally:
+        device.close()
+        server.close()
+    assert [read for read, _, _ in got] == [False, True, False, True]
+    for read, waited, timeout in got:
+        if not read:  # the third outlives the timer the second set (0.3 s); the loop's
+            # timers may run up to its clock's resolution early
+            assert waited >= timeout - 0.001, (waited, timeout)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import collections
 import signal
 import subprocess
 import sys
@@ -386,22 +385,39 @@ def test_take_queued_returns_every_queued_sample_without_waiting(endpoint: str) 
     asyncio.run(main())
 
 
-def test_health_latency_quantiles_by_partition_equal_the_sorted_ones() -> None:
-    """With numpy loaded the health's p50/p99 come from a partition, not a sort: the same
-    Python floats as ``_quantile`` on the sorted samples, ties and short streams included."""
-    from services.runtime import _latency_quantiles, _quantile
+def test_health_latency_quantiles_of_kept_windows_equal_the_sorted_ones(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A snapshot's p50/p99 come from each stream's window, folded from the latencies since the
+    last snapshot: with numpy loaded or not (and numpy loaded in between), the same Python
+    floats as ``_quantile`` of the stream's last 2,048 latencies sorted, ties, short streams
+    and more than a window between two snapshots included."""
+    from services.runtime import _latency_quantiles, _quantile, _Stream
 
     rng = np.random.default_rng(5)
-    for sizes in ((1,), (2,), (0, 3), (7, 100), (2048, 2048), (2048, 5, 0)):
-        streams = [
-            collections.deque(np.round(rng.exponential(2.0, n), 1).tolist(), maxlen=2048)
-            for n in sizes
-        ]
-        ordered = sorted(x for s in streams for x in s)
-        got = _latency_quantiles(streams)
-        assert got == (_quantile(ordered, 0.50), _quantile(ordered, 0.99))
-        assert all(type(q) is float for q in got)
-    assert _latency_quantiles([collections.deque(), collections.deque()]) is None
+    for numpy_at in (0, 2, 9):  # the snapshot from which numpy is loaded
+        streams = [_Stream(), _Stream(), _Stream()]
+        everything: list[list[float]] = [[], [], []]
+        for snapshot, sizes in enumerate(
+            ((1,), (2,), (0, 3), (7, 100), (2048, 2048), (2048, 5, 0), (3000, 1), (0, 0, 0))
+        ):
+            for stream, kept, n in zip(streams, everything, sizes, strict=False):
+                latencies = np.round(rng.exponential(2.0, n), 1).tolist()
+                stream.latencies_ms.extend(latencies)
+                kept.extend(latencies)
+            with monkeypatch.context() as m:
+                if snapshot < numpy_at:
+                    m.setitem(sys.modules, "numpy", None)
+                windows = [s.latency_window() for s in streams]
+                got = _latency_quantiles(windows)
+            assert [len(w) for w in windows] == [min(len(kept), 2048) for kept in everything]
+            ordered = sorted(x for kept in everything for x in kept[-2048:])
+            if not ordered:
+                assert got is None
+                continue
+            assert got == (_quantile(ordered, 0.50), _quantile(ordered, 0.99))
+            assert all(type(q) is float for q in got)
+    assert _latency_quantiles([_Stream().latency_window(), _Stream().latency_window()]) is None
 
 
 def test_router_decodes_a_sample_once_for_all_its_subscriptions(endpoint: str) -> None:
