@@ -440,9 +440,8 @@ def _past_medians(
 ) -> np.ndarray:
     """(count, 2) ``past_line_ends`` of the ``filled`` lines' end pixels' depth ``values``
     (rows as ``_pixels_past_ends`` gives them)."""
-    out = np.zeros((count, 2))
     if not filled:
-        return out
+        return np.zeros((count, 2))
     medians = []
     for row_values in values.tolist():
         # filter(None, ...) drops the 0s (no depth) in C, where a generator ran Python per
@@ -450,6 +449,10 @@ def _past_medians(
         valid = sorted(filter(None, row_values))
         n = len(valid)
         medians.append(0.5 * (valid[(n - 1) // 2] + valid[n // 2]) * depth_scale if n else 0.0)
+    if len(filled) == count:
+        # Every line has points (nearly every frame): no zeroed array to scatter them into.
+        return np.array(medians).reshape(count, 2)
+    out = np.zeros((count, 2))
     out[filled] = np.array(medians).reshape(-1, 2)
     return out
 
