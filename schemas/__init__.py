@@ -35,7 +35,7 @@ from schemas.registry import (
 )
 
 if TYPE_CHECKING:
-    from schemas.arrays import from_wire, joined_points, to_wire
+    from schemas.arrays import from_wire, joined_points, to_wire, to_wire_rows
 
 __all__ = [
     "TOPICS",
@@ -65,6 +65,7 @@ __all__ = [
     "joined_points",
     "json_schema",
     "to_wire",
+    "to_wire_rows",
     "topic_for_key",
 ]
 
@@ -72,7 +73,7 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # The array conversions load numpy (about 12 MB of a process's memory) on first use, so
     # that processes which only pass small messages (the supervisor, the hand's bridge) need not.
-    if name in ("from_wire", "joined_points", "to_wire"):
+    if name in ("from_wire", "joined_points", "to_wire", "to_wire_rows"):
         from schemas import arrays
 
         return getattr(arrays, name)

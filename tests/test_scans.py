@@ -110,6 +110,19 @@ def test_cut_pixels_index_the_depth_image() -> None:
         assert np.allclose(z_units * INTR.depth_scale, lines.points[i][:, 2])
 
 
+def test_cut_of_a_depth_at_an_odd_address_reads_the_same_pixels() -> None:
+    # A decoded frame's depth views its payload at an odd address (the cut gathers its bytes).
+    depth = _render(_ball(0.03))
+    buffer = bytearray(depth.nbytes + 1)
+    odd = np.frombuffer(buffer, dtype=np.uint16, offset=1, count=depth.size).reshape(depth.shape)
+    odd[...] = depth
+    assert not odd.flags.aligned
+    for a, b in zip(
+        cut_scan_lines(odd, INTR).points, cut_scan_lines(depth, INTR).points, strict=True
+    ):
+        assert a.size > 30 and a.tobytes() == b.tobytes()
+
+
 def test_cut_min_points_marks_short_lines_but_keeps_them() -> None:
     # A 3 mm ball at 200 mm spans about 3 px per line: fewer than min_points = 10.
     lines = cut_scan_lines(_render(_ball(0.003)), INTR)

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import itertools
 import math
 
 import msgspec
@@ -28,6 +29,7 @@ from schemas import (
     from_wire,
     json_schema,
     to_wire,
+    to_wire_rows,
     topic_for_key,
 )
 
@@ -197,6 +199,19 @@ def test_array_round_trip_and_checks() -> None:
         from_wire(short)
     with pytest.raises(ValueError, match="NaN"):
         from_wire(to_wire(np.array([np.nan], np.float32)))
+
+
+def test_rows_on_the_wire_are_each_slice_on_the_wire() -> None:
+    # The scans' four lines: empty ones, a big-endian source, and the bytes each slice encodes.
+    a = np.arange(7 * 3, dtype=np.float32).reshape(7, 3) / 7
+    bounds = [0, 0, 2, 2, 7]
+    for source in (a, a.astype(">f4")):
+        rows = to_wire_rows(source, bounds)
+        assert [r.shape for r in rows] == [[0, 3], [2, 3], [0, 3], [5, 3]]
+        assert [msgspec.msgpack.encode(r) for r in rows] == [
+            msgspec.msgpack.encode(to_wire(a[i:j])) for i, j in itertools.pairwise(bounds)
+        ]
+    np.testing.assert_array_equal(from_wire(to_wire_rows(a, [2, 5])[0]), a[2:5])
 
 
 def test_array_dtype_pattern_is_validated() -> None:

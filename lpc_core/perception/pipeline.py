@@ -5,6 +5,7 @@ Services call these live; ``lpc replay`` calls the same functions in-process on 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,7 +13,14 @@ import numpy as np
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.scans import ScanLines as CoreScanLines
 from lpc_core.perception.scans import ScanParams, cut_scan_lines
-from schemas import CameraIntrinsics, DepthFrame, ScanLine, ScanLines, from_wire, to_wire
+from schemas import (
+    CameraIntrinsics,
+    DepthFrame,
+    ScanLine,
+    ScanLines,
+    from_wire,
+    to_wire_rows,
+)
 
 
 def intrinsics_from_message(message: CameraIntrinsics) -> Intrinsics:
@@ -87,6 +95,12 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
         seen = state.intrinsics = (frame.intrinsics, intrinsics_from_message(frame.intrinsics))
     lines = cut_scan_lines(depth, seen[1], state.params)
     state.seq += 1
+    # Every line's points cast to float32 and packed in one go (the same values and bytes as
+    # a cast and a to_wire per line): seven of numpy's calls fewer a frame.
+    wire = to_wire_rows(
+        np.concatenate(lines.points, dtype=np.float32, casting="same_kind"),
+        [0, *itertools.accumulate(len(points) for points in lines.points)],
+    )
     message = ScanLines(
         seq=state.seq,
         t_ns=frame.t_ns,
@@ -94,14 +108,14 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
         lines=[
             ScanLine(
                 angle_deg=angle,
-                points=to_wire(points.astype(np.float32)),
+                points=points,
                 past_ends_m=past,
                 far_past_m=far,
             )
             # The angles in degrees in one call (the same ufunc loop as four scalar calls).
             for angle, points, past, far in zip(
                 np.degrees(lines.angles_rad).tolist(),
-                lines.points,
+                wire,
                 _past_ends(lines),
                 _far_past(lines),
                 strict=True,
