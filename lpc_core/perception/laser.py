@@ -3913,7 +3913,71 @@ def _rim_free(
     # arc's: but where the crest alone is more curved than the can (the 60 mm can refitted
     # 8-12 mm narrow at SGBM 7 with a weak pattern or a projector beside the left imager,
     # whole-arc fits within 3 mm), its silhouette lies inside the rims the lines show.
-    return _reaching_rims(solid, samples.compress(rims, axis=0), pixel_rad)
+    solid = _reaching_rims(solid, samples.compress(rims, axis=0), pixel_rad)
+    if _matched(scan_lines, params) is None:
+        solid = _unoccluded_hole(lines, solid, full, samples, params, pixel_rad, scan_lines)
+    return solid
+
+
+# The hole between a round's last sample and the background beside it, on the side that faces
+# the second imager, that says a block matcher lost the rim there (pixels across the axis):
+# at least this wide, at most _HOLE_RIM_MAX_PX (a wider one is no lost rim but another gap).
+_HOLE_RIM_PX = 3.0
+_HOLE_RIM_MAX_PX = 10.0
+
+
+def _unoccluded_hole(
+    lines: list[LineModels],
+    solid: CylinderSolid,
+    full: CylinderSolid,
+    samples: np.ndarray,
+    params: LaserParams,
+    pixel_rad: float,
+    scan_lines: ScanLinesLike | None,
+) -> CylinderSolid:
+    """``solid`` with its silhouette moved about its axis's distance to the middle of the hole
+    between the round's outermost sample (by view angle across ``solid``'s axis, among those
+    within four inlier bands of ``full``) and the first far background past it (the scans'
+    ``far_past_m``), where that sample ends its line on the side toward the second imager
+    (+x), lies a pixel or more inside ``solid``'s silhouette, and the hole spans
+    ``_HOLE_RIM_PX`` to ``_HOLE_RIM_MAX_PX`` pixels; else ``solid``.
+
+    On that side the background right beside a round is seen by both imagers: occlusion
+    leaves no hole there (it leaves its band on the -x side), so a hole between the round and
+    its background is the matcher's own loss, a block matcher's window straddling the rim
+    failing its texture or uniqueness test. Its samples then stop 1-7 px short of the true
+    silhouette (the 60 mm upright can, BM 5-11: median 3.5 px), the background resumes 0-5 px
+    past it, and the silhouette lies within the hole, about its middle (within 1.5 px on most
+    such frames). Only under residuals uncorrelated like a block matcher's (``_matched`` is
+    None): an SGBM-like window fattens that rim past the silhouette before the hole (1-10 px
+    on SGBM 5 with uniqueness 15 and hand-held settings), and the hole's middle lies beyond
+    it. The refit the hole widens is the samples' own (see ``_rim_free``): a sample a pixel or
+    more inside its silhouette shows the round goes on past its last sample."""
+    far = getattr(scan_lines, "far_past_m", None)
+    if far is None:
+        return solid
+    view = _axis_in_view(solid)
+    angle = _across_view(solid, samples)
+    if view is None or angle is None:
+        return solid
+    on = np.flatnonzero(full.residuals(samples) <= 4 * params.solid_threshold_m)
+    if len(on) == 0:
+        return solid
+    distance, half = view
+    for sign, (ln, k) in zip((-1.0, 1.0), _outermost_samples(lines, angle, on), strict=True):
+        if k not in (0, len(ln.points) - 1) or ln.index >= len(far):
+            continue
+        end = ln.points[k]
+        seen = far[ln.index][0 if k == 0 else 1]
+        if seen[2] <= 0 or seen[0] / seen[2] <= end[0] / end[2]:
+            continue  # no background within reach, or the side away from the second imager
+        past, at = sign * _across_view(solid, np.stack([seen, end]))
+        hole = (past - at) / pixel_rad
+        if at > half - pixel_rad or not _HOLE_RIM_PX <= hole <= _HOLE_RIM_MAX_PX:
+            continue
+        middle = min(0.5 * float(past + at), 0.5 * math.pi)
+        return replace(solid, radius=distance * math.sin(middle))
+    return solid
 
 
 # How many on-round samples at each end of a line's run show where its rim is, and how fast
