@@ -8,7 +8,9 @@ import importlib.abc
 import os
 import re
 import signal
+import socket
 import sys
+import threading
 from pathlib import Path
 from types import ModuleType
 
@@ -16,12 +18,14 @@ import numpy as np
 import pytest
 import zenoh
 
+from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
 from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
 from lpc_core.perception.pipeline import depth_image, intrinsics_from_message
-from schemas import decode
+from schemas import CameraIntrinsics, decode, to_wire
 from services.drivers.depth import (
     EndOfStream,
     RealSenseSource,
+    SimDeviceSource,
     SourceUnavailable,
     skip_missed_slots,
 )
@@ -296,19 +300,9 @@ def test_a_frame_clock_behind_skips_the_slots_it_missed() -> None:
     assert skip_missed_slots(5, 3, 10, 20) == (5, 0)  # early is no skip
 
 
-def test_sim_device_frames_read_on_the_loop_stay_intact_while_later_ones_arrive(
-    tmp_path: Path,
-) -> None:
-    """``read_async`` decodes a frame that arrived whole where it lies in the receive buffer:
-    frames kept while the next pieces arrive (three to a piece here) keep their own depth."""
-    import asyncio
-    import socket
-    import threading
-
-    from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
-    from schemas import CameraIntrinsics, to_wire
-    from services.drivers.depth import SimDeviceSource
-
+def _sim_device(tmp_path: Path) -> tuple[SimDeviceSource, socket.socket, socket.socket]:
+    """A ``SimDeviceSource`` connected to a device socket this test plays: the source, the
+    device's end of the connection (its hello already sent) and the listening socket."""
     intrinsics = CameraIntrinsics(width=8, height=4, fx=213.0, fy=213.0, ppx=4.0, ppy=2.0)
     path = str(tmp_path / "device.sock")
     server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -325,7 +319,17 @@ def test_sim_device_frames_read_on_the_loop_stay_intact_while_later_ones_arrive(
     greeter.start()
     source = SimDeviceSource(path)
     greeter.join()
-    device = accepted[0]
+    return source, accepted[0], server
+
+
+def test_sim_device_frames_read_on_the_loop_stay_intact_while_later_ones_arrive(
+    tmp_path: Path,
+) -> None:
+    """``read_async`` decodes a frame that arrived whole where it lies in the receive buffer:
+    frames kept while the next pieces arrive (three to a piece here) keep their own depth."""
+    import asyncio
+
+    source, device, server = _sim_device(tmp_path)
     sent = [np.arange(32, dtype=np.uint16).reshape(4, 8) * (k + 1) for k in range(9)]
 
     async def read_all() -> list:
@@ -362,30 +366,8 @@ def test_sim_device_read_times_out_at_its_own_deadline_on_a_stalled_device(
     sends nothing, also when a timer set for an earlier read's deadline fires first; a frame
     sent after a timeout is read."""
     import asyncio
-    import socket
-    import threading
 
-    from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
-    from schemas import CameraIntrinsics, to_wire
-    from services.drivers.depth import SimDeviceSource
-
-    intrinsics = CameraIntrinsics(width=8, height=4, fx=213.0, fy=213.0, ppx=4.0, ppy=2.0)
-    path = str(tmp_path / "device.sock")
-    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    server.bind(path)
-    server.listen(1)
-    accepted: list[socket.socket] = []
-
-    def hello() -> None:
-        conn, _ = server.accept()
-        conn.sendall(encode(DeviceHello(intrinsics=intrinsics, rate_hz=90.0)))
-        accepted.append(conn)
-
-    greeter = threading.Thread(target=hello)
-    greeter.start()
-    source = SimDeviceSource(path)
-    greeter.join()
-    device = accepted[0]
+    source, device, server = _sim_device(tmp_path)
     depth = np.arange(32, dtype=np.uint16).reshape(4, 8)
 
     async def reads() -> list[tuple[bool, float, float]]:
