@@ -1825,20 +1825,29 @@ def _none(reason: str, points: int, extra: dict[str, float]) -> Reconstruction:
     return Reconstruction(shape="none", method="cloud", reason=reason, points=points, extra=extra)
 
 
+def _rest_plane(support: np.ndarray, params: CloudParams) -> PlaneSolid | None:
+    """The supporting plane through ``support`` (its points; none when the frame had no such
+    plane) for the resting rules, fitted once per frame; ``None`` where they are off, the
+    points too few or the fit failed."""
+    if params.rest_gap_ratio == 0 or len(support) < max(3, params.rest_min_support_points):
+        return None
+    plane = PlaneSolid.estimate(support)
+    return plane if plane else None
+
+
 def _resting_width(
     segment: np.ndarray,
-    support: np.ndarray,
+    plane: PlaneSolid | None,
     centre: np.ndarray,
     radius: float,
     axis: np.ndarray | None,
     params: CloudParams,
+    tolerance_m: float | None = None,
 ) -> float | None:
-    """The width of a round resting on the supporting plane (``support``, its points; none
-    when the frame had no such plane), fitted again touching it (``solids.resting_width``)."""
-    if params.rest_gap_ratio == 0 or len(support) < max(3, params.rest_min_support_points):
-        return None
-    plane = PlaneSolid.estimate(support)
-    if not plane:
+    """The width of a round resting on the supporting plane (``_rest_plane``), fitted again
+    touching it (``solids.resting_width``; where it already touches it within ``tolerance_m``,
+    by default the fit threshold, the fit stands)."""
+    if plane is None:
         return None
     return resting_width(
         segment,
@@ -1849,47 +1858,33 @@ def _resting_width(
         gap_ratio=params.rest_gap_ratio,
         float_ratio=params.rest_float_ratio,
         max_tilt_rad=params.rest_max_tilt_rad,
-        tolerance_m=params.fit_threshold_m,
+        tolerance_m=params.fit_threshold_m if tolerance_m is None else tolerance_m,
         radius_limits_m=(params.radius_min_m, params.radius_max_m),
     )
 
 
 def _lifted_rest(
     segment: np.ndarray,
-    support: np.ndarray,
+    plane: PlaneSolid | None,
     facing: SphereModel,
     whole: SphereModel,
     params: CloudParams,
 ) -> float | None:
     """The width of a ball whose camera-facing fit (``facing``) floats off the supporting plane
-    (``support``, its points) while its fit on every inlier (``whole``) rests on it, fitted
-    again touching it from ``whole`` (``solids.resting_width``, as _resting_width, but even
-    where ``whole`` already touches it within the fit threshold); else ``None``.
+    (``_rest_plane``) while its fit on every inlier (``whole``) rests on it, fitted again
+    touching it from ``whole`` (``_resting_width`` with no tolerance: even where ``whole``
+    already touches it within the fit threshold); else ``None``.
 
     On a cap a free sphere trades its radius against its centre's depth, and a block
     matcher's noisy cap lets the trade run: BM 9 with a prefilter cap of 25, the 40 mm ball,
     trial 1: caps 31-35 mm across standing 4.4-6.5 mm off the table, too far for the resting
     rule, where the whole fit touches it or sinks 2.5 mm into it."""
-    if params.rest_gap_ratio == 0 or len(support) < max(3, params.rest_min_support_points):
-        return None
-    plane = PlaneSolid.estimate(support)
-    if not plane:
+    if plane is None:
         return None
     lifted = float((facing.center - plane.point) @ plane.normal) - facing.radius
     if lifted <= params.fit_threshold_m:
         return None
-    return resting_width(
-        segment,
-        plane,
-        whole.center,
-        whole.radius,
-        None,
-        gap_ratio=params.rest_gap_ratio,
-        float_ratio=params.rest_float_ratio,
-        max_tilt_rad=params.rest_max_tilt_rad,
-        tolerance_m=0.0,
-        radius_limits_m=(params.radius_min_m, params.radius_max_m),
-    )
+    return _resting_width(segment, plane, whole.center, whole.radius, None, params, 0.0)
 
 
 def _behind_support(segment: np.ndarray, support: np.ndarray, params: CloudParams) -> bool:
@@ -2037,11 +2032,12 @@ def reconstruct_cloud(
     support = cloud[~keep]
     if isinstance(fit, _Fit) and isinstance(fit.model, SphereModel):
         sphere = _round_facing(depth, intrinsics, segment, fit.model, params)
+        plane = _rest_plane(support, params)
         resting = _resting_width(
-            segment[fit.inliers], support, sphere.center, sphere.radius, None, params
+            segment[fit.inliers], plane, sphere.center, sphere.radius, None, params
         )
         if resting is None and sphere is not fit.model:
-            resting = _lifted_rest(segment[fit.inliers], support, sphere, fit.model, params)
+            resting = _lifted_rest(segment[fit.inliers], plane, sphere, fit.model, params)
         return Reconstruction(
             shape="sphere", method="cloud",
             grasp_width_m=2 * sphere.radius if resting is None else resting,
@@ -2051,7 +2047,12 @@ def reconstruct_cloud(
     if isinstance(fit, _Fit) and isinstance(fit.model, CylinderModel):
         cylinder = _round_facing(depth, intrinsics, segment, fit.model, params, support)
         resting = _resting_width(
-            segment[fit.inliers], support, cylinder.center, cylinder.radius, cylinder.axis, params
+            segment[fit.inliers],
+            _rest_plane(support, params),
+            cylinder.center,
+            cylinder.radius,
+            cylinder.axis,
+            params,
         )
         axis = _canonical_axis(cylinder.axis)
         on_axis = segment[fit.inliers] - cylinder.center
