@@ -3321,22 +3321,24 @@ def _decide(
         ramped = np.where((ramp > 0) & ~seeds.cropped, rest, 0.0)
         seeds = replace(seeds, occluding=np.where(seeds.occluding > 0, 1.0, ramped))
     stepped = None
-    if window and past is not None and seeds.occluding is not None:
+    # The depths past the lines' ends as Python floats, for the per-end rules below.
+    past_rows = None if past is None else np.asarray(past).tolist()
+    if window and past_rows is not None and seeds.occluding is not None:
         share = np.array(_window_shares(on_face, past, _pixel_rad(lines, params), shares))
         extra["near_ends"] = float(np.count_nonzero((seeds.occluding > 0) & (share < 1.0)))
         # Each seed's share of the window's trim (0: not occluding): see _trimmed_sides.
         seeds = replace(seeds, occluding=seeds.occluding * share)
         # A run ending on a ramp down to a near background: its share of the step behind it,
         # for its side's median only (see _consistent_sides).
-        stepped = np.array(_stepped_ends(on_face, solid, np.asarray(past).tolist(), params))
+        stepped = np.array(_stepped_ends(on_face, solid, past_rows, params))
         stepped = np.where(seeds.cropped | (seeds.occluding > 0), 0.0, stepped)
-    if seeds.occluding is not None and past is not None:
+    if seeds.occluding is not None and past_rows is not None:
         # A run that stops short of its segment's end with a far background behind it ended
         # at the face's edge as well, its last samples on a fattening ramp too long for
         # _ramp_ends: its place took a whole window's fattening, as an occluding seed's.
         # Not without the scans' depth past the lines' ends (recorded before it was): with
         # no samples beyond its segment, a crease's run would count as far.
-        far = np.array(_far_behind(on_face, np.asarray(past).tolist(), params))
+        far = np.array(_far_behind(on_face, past_rows, params))
         fattened = np.where(far & ~seeds.cropped, 1.0, 0.0)
         seeds = replace(seeds, fattened=np.where(seeds.occluding > 0, seeds.occluding, fattened))
     elif seeds.occluding is not None:
