@@ -49,8 +49,8 @@ zstd 864k -> 569k instructions a depth frame on a live recording's stream (18 me
 frame), the whole writer about 5.1 -> 4.85 M, zstd level 1 4.3 M of it. zstd is the floor: on
 the same chunks every setting lies on one curve of CPU against size (level -1 8 % fewer
 instructions for 13 % more bytes, -5 21 % for 36 %; LZ4 with a checksum takes the CPU time of
-level -3 for the ratio of -5), so level 1 stays. On the loop, ``gap_step`` is most of the rest
-(about 24k of 39k instructions a message).
+level -3 for the ratio of -5), so level 1 stays. On the loop, ``gap_step`` was most of the rest
+(about 24k of 39k instructions a message); with its tracks as plain tuples, 17k of 31k.
 """
 
 from __future__ import annotations
