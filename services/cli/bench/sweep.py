@@ -427,9 +427,9 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"sgbm_mode": "3way", "uniqueness": 6, "disp12_max_diff": 2},
     ),
-    # Held out from every helper of stop 40: only the lead's before -> after runs on them.
-    "fresh-bm7t": Setting(
-        "fresh",
+    # Held out from every helper of stop 40 (then its "fresh" group); studied from stop 41.
+    "bm7-t6": Setting(
+        "untuned",
         "BM 7, uniqueness 8, texture threshold 6, prefilter cap 45, speckle window 60 of "
         "range 3, 0.055 dots/px² of 0.65 px, a twentieth pattern",
         rig={"dot_density": 0.055, "dot_sigma_px": 0.65, "pattern_seed": 20},
@@ -443,16 +443,16 @@ SETTINGS: dict[str, Setting] = {
             "speckle_range": 3,
         },
     ),
-    "fresh-sg9w": Setting(
-        "fresh",
+    "sg9-w": Setting(
+        "untuned",
         "SGBM 9, P1 x 1.25 and P2 x 2.5, uniqueness 12, left-right 3 px, dots of brightness "
         "0.5-0.9, a twenty-first pattern",
         rig={"dot_brightness": (0.5, 0.9), "pattern_seed": 21},
         matcher={"block_size": 9, "uniqueness": 12, "disp12_max_diff": 3},
         smoothness=(1.25, 2.5),
     ),
-    "fresh-b56": Setting(
-        "fresh",
+    "b56-p40": Setting(
+        "untuned",
         "SGBM 7, 56 mm baseline, projector 40 mm from the left imager, optics 0.7 px, "
         "1.4 times the room light, 1.25 times the shot noise, a twenty-second pattern",
         rig={
@@ -464,19 +464,68 @@ SETTINGS: dict[str, Setting] = {
             "pattern_seed": 22,
         },
     ),
-    "fresh-hh7d": Setting(
-        "fresh",
+    "hh7-d": Setting(
+        "untuned",
         "SGBM 7, HH mode, albedo 0.65, 87 % of the signal, read noise 1.5, texture check 4, "
         "a twenty-third pattern",
         rig={"albedo": 0.65, "gain_dn": 280.0, "read_noise_dn": 1.5, "pattern_seed": 23},
         matcher={"sgbm_mode": "hh", "min_texture": 4.0},
     ),
-    "fresh-3way5x3": Setting(
-        "fresh",
+    "3way5-x3": Setting(
+        "untuned",
         "SGBM 5, 3-way mode, IR 3x supersampled, 0.05 dots/px² of 0.8 px, uniqueness 9, "
         "speckle window 120, a twenty-fourth pattern",
         rig={"supersample": 3, "dot_density": 0.05, "dot_sigma_px": 0.8, "pattern_seed": 24},
         matcher={"block_size": 5, "sgbm_mode": "3way", "uniqueness": 9, "speckle_window": 120},
+    ),
+    # Held out from every helper of stop 41: only the lead's before -> after runs on them.
+    "fresh-bm5s": Setting(
+        "fresh",
+        "BM 5, uniqueness 12, texture threshold 15, prefilter cap 35, optics 0.6 px, "
+        "a twenty-fifth pattern",
+        rig={"blur_sigma_px": 0.6, "pattern_seed": 25},
+        matcher={
+            "kind": "bm",
+            "block_size": 5,
+            "uniqueness": 12,
+            "texture_threshold": 15,
+            "pre_filter_cap": 35,
+        },
+    ),
+    "fresh-sg7p": Setting(
+        "fresh",
+        "SGBM 7, P1 x 0.75 and P2 x 4, uniqueness 7, speckle window 80 of range 2, "
+        "a twenty-sixth pattern",
+        rig={"pattern_seed": 26},
+        matcher={"uniqueness": 7, "speckle_window": 80},
+        smoothness=(0.75, 4.0),
+    ),
+    "fresh-b42": Setting(
+        "fresh",
+        "SGBM 9, 42 mm baseline, projector 30 mm from the left imager, albedo 0.7, "
+        "read noise 1.3, a twenty-seventh pattern",
+        rig={
+            "baseline_m": 0.042,
+            "projector_x_m": 0.03,
+            "albedo": 0.7,
+            "read_noise_dn": 1.3,
+            "pattern_seed": 27,
+        },
+        matcher={"block_size": 9},
+    ),
+    "fresh-hh9s": Setting(
+        "fresh",
+        "SGBM 9, HH mode, IR 2x supersampled, 0.045 dots/px² of 0.7 px, left-right 2 px, "
+        "a twenty-eighth pattern",
+        rig={"supersample": 2, "dot_density": 0.045, "dot_sigma_px": 0.7, "pattern_seed": 28},
+        matcher={"block_size": 9, "sgbm_mode": "hh", "disp12_max_diff": 2},
+    ),
+    "fresh-3way7l": Setting(
+        "fresh",
+        "SGBM 7, 3-way mode, twice the room light, 1.7 times the shot noise, uniqueness 11, "
+        "texture check 5.5, a twenty-ninth pattern",
+        rig={"ambient": 0.16, "electrons_per_dn": 6.0, "pattern_seed": 29},
+        matcher={"sgbm_mode": "3way", "uniqueness": 11, "min_texture": 5.5},
     ),
 }
 
