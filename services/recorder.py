@@ -109,23 +109,26 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     # Set per message only where they change (gaps, missing) or at each hand-over (files: the
     # thread rotates), not on every message.
     bus.health.counters.update(files=len(writer.paths), gaps=0, missing=0)
+    batch: list[tuple[str, bytes, int]] = []  # taken from the subscription, not yet queued
     try:
         while True:
             # What the loop handed over, taken at once; then what the batch's gap logs added.
             batch = [await sub.receive(), *sub.take_queued()]
             while batch:
-                for start in range(0, len(batch), SLICE):
-                    if start:  # a backlog: the other tasks run between slices
-                        await asyncio.sleep(0)
-                    gaps = _record(bus, writer, gaps, batch[start : start + SLICE])
-                batch = sub.take_queued()
+                gaps = _record(bus, writer, gaps, batch[:SLICE])
+                batch = batch[SLICE:]
+                if batch:  # a backlog: the other tasks run between slices
+                    await asyncio.sleep(0)
+                else:
+                    batch = sub.take_queued()
             writer.hand_over()  # the batch the loop handed over is queued: the thread's turn
             bus.health.counters["writer_cpu_ms"] = writer.cpu_ns // 1_000_000
             bus.health.counters["files"] = len(writer.paths)
             if writer.backlog > QUEUE_CAPACITY:  # a slow disk: the subscription's queue fills
                 await asyncio.to_thread(writer.drain)
     finally:
-        # Cancelled by SIGINT/SIGTERM: keep what is already queued, then finish the file.
+        # Cancelled by SIGINT/SIGTERM: keep what is already taken or queued, then finish the file.
+        gaps = _record(bus, writer, gaps, batch + sub.take_queued())
         end = time.monotonic() + DRAIN_MAX_S
         with contextlib.suppress(TimeoutError):
             while time.monotonic() < end:
