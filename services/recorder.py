@@ -51,6 +51,11 @@ the same chunks every setting lies on one curve of CPU against size (level -1 8 
 instructions for 13 % more bytes, -5 21 % for 36 %; LZ4 with a checksum takes the CPU time of
 level -3 for the ratio of -5), so level 1 stays. On the loop, ``gap_step`` was most of the rest
 (about 24k of 39k instructions a message); with its tracks as plain tuples, 17k of 31k.
+
+The loop then takes what its subscription holds at a hand-over in one go (``take_queued``) and
+steps the gap tracker over the batch (``gap_steps``: one copy of the tracks a batch, not one a
+message): the loop's side, ``Subscription.receive`` included, 33.3k -> 20.6k instructions a
+message on a live recording's stream (callgrind, 3,000 messages in 50 ms batches).
 """
 
 from __future__ import annotations
@@ -62,7 +67,7 @@ import sys
 import time
 from pathlib import Path
 
-from lpc_core.gaps import GapState, gap_step
+from lpc_core.gaps import GapState, gap_steps
 from services.mcap_log import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -79,6 +84,9 @@ QUEUE_CAPACITY = 1 << 16  # ~6 s of everything at 90 Hz depth: a slow disk stall
 # for at most DRAIN_MAX_S ('lpc up' stops the recorder last and gives each service 2 s).
 DRAIN_IDLE_S = 0.25
 DRAIN_MAX_S = 1.5
+# A backlog is queued for the writer this many messages at a time (about 2 ms of the loop's),
+# with the other tasks' turn between: what ``Subscription.receive`` gives a backlogged reader.
+SLICE = 512
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
@@ -101,24 +109,32 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     # Set per message only where they change (gaps, missing) or at each hand-over (files: the
     # thread rotates), not on every message.
     bus.health.counters.update(files=len(writer.paths), gaps=0, missing=0)
+    batch: list[tuple[str, bytes, int]] = []  # taken from the subscription, not yet queued
     try:
         while True:
-            key, payload, received_ns = await sub.receive()
-            gaps = _record(bus, writer, gaps, key, payload, received_ns)
-            if not sub.queued:  # the batch the loop handed over is queued: the thread's turn
-                writer.hand_over()
-                bus.health.counters["writer_cpu_ms"] = writer.cpu_ns // 1_000_000
-                bus.health.counters["files"] = len(writer.paths)
-                if writer.backlog > QUEUE_CAPACITY:  # a slow disk: the subscription's queue fills
-                    await asyncio.to_thread(writer.drain)
+            # What the loop handed over, taken at once; then what the batch's gap logs added.
+            batch = [await sub.receive(), *sub.take_queued()]
+            while batch:
+                gaps = _record(bus, writer, gaps, batch[:SLICE])
+                batch = batch[SLICE:]
+                if batch:  # a backlog: the other tasks run between slices
+                    await asyncio.sleep(0)
+                else:
+                    batch = sub.take_queued()
+            writer.hand_over()  # the batch the loop handed over is queued: the thread's turn
+            bus.health.counters["writer_cpu_ms"] = writer.cpu_ns // 1_000_000
+            bus.health.counters["files"] = len(writer.paths)
+            if writer.backlog > QUEUE_CAPACITY:  # a slow disk: the subscription's queue fills
+                await asyncio.to_thread(writer.drain)
     finally:
-        # Cancelled by SIGINT/SIGTERM: keep what is already queued, then finish the file.
+        # Cancelled by SIGINT/SIGTERM: keep what is already taken or queued, then finish the file.
+        gaps = _record(bus, writer, gaps, batch + sub.take_queued())
         end = time.monotonic() + DRAIN_MAX_S
         with contextlib.suppress(TimeoutError):
             while time.monotonic() < end:
                 async with asyncio.timeout(DRAIN_IDLE_S):
-                    key, payload, received_ns = await sub.receive()
-                gaps = _record(bus, writer, gaps, key, payload, received_ns)
+                    batch = [await sub.receive()]
+                gaps = _record(bus, writer, gaps, batch + sub.take_queued())
         writer.finish()  # on the loop: a second cancellation must not leave the file unfinished
         bus.health.counters["writer_cpu_ms"] = writer.cpu_ns // 1_000_000
         bus.health.counters["files"] = len(writer.paths)
@@ -136,23 +152,26 @@ def _record(
     bus: Bus,
     writer: BackgroundLogWriter,
     gaps: GapState,
-    key: str,
-    payload: bytes,
-    received_ns: int,
+    batch: list[tuple[str, bytes, int]],
 ) -> GapState:
-    header = writer.write_received(key, payload, received_ns)
+    """Queue a batch of ``(key, payload, received_ns)`` for the writer; log the gaps it shows."""
+    stepped = []
+    received = bus.health.received
+    for key, payload, received_ns in batch:
+        header = writer.write_received(key, payload, received_ns)
+        if header is None:
+            received[key].rejected += 1
+            bus.reject(key, "no readable seq/t_ns header; kept raw on lpc/_rejected/" + key)
+        elif not key.startswith("lpc/log/recorder"):
+            stepped.append((key, header[0], received_ns))
     counters = bus.health.counters
-    counters["written"] += 1
-    if header is None:
-        bus.health.received[key].rejected += 1
-        bus.reject(key, "no readable seq/t_ns header; kept raw on lpc/_rejected/" + key)
-    elif not key.startswith("lpc/log/recorder"):
-        gaps, found = gap_step(gaps, key, header[0], received_ns)
-        if found:
-            for gap in found:
-                bus.log("warning", gap.describe())
-            counters["gaps"] = gaps.gaps
-            counters["missing"] = gaps.missing
+    counters["written"] += len(batch)
+    gaps, found = gap_steps(gaps, stepped)
+    if found:
+        for gap in found:
+            bus.log("warning", gap.describe())
+        counters["gaps"] = gaps.gaps
+        counters["missing"] = gaps.missing
     return gaps
 
 

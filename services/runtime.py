@@ -35,9 +35,12 @@ from services.heap import keep_freed_memory
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 HEALTH_PERIOD_S = 1.0
 YIELD_AFTER_NS = 2_000_000  # a backlogged subscription yields the loop after this long
-# A subscription that is not ``prompt`` (the recorder's) gets the samples of other threads when
-# its loop wakes for something else, or at the latest after this long.
+# A subscription that is not ``prompt`` (the recorder's) is handed its samples at the first
+# that comes this long after the last hand-over, riding a wake-up of its loop for something else
+# (a frame), or by a timer twice this long after it on a loop that nothing else wakes.
 UNPROMPTED_PERIOD_S = 0.05
+UNPROMPTED_PERIOD_NS = int(UNPROMPTED_PERIOD_S * 1e9)
+_NEVER = 2**63
 # Samples that wake no one wait in a router's inbox for the loop's next wake-up; past this
 # many the loop is woken to hand them over: its inbox stays bounded on a loop that nothing
 # else wakes (a reader that only takes, no timer of its own), a second of the hand's status.
@@ -369,10 +372,11 @@ class Subscription:
     ``prompt=False`` (a subscriber that records rather than reacts): in a process with a
     ``Router``, a sample that arrives on another thread (Zenoh's, or the container's control
     loop) and that no prompt subscription of this loop wants does not wake the loop; it is
-    handed over at the loop's next wake-up, within ``UNPROMPTED_PERIOD_S``. Nor does a sample
-    wake the subscriber's task: that takes what is queued every ``UNPROMPTED_PERIOD_S``, in one
-    go (the period starts when a task first waits: a reader that only takes, ``take_queued``,
-    starts no timer). A sample's receive time is still taken when it arrives.
+    handed over at the loop's next wake-up, or at the next hand-over. Nor does a sample wake
+    the subscriber's task: that takes what is queued at a hand-over, in one go: at the first
+    sample pushed ``UNPROMPTED_PERIOD_S`` after the last, or by a timer twice that long after
+    it (the timer starts when a task first waits: a reader that only takes, ``take_queued``,
+    starts none). A sample's receive time is still taken when it arrives.
     """
 
     def __init__(
@@ -421,6 +425,8 @@ class Subscription:
         self._queue.append(item)
         if self.prompt or self._router is None:
             self._wake()
+        elif item[2] >= self._router.hand_over_due_ns:
+            self._router.hand_over_soon()
         if self.paces is not None:
             self.paces.arrived(item[2])
 
@@ -659,7 +665,9 @@ class Router:
         self._subs: list[Subscription] = []
         self._routes: dict[str, list[Subscription]] = {}  # concrete key -> its subscriptions
         self._prompt: dict[str, bool] = {}  # concrete key -> whether a sample wakes the loop
-        self._unprompted: asyncio.TimerHandle | None = None
+        self._unprompted: asyncio.Handle | None = None
+        # A sample received from then on for a subscription that is not prompt hands over.
+        self.hand_over_due_ns = _NEVER
         self._by_key: dict[str, tuple[zenoh.Subscriber, list[Subscription]]] = {}
         self._inbox: collections.deque[tuple[str | None, tuple[str, bytes, int]]] = (
             collections.deque()
@@ -776,24 +784,40 @@ class Router:
 
     def hand_over_periodically(self) -> None:
         """On this router's loop, for a task about to wait on a subscription that is not
-        prompt: hand samples over every ``UNPROMPTED_PERIOD_S`` from now on. Only such a task
+        prompt: hand samples over about every ``UNPROMPTED_PERIOD_S`` from now on. Only such a task
         needs the timer: a reader that takes (``take_queued``, ``Newest.take``) is handed its
         samples when it takes, and the controller's and the simulated user's timer woke the
         control loop 20 times a second for nothing."""
         if self._unprompted is None:
-            self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
+            self._rearm()
+
+    def hand_over_soon(self) -> None:
+        """On this router's loop, woken for something else: a sample came for a subscription
+        that is not prompt ``UNPROMPTED_PERIOD_S`` after the last hand-over, so hand over now,
+        once this pass is done, and push the timer back. On a loop that wakes for frames the
+        hand-overs ride its wake-ups: the timer fired 20 times a second into an idle loop."""
+        self.hand_over_due_ns = _NEVER
+        if self._unprompted is not None:
+            self._unprompted.cancel()
+        self._unprompted = self._loop.call_soon(self._hand_over)
 
     def _hand_over(self) -> None:
         # On the loop: what waited for a wake-up is handed over now, at the latest, and the
         # subscribers that are not prompt are woken for all they have queued since the last time.
+        self.hand_over_due_ns = _NEVER  # the drain's pushes are this hand-over's
+        self._unprompted = None
         self._drain()
         for sub in self._subs:
             if not sub.prompt and sub._queue:
                 sub._wake()
         if any(not s.prompt and s.awaited for s in self._subs):
-            self._unprompted = self._loop.call_later(UNPROMPTED_PERIOD_S, self._hand_over)
-        else:
-            self._unprompted = None
+            self._rearm()
+
+    def _rearm(self) -> None:
+        # The next hand-over: at the first sample after the period, or by the timer a period
+        # later if none comes (a loop that nothing else wakes).
+        self.hand_over_due_ns = self._clock.now_ns() + UNPROMPTED_PERIOD_NS
+        self._unprompted = self._loop.call_later(2 * UNPROMPTED_PERIOD_S, self._hand_over)
 
     def _enqueue(self, route: str | None, item: tuple[str, bytes, int], wake: bool) -> None:
         # A sample that wakes no one waits in the inbox for the next drain: the loop's next

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lpc_core.gaps import SOURCE_SEQ_KEYS, Gap, GapParams, GapState, gap_step
+from lpc_core.gaps import SOURCE_SEQ_KEYS, Gap, GapParams, GapState, gap_step, gap_steps
 
 MS = 1_000_000
 
@@ -163,3 +163,29 @@ def test_gaps_step_agrees_with_the_reference_where_the_pace_is_not_a_number() ->
         state, gaps = gap_step(state, key, seq, t_ns)
         assert gaps == _reference_step(params, ref_tracks, key, seq, t_ns)
     assert [(g.silent, g.start_ns, g.end_ns) for g in gaps] == [(True, 0, 2000 * MS)]
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_gap_steps_over_batches_agree_with_the_reference(seed: int) -> None:
+    # The recorder's batches (one a hand-over, from one message to thousands): the gaps in
+    # order and each batch's end state are the reference's after the same messages.
+    rng = np.random.default_rng(10 + seed)
+    params = GapParams(steady_count=int(rng.integers(5, 30)), min_silence_ms=rng.uniform(50, 600))
+    stream = _random_stream(rng, 20_000)
+    cuts = np.sort(rng.choice(np.arange(1, len(stream)), size=200, replace=False))
+    state, ref_tracks, ref_gaps, ref_missing, found = GapState(params=params), {}, 0, 0, 0
+    for batch in np.split(np.arange(len(stream)), cuts):
+        messages = [stream[i] for i in batch]
+        expected = [g for m in messages for g in _reference_step(params, ref_tracks, *m)]
+        before, before_tracks = state, dict(state.tracks)
+        state, gaps = gap_steps(state, messages)
+        assert gaps == expected
+        ref_gaps += len(expected)
+        ref_missing += sum(g.missing for g in expected)
+        found += len(expected)
+        assert (state.gaps, state.missing, state.params) == (ref_gaps, ref_missing, params)
+        tracks = {k: (r.seq, r.last_ns, r.period_ns, r.count) for k, r in ref_tracks.items()}
+        assert dict(state.tracks) == tracks
+        assert dict(before.tracks) == before_tracks  # the state it was given is unchanged
+    assert found > 10
+    assert gap_steps(state, []) == (state, [])

@@ -7,6 +7,7 @@ import asyncio
 import signal
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from schemas import EmgSample, Health, ProsthesisState, decode, encode
@@ -30,8 +31,11 @@ def payloads(n: int) -> list[tuple[str, bytes]]:
 
 
 def test_recorder_round_trip_keeps_every_message_in_order(
-    tmp_path: Path, endpoint: str, rendezvous: zenoh.Session
+    tmp_path: Path, endpoint: str, rendezvous: zenoh.Session, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    # Batches in slices of 7: the task is cancelled once every message is received (taken
+    # from the subscription), which may be between two slices of a batch not yet queued.
+    monkeypatch.setattr(recorder, "SLICE", 7)
     sent = payloads(300)
     out = tmp_path / "rec.mcap"
 

@@ -305,6 +305,56 @@ def test_router_hands_over_on_a_timer_only_for_a_task_that_waits(endpoint: str) 
     asyncio.run(main())
 
 
+def test_router_hands_over_at_the_first_sample_a_period_after_the_last(endpoint: str) -> None:
+    """On a loop woken for something else (the camera's frames), a ``prompt=False``
+    subscription's task is handed its samples at the first one pushed ``UNPROMPTED_PERIOD_S``
+    after the last hand-over, by the router's clock, not by a timer's wake-up of its own; the
+    timer is pushed back a period past the next hand-over."""
+
+    class Clock:
+        t_ns = 0
+
+        def now_ns(self) -> int:
+            return self.t_ns
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        session = zenoh.open(zenoh_config(connect=[endpoint]))
+        router = Router(session, loop, wildcard=False)
+        clock = router._clock = Clock()  # type: ignore[assignment]
+        fired: list[int] = []
+        hand_over = router._hand_over
+
+        def counted() -> None:
+            fired.append(clock.t_ns)
+            hand_over()
+
+        router._hand_over = counted  # type: ignore[method-assign]
+        bus = Bus(session, "recorder", loop=loop, router=router, quiet=True)
+        sub = bus.subscribe("lpc/emg", latest=False, prompt=False)
+        task = asyncio.create_task(sub.receive())
+        await asyncio.sleep(0)  # it waits: the hand-overs start, the first due a period on
+        period_ns = round(UNPROMPTED_PERIOD_S * 1e9)
+        assert router.hand_over_due_ns == period_ns
+        timer = router._unprompted
+        assert isinstance(timer, asyncio.TimerHandle)
+        assert timer.when() - loop.time() > 1.5 * UNPROMPTED_PERIOD_S, "a backstop, pushed back"
+        for seq, t_ns in enumerate((1, period_ns - 1, period_ns, period_ns + 1)):
+            clock.t_ns = t_ns  # the receive time: a sample published on the loop's thread
+            router.deliver("lpc/emg", encode(EmgSample(seq=seq, t_ns=t_ns, channels=[0.0])))
+            await asyncio.sleep(0)
+            await asyncio.sleep(0)
+            assert task.done() == (t_ns >= period_ns), t_ns
+        assert fired == [period_ns], "one hand-over, at the first sample due"
+        assert timer.cancelled() and router.hand_over_due_ns == 2 * period_ns
+        assert [m.seq for _, m, _ in [await task, *sub.take_queued()]] == [0, 1, 2, 3]
+        bus.close()
+        router.close()
+        session.close()
+
+    asyncio.run(main())
+
+
 def test_newest_takes_the_last_sample_without_waking_the_loop(endpoint: str) -> None:
     """A ``Bus.newest`` subscription (aim's wrist angle, target and controller state) is not
     handed samples by waking the loop, with or without a router: ``take`` returns the newest
