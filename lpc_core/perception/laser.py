@@ -468,7 +468,7 @@ class LineModels:
         return LineSummary(
             angle_deg=math.degrees(self.angle),
             model=self.model,
-            params=tuple(float(v) for v in chosen.params) if chosen else (),
+            params=tuple(map(float, chosen.params)) if chosen else (),
             inlier_fraction=float(chosen.inlier_fraction) if chosen else 0.0,
             n_points=len(self.points),
         )
