@@ -331,6 +331,18 @@ def test_fit_line_with_outliers():
     assert not fit.inliers[::4].any()
 
 
+@pytest.mark.parametrize("n_line", [250, 260])
+def test_fit_line_counts_past_255_inliers(n_line):
+    """Inlier counts near and past a byte's range: the line of ``n_line`` points beats a
+    40-point line beside it (a count wrapped at 256 would give 250 -> 250, 260 -> 4)."""
+    x = np.linspace(-0.05, 0.05, n_line)
+    beside = np.column_stack([np.full(40, 0.03), np.linspace(0.21, 0.25, 40)])
+    points = np.concatenate([np.column_stack([x, np.full(n_line, 0.2)]), beside])
+    fit = fit_line(points, THRESHOLD, seed=1)
+    assert fit and fit.n_inliers == n_line
+    assert fit.inliers[:n_line].all() and not fit.inliers[n_line:].any()
+
+
 def test_fit_circle_radius_limits_reject_large_circles():
     t = np.linspace(np.pi + 0.5, 2 * np.pi - 0.5, 60)
     points = np.column_stack([0.08 * np.cos(t), 0.3 + 0.08 * np.sin(t)])  # r = 80 mm

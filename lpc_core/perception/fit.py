@@ -910,7 +910,8 @@ def _line_scorer(seg: Segments, threshold: float) -> Scorer:
         # Unit normals, so the product below is the distance itself and the test is against a
         # scalar; repeated points (length 0) give NaN, which is never an inlier.
         coef /= length[:, :, None]
-        dist = np.abs(coef @ basis)  # (L, T, W); NaN on padding, never an inlier
+        dist = coef @ basis  # (L, T, W); NaN on padding, never an inlier
+        np.abs(dist, out=dist)
         inl = dist <= threshold
 
         def residual_sums(rl: np.ndarray, rt: np.ndarray) -> np.ndarray:

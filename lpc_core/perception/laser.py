@@ -468,7 +468,7 @@ class LineModels:
         return LineSummary(
             angle_deg=math.degrees(self.angle),
             model=self.model,
-            params=tuple(float(v) for v in chosen.params) if chosen else (),
+            params=tuple(map(float, chosen.params)) if chosen else (),
             inlier_fraction=float(chosen.inlier_fraction) if chosen else 0.0,
             n_points=len(self.points),
         )
@@ -550,7 +550,8 @@ def _pierced_run(runs: list[np.ndarray], s: np.ndarray, params: LaserParams) -> 
     """The run reaching the optical axis (s = 0), or an empty array."""
     tol = params.pierce_tolerance_m
     for run in runs:
-        if s[run[0]] - tol <= 0.0 <= s[run[-1]] + tol:
+        # Python numbers, not numpy scalars: the same sums, at a fraction of their cost.
+        if s.item(run.item(0)) - tol <= 0.0 <= s.item(run.item(-1)) + tol:
             return run
     return _EMPTY_RUN
 
@@ -745,6 +746,9 @@ def _across_pierced_hole(
 
 _COVERED = "not fitted: a simpler model covers the line"
 _STRAIGHT = "not fitted: the line is straight pieces"
+# One shared (immutable, empty-masked) failure of each: a fitted frame marks three or four of
+# its lines' models so, and a FailedFit costs more to build than the rest of the marking.
+_COVERED_FIT, _STRAIGHT_FIT = fit.FailedFit(_COVERED), fit.FailedFit(_STRAIGHT)
 
 
 def _fit_lines_models(
@@ -772,9 +776,9 @@ def _fit_lines_models(
             for k, ln in enumerate(lines):
                 n = len(ln.points)
                 covered = len(pierced[k]["line"]) >= n * (1.0 - params.model_margin)
-                why = _COVERED if covered else _STRAIGHT
+                why = _COVERED_FIT if covered else _STRAIGHT_FIT
                 for richer in ("circle", "ellipse"):
-                    ln.fits[richer] = fit.FailedFit(why)
+                    ln.fits[richer] = why
                     all_runs[k][richer], pierced[k][richer] = [], _EMPTY_RUN
             break
         rows, goals = [], []
@@ -790,7 +794,7 @@ def _fit_lines_models(
                     goal = len(pierced[k][simpler]) + margin * n
             full = n * (1.0 - params.model_margin)
             if lazy and any(len(r) >= full for r in pierced[k].values()):
-                ln.fits[model] = fit.FailedFit(_COVERED)
+                ln.fits[model] = _COVERED_FIT
                 all_runs[k][model], pierced[k][model] = [], _EMPTY_RUN
             else:
                 rows.append(k)

@@ -335,8 +335,11 @@ def pick_rows(
     """Each line's hypothesis with the most inliers ``inl`` (L, T, W); ties go to the lowest
     residual sum, then the first. ``(t, count, residual sum)`` per line; the sums are computed
     for the tied hypotheses only (``residual_sums(lines, hypotheses)``)."""
-    # Counting through uint8 -> uint16 skips numpy's bool -> int64 cast (half the cost here).
-    counts = np.add.reduce(inl.view(np.uint8), axis=2, dtype=np.uint16)
+    # Counting the bytes in their own type runs without a buffered cast (numpy's bool sum
+    # casts every element to int64): uint8 where no count can pass 255 (a line's points and
+    # its padding), else through uint16.
+    kind = np.uint8 if inl.shape[2] <= 255 else np.uint16
+    counts = np.add.reduce(inl.view(np.uint8), axis=2, dtype=kind)
     top = np.maximum.reduce(counts, axis=1)  # counts.max(axis=1) without its Python wrapper
     tl, tt = (counts == top[:, None]).nonzero()  # the method: no Python wrapper
     tops = top.tolist()
