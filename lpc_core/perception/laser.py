@@ -2817,14 +2817,17 @@ def _sphere_candidate(
     return _Candidate("sphere", _fraction(residuals, thr), solid, residuals=residuals)
 
 
+# Two axis guesses within 5 degrees are one.
+_SAME_GUESS_COS = math.cos(math.radians(5.0))
+
+
 def _axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.ndarray]:
     """Cylinder axis directions from the 2-D results, most trusted first, without repeats;
     lazily, since the first good one ends the search."""
     seen: list[np.ndarray] = []
-    cos_same = math.cos(math.radians(5.0))
     for guess in _raw_axis_guesses(lines, params):
         guess = guess / math.sqrt(guess @ guess)
-        if all(abs(guess @ u) < cos_same for u in seen):
+        if all(abs(guess @ u) < _SAME_GUESS_COS for u in seen):
             seen.append(guess)
             yield guess
             if len(seen) >= params.max_axis_guesses:
@@ -2883,9 +2886,10 @@ def _cylinder_candidate(
     best: CylinderSolid | None = None
     best_rank = (False, -1.0)
     best_residuals = _EMPTY_RUN
+    best_guess: np.ndarray | None = None
 
     def attempt(axis: np.ndarray) -> None:
-        nonlocal best, best_rank, best_residuals
+        nonlocal best, best_rank, best_residuals, best_guess
         solid = CylinderSolid.estimate(sample, axis, iterations=params.cylinder_iterations)
         if solid:
             residuals = solid.residuals(sample)
@@ -2895,7 +2899,7 @@ def _cylinder_candidate(
             # circle better (BM 11, the tilted 75 mm can: 56 mm on 0.975 of the points).
             rank = (bool(lo <= solid.radius <= hi), fraction)
             if rank > best_rank:
-                best, best_rank, best_residuals = solid, rank, residuals
+                best, best_rank, best_residuals, best_guess = solid, rank, residuals, axis
 
     good = (True, params.axis_good_fraction)
     for axis in _axis_guesses(lines, params):
@@ -2919,11 +2923,13 @@ def _cylinder_candidate(
     solid = best
     residuals = best_residuals if step == 1 else solid.residuals(clean)
     smeared = None
-    if best_rank < good:
-        # No guess made a good cylinder: one line's run may be no part of it (a fit as good
-        # as that stands: hh9-uneven's upright can, 0.97, whose other lines would turn it
-        # 30 degrees).
-        without = _without_straight_tail(lines, best_rank[1], params)
+    if best_rank < good or best_rank[1] < _TAIL_REST_FRACTION:
+        # No guess made a good cylinder, or one nearly: one line's run may be no part of it.
+        # Where a guess made a good one, only the run it came from (hh9-uneven's upright
+        # can, 0.97 from line 2's guess: leaving line 3 out would turn it 30 degrees).
+        without = _without_straight_tail(
+            lines, best_rank[1], params, None if best_rank < good else best_guess
+        )
         if without is not None:
             solid, residuals = without[0], without[0].residuals(clean)
             # The tail's samples: its line's run off the cylinder the others make.
@@ -2960,7 +2966,10 @@ _TAIL_PAST_PX = 8.0
 
 
 def _without_straight_tail(
-    lines: list[LineModels], fraction: float, params: LaserParams
+    lines: list[LineModels],
+    fraction: float,
+    params: LaserParams,
+    guessed: np.ndarray | None = None,
 ) -> tuple[CylinderSolid, int] | None:
     """The cylinder the other lines make where one line's straight run is no generator of
     theirs, and that line's index; None where every straight run is (or there are fewer than
@@ -2980,6 +2989,10 @@ def _without_straight_tail(
     past = -_TAIL_PAST_PX * _pixel_rad(lines, params)
     for i in straight:
         run = lines[i].points.take(lines[i].run, axis=0)
+        if guessed is not None:
+            along = run[-1] - run[0]
+            if abs(float(along @ guessed)) < _SAME_GUESS_COS * math.sqrt(float(along @ along)):
+                continue
         rest = np.concatenate(
             [ln.points.take(ln.run, axis=0) for k, ln in enumerate(lines) if k != i]
         )
