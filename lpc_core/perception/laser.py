@@ -2744,6 +2744,9 @@ class _Candidate:
     reason: str = ""
     # The solid's residuals on the lines' runs, for _camera_facing's first pass.
     residuals: np.ndarray | None = None
+    # Which of the runs' samples are a smeared tail, no part of the solid (see
+    # _without_straight_tail); None where none are.
+    smeared: np.ndarray | None = None
 
     @property
     def score(self) -> float:
@@ -2818,14 +2821,17 @@ def _sphere_candidate(
     return _Candidate("sphere", _fraction(residuals, thr), solid, residuals=residuals)
 
 
+# Two axis guesses within 5 degrees are one.
+_SAME_GUESS_COS = math.cos(math.radians(5.0))
+
+
 def _axis_guesses(lines: list[LineModels], params: LaserParams) -> Iterator[np.ndarray]:
     """Cylinder axis directions from the 2-D results, most trusted first, without repeats;
     lazily, since the first good one ends the search."""
     seen: list[np.ndarray] = []
-    cos_same = math.cos(math.radians(5.0))
     for guess in _raw_axis_guesses(lines, params):
         guess = guess / math.sqrt(guess @ guess)
-        if all(abs(guess @ u) < cos_same for u in seen):
+        if all(abs(guess @ u) < _SAME_GUESS_COS for u in seen):
             seen.append(guess)
             yield guess
             if len(seen) >= params.max_axis_guesses:
@@ -2884,9 +2890,10 @@ def _cylinder_candidate(
     best: CylinderSolid | None = None
     best_rank = (False, -1.0)
     best_residuals = _EMPTY_RUN
+    best_guess: np.ndarray | None = None
 
     def attempt(axis: np.ndarray) -> None:
-        nonlocal best, best_rank, best_residuals
+        nonlocal best, best_rank, best_residuals, best_guess
         solid = CylinderSolid.estimate(sample, axis, iterations=params.cylinder_iterations)
         if solid:
             residuals = solid.residuals(sample)
@@ -2896,7 +2903,7 @@ def _cylinder_candidate(
             # circle better (BM 11, the tilted 75 mm can: 56 mm on 0.975 of the points).
             rank = (bool(lo <= solid.radius <= hi), fraction)
             if rank > best_rank:
-                best, best_rank, best_residuals = solid, rank, residuals
+                best, best_rank, best_residuals, best_guess = solid, rank, residuals, axis
 
     good = (True, params.axis_good_fraction)
     for axis in _axis_guesses(lines, params):
@@ -2919,6 +2926,21 @@ def _cylinder_candidate(
         return _Candidate("cylinder", reason="no cylinder converged")
     solid = best
     residuals = best_residuals if step == 1 else solid.residuals(clean)
+    smeared = None
+    if best_rank < good or best_rank[1] < _TAIL_REST_FRACTION:
+        # No guess made a good cylinder, or one nearly: one line's run may be no part of it.
+        # Where a guess made a good one, only the run it came from (hh9-uneven's upright
+        # can, 0.97 from line 2's guess: leaving line 3 out would turn it 30 degrees).
+        without = _without_straight_tail(
+            lines, best_rank[1], params, None if best_rank < good else best_guess
+        )
+        if without is not None:
+            solid, residuals = without[0], without[0].residuals(clean)
+            # The tail's samples: its line's run off the cylinder the others make.
+            starts = np.cumsum([0] + [len(ln.run) for ln in lines])
+            smeared = np.zeros(len(clean), dtype=bool)
+            tail = slice(starts[without[1]], starts[without[1] + 1])
+            smeared[tail] = residuals[tail] > thr
     keep = residuals <= thr
     inliers = clean.compress(keep, axis=0)
     if len(inliers) >= 5 and (step > 1 or not keep.all()):
@@ -2931,7 +2953,79 @@ def _cylinder_candidate(
     # The camera sees the outside of a cylinder: its axis lies beyond the surface.
     if (solid.point - column_sums(clean) / len(clean))[2] <= 0:
         return _Candidate("cylinder", solid=solid, reason="axis in front of the surface")
-    return _Candidate("cylinder", _fraction(residuals, thr), solid, residuals=residuals)
+    return _Candidate(
+        "cylinder", _fraction(residuals, thr), solid, residuals=residuals, smeared=smeared
+    )
+
+
+# A line's straight run left out explains the others nearly all (the bottle tilted right on
+# base55 and P1 x 3 / P2 x 6: 0.985-1.0, the whole fit 0.86-0.91), and no more than this
+# share of the run itself lies on what they make (0.40-0.60 there; a true generator's 1.0).
+_TAIL_REST_FRACTION = 0.97
+_TAIL_ON_SHARE = 0.7
+# How far past the silhouette the tail's end must reach, px: farther than a window fattens a
+# rim (half a block, 2-5 px on the sweep's matchers) by as much again (the bottle's tails
+# 14-16 px; a banana's bend leaves the fit 5 px past it).
+_TAIL_PAST_PX = 8.0
+
+
+def _without_straight_tail(
+    lines: list[LineModels],
+    fraction: float,
+    params: LaserParams,
+    guessed: np.ndarray | None = None,
+) -> tuple[CylinderSolid, int] | None:
+    """The cylinder the other lines make where one line's straight run is no generator of
+    theirs, and that line's index; None where every straight run is (or there are fewer than
+    two).
+
+    Past an oblique occluding rim a smoothing matcher carries the rim's depth straight on
+    across the background it cannot see: the line crossing the round there becomes a line
+    model (its run the shallow half of the arc and the smeared tail), and its direction, an
+    axis guess, fits a wide cylinder that holds the tail and most of the rest (the 50 mm
+    bottle tilted right at 80-95 mm). A real generator lies on the cylinder the other lines
+    make; a smeared tail leaves it at the rim."""
+    straight = [i for i, ln in enumerate(lines) if ln.model == "line" and len(ln.run)]
+    if len(straight) < 2:
+        return None
+    thr = params.solid_threshold_m
+    lo, hi = params.radius_limits_m
+    past = -_TAIL_PAST_PX * _pixel_rad(lines, params)
+    for i in straight:
+        run = lines[i].points.take(lines[i].run, axis=0)
+        if guessed is not None:
+            along = run[-1] - run[0]
+            if abs(float(along @ guessed)) < _SAME_GUESS_COS * math.sqrt(float(along @ along)):
+                continue
+        rest = np.concatenate(
+            [ln.points.take(ln.run, axis=0) for k, ln in enumerate(lines) if k != i]
+        )
+        for j in straight:
+            if j == i:
+                continue
+            ln = lines[j]
+            along = ln.points[ln.run[-1]] - ln.points[ln.run[0]]
+            if along @ along <= 0.01**2:
+                continue
+            solid = CylinderSolid.estimate(
+                rest, along / math.sqrt(along @ along), iterations=params.cylinder_iterations
+            )
+            if not solid or not lo <= solid.radius <= hi:
+                continue
+            held = _fraction(solid.residuals(rest), thr)
+            if held < _TAIL_REST_FRACTION or held <= fraction:
+                continue
+            off = solid.residuals(run) > thr
+            # One end of the run on the others' cylinder, the other leaving it and reaching
+            # on past its silhouette: a tail, not an object curving away from the fit at
+            # both ends (a banana's bend).
+            if (
+                np.count_nonzero(off) >= (1 - _TAIL_ON_SHARE) * len(run)
+                and bool(off[0]) != bool(off[-1])
+                and float(solid.silhouette_distance(run[[-1 if off[-1] else 0]])[0]) < past
+            ):
+                return solid, i
+    return None
 
 
 _GRID_CACHE: dict[int, np.ndarray] = {}
@@ -3162,8 +3256,13 @@ def _decide(
         elif shape == "cuboid":
             # A face rests on no support (_resting_width's rounds do).
             support = None
-        elif shape == "cylinder" and "rim_axis" not in extra:
-            # The free fit's own axis: a taper may have turned it (see _tapered_tilt).
+        elif (
+            shape == "cylinder"
+            and "rim_axis" not in extra
+            and candidates["cylinder"].smeared is None
+        ):
+            # The free fit's own axis: a taper may have turned it (see _tapered_tilt). Not
+            # past a smeared tail, whose end the outline's longest extent would run to.
             tapered = _tapered_tilt(lines, candidates["cylinder"], clean, params)
             if tapered is not None:
                 extra["tapered_tilt"] = 1.0
@@ -3197,6 +3296,13 @@ def _decide(
         )
         return _none(f"no solid explains the scan lines ({details})", summaries, total, extra)
     solid = candidates[shape].solid
+    smeared = candidates[shape].smeared
+    if smeared is not None and "disc_axis" not in extra:
+        # A smeared tail is no part of the round: its width and rims are the other samples'.
+        clean = clean.compress(~smeared, axis=0)
+        candidates[shape] = replace(
+            candidates[shape], residuals=candidates[shape].residuals.compress(~smeared)
+        )
     if shape in ("sphere", "cylinder"):
         full = solid
         free = None
