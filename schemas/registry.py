@@ -153,39 +153,40 @@ def _finite_check(message_type: type) -> Check:
     """A check that every float in a message of ``message_type`` is finite, built once per type
     from its schema so that only the fields that can hold floats are visited (the generic walk
     below, which names the bad field, cost ~40 us per message)."""
-    return _check_of(msgspec.inspect.type_info(message_type), nested=False) or (lambda _: True)
+    return _check_of(msgspec.inspect.type_info(message_type), repeats=False) or (lambda _: True)
 
 
-def _check_of(t: msgspec.inspect.Type, *, nested: bool = True) -> Check | None:
+def _check_of(t: msgspec.inspect.Type, *, repeats: bool = True) -> Check | None:
     """The check for values of type ``t``; ``None`` when ``t`` holds no float. Each check passes
-    values of other types, so a union's checks can all run on its value. ``nested``: ``t`` is
-    a field's type (or within one), not the message's own."""
+    values of other types, so a union's checks can all run on its value. ``repeats``: a value
+    of ``t`` may be the same from message to message (a field's; not the message's own, nor
+    an item of a list, tuple or dict, which differ from their neighbours)."""
     mi = msgspec.inspect
     if isinstance(t, mi.FloatType):
         return _finite_float
     if isinstance(t, mi.UnionType):
-        parts = [c for c in map(_check_of, t.types) if c is not None]
+        parts = [c for x in t.types if (c := _check_of(x, repeats=repeats)) is not None]
         if not parts:
             return None
         return parts[0] if len(parts) == 1 else _all_of(parts)
     if isinstance(t, mi.ListType | mi.VarTupleType | mi.SetType | mi.FrozenSetType):
         if isinstance(t.item_type, mi.FloatType):
             return lambda v: not isinstance(v, list | tuple) or all(map(math.isfinite, v))
-        item = _check_of(t.item_type)
+        item = _check_of(t.item_type, repeats=False)
         return (
             None
             if item is None
             else (lambda v: not isinstance(v, list | tuple) or all(map(item, v)))
         )
     if isinstance(t, mi.TupleType):
-        items = [(i, c) for i, c in enumerate(map(_check_of, t.item_types)) if c is not None]
+        items = [(i, c) for i, x in enumerate(t.item_types) if (c := _check_of(x, repeats=False))]
         return (
             (lambda v: not isinstance(v, list | tuple) or all(c(v[i]) for i, c in items))
             if items
             else None
         )
     if isinstance(t, mi.DictType):
-        value = _check_of(t.value_type)
+        value = _check_of(t.value_type, repeats=False)
         return (
             None
             if value is None
@@ -195,7 +196,7 @@ def _check_of(t: msgspec.inspect.Type, *, nested: bool = True) -> Check | None:
         fields = [(f.name, c) for f in t.fields if (c := _check_of(f.type)) is not None]
         if not fields:
             return None
-        remember = nested and t.cls.__struct_config__.frozen and _scalars_only(t)
+        remember = repeats and t.cls.__struct_config__.frozen and _scalars_only(t)
         return _struct_check(t.cls, fields, remember=remember)
     if isinstance(t, _NO_FLOAT):
         return None
