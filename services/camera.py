@@ -178,12 +178,26 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     seq = slot = 0  # frames published; the simulated frame clock's slots
     shedder = _Shedder(bus, args)
     watch = asyncio.create_task(shedder.watch()) if getattr(args, "shed", True) else None
+
+    def publish(reading: DepthReading, t_ns: int) -> None:
+        nonlocal seq
+        if args.source == "sim" or shedder.publish():  # a simulated frame was gated before
+            depth.put(_frame(seq, t_ns, reading, intrinsics, args.source))
+            seq += 1
+
+    def device_frame(reading: DepthReading) -> None:
+        # The device's own stamp: when the frame was complete, as a camera stamps it.
+        publish(reading, bus.clock.now_ns() if reading.t_ns is None else reading.t_ns)
+
     try:
         while True:
             if args.source in ("realsense", "sim-device"):
                 try:
                     if isinstance(source, SimDeviceSource):
-                        reading = await source.read_async(1.0)
+                        # Published where the socket's callback parses each frame (no task
+                        # woken a frame); back here only after a second with none.
+                        reading = None
+                        await source.deliver_async(device_frame, 1.0)
                     else:
                         reading = await asyncio.to_thread(source.read, 1.0)
                 except MalformedFrame as exc:
@@ -204,9 +218,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                 if args.file and reading.t_ns is not None:  # a file keeps its frame spacing
                     first_recorded_ns = first_recorded_ns or reading.t_ns
                     await bus.clock.sleep_until(start_ns + reading.t_ns - first_recorded_ns)
-                # The device's own stamp: when the frame was complete, as a camera stamps it.
-                device_stamp = args.source == "sim-device" and reading.t_ns is not None
-                t_ns = reading.t_ns if device_stamp else bus.clock.now_ns()
+                t_ns = bus.clock.now_ns()
             else:
                 if args.source == "sim":
                     start_ns, missed = skip_missed_slots(
@@ -231,10 +243,7 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
                     await bus.clock.sleep_until(start_ns + recorded_ns - first_recorded_ns)
                 # Stamped when the frame is complete, as a camera stamps its frames.
                 t_ns = bus.clock.now_ns()
-            if args.source != "sim" and not shedder.publish():
-                continue
-            depth.put(_frame(seq, t_ns, reading, intrinsics, args.source))
-            seq += 1
+            publish(reading, t_ns)
     except EndOfStream:
         bus.log("info", f"end of {args.file} after {seq} frames")
     finally:

@@ -4,15 +4,20 @@ frames watched. Nothing waits on a duration: every step waits for what the camer
 
 from __future__ import annotations
 
+import tempfile
 import threading
 import time
+import uuid
+from pathlib import Path
 
+import pytest
 import zenoh
 
 from schemas import Health, decode, encode
 from services.children import stop
 from tests.conftest import spawn_service, wait_for
 from tests.test_faults import BusWatch
+from tests.test_sim_camera import _device
 
 
 class Seqs:
@@ -39,9 +44,19 @@ def _counter(watch: BusWatch, name: str) -> int | None:
         return health.counters.get(name) if health else None
 
 
+# A simulated frame is shed before it is rendered, in the camera's task; a device's frame where
+# the socket's reader callback parses it (services.drivers.depth.SimDeviceSource.deliver_async).
+@pytest.mark.parametrize("source", ["sim", "sim-device"])
 def test_camera_sheds_frames_while_the_controller_reports_late_ticks(
-    endpoint: str, rendezvous: zenoh.Session
+    endpoint: str, rendezvous: zenoh.Session, source: str
 ) -> None:
+    device = None
+    flags = ["--source", source, "--rate", "30"]
+    if source == "sim-device":
+        # Short: a Unix socket's path is limited to 107 bytes.
+        sock = Path(tempfile.gettempdir()) / f"lpc-test-{uuid.uuid4().hex[:8]}.sock"
+        device = _device(sock, "--rate", "30")
+        flags += ["--socket", str(sock)]
     watch = BusWatch(rendezvous)
     frames = Seqs(rendezvous)
     # Only to other processes: its matching status then says when the camera subscribes.
@@ -54,7 +69,7 @@ def test_camera_sheds_frames_while_the_controller_reports_late_ticks(
         health = Health(seq=seq, t_ns=0, service="controller", pid=1, counters=counters)
         controller.put(encode(health))
 
-    camera = spawn_service("services.camera", endpoint, "--source", "sim", "--rate", "30")
+    camera = spawn_service("services.camera", endpoint, *flags)
     try:
         wait_for(lambda: len(frames) >= 10 or camera.poll() is not None, 60, "10 frames")
         wait_for(lambda: controller.matching_status.matching, 30, "the camera's subscriber")
@@ -88,6 +103,9 @@ def test_camera_sheds_frames_while_the_controller_reports_late_ticks(
         shed = _counter(watch, "shed_frames") or 0
     finally:
         stop(camera)
+        if device is not None:
+            stop(device)
+            sock.unlink(missing_ok=True)
     with frames.lock:
         seqs = list(frames.seqs)
     # What is shed is never published: the frames on the bus keep consecutive numbers.

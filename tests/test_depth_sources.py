@@ -18,12 +18,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from lpc_core.devices.depth_link import DeviceFrame, DeviceHello, encode
+from lpc_core.devices.depth_link import MAGIC, DeviceFrame, DeviceHello, encode
 from lpc_core.perception.intrinsics import D435_424X240, Intrinsics
 from lpc_core.perception.pipeline import depth_image, intrinsics_from_message
 from schemas import CameraIntrinsics, decode, to_wire
 from services.drivers.depth import (
     EndOfStream,
+    MalformedFrame,
     RealSenseSource,
     SimDeviceSource,
     SourceUnavailable,
@@ -357,6 +358,54 @@ def test_sim_device_frames_read_on_the_loop_stay_intact_while_later_ones_arrive(
     for reading, depth in zip(kept, sent, strict=True):
         np.testing.assert_array_equal(reading.depth, depth)
         assert reading.wire is not None and bytes(reading.wire.data) == depth.tobytes()
+
+
+def test_sim_device_frames_are_delivered_in_the_reader_callback_and_failures_in_the_task(
+    tmp_path: Path,
+) -> None:
+    """``deliver_async`` hands frames that arrive while it waits to the receiver outside any
+    task (the socket's callback), in order and intact; what the receiver raises and a record
+    that is not a frame are raised in the waiting task, and the frames after them are
+    delivered by the next call, which returns once its timeout passes with no frame."""
+    import asyncio
+
+    source, device, server = _sim_device(tmp_path)
+    sent = [np.arange(32, dtype=np.uint16).reshape(4, 8) * (k + 1) for k in range(4)]
+    records = [encode(DeviceFrame(seq=k, t_ns=100 + k, depth=to_wire(sent[k]))) for k in range(4)]
+    got: list[tuple[int | None, bool]] = []
+
+    def on_frame(reading) -> None:
+        got.append((reading.t_ns, asyncio.current_task() is None))
+        np.testing.assert_array_equal(reading.depth, sent[len(got) - 1])
+        if reading.t_ns == 102:
+            raise RuntimeError("the publisher failed")
+
+    async def deliver() -> tuple[str, str, float]:
+        loop = asyncio.get_running_loop()
+        try:
+            loop.call_later(0.05, device.sendall, b"".join(records[:3]))
+            with pytest.raises(RuntimeError) as first:
+                await source.deliver_async(on_frame, 5.0)
+            garbage = os.urandom(3000).replace(MAGIC, b"")
+            loop.call_later(0.05, device.sendall, garbage + records[3])
+            with pytest.raises(MalformedFrame) as second:
+                await source.deliver_async(on_frame, 5.0)
+            began = loop.time()
+            await source.deliver_async(on_frame, 0.3)
+            return str(first.value), str(second.value), loop.time() - began
+        finally:
+            source.shutdown()
+
+    try:
+        first, second, waited = asyncio.run(deliver())
+    finally:
+        device.close()
+        server.close()
+    assert first == "the publisher failed"
+    assert "skipped" in second
+    # Frame 103 came after the garbage: queued, and handed over by the third call's task.
+    assert got == [(100, True), (101, True), (102, True), (103, False)]
+    assert waited >= 0.3 - 0.001
 
 
 def test_sim_device_read_times_out_at_its_own_deadline_on_a_stalled_device(

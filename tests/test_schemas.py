@@ -168,6 +168,30 @@ def test_finite_check_reaches_floats_in_lists_and_optional_fields() -> None:
     assert not any(check(p) for p in poisoned)
 
 
+def test_decode_of_repeated_intrinsics_rejects_each_non_finite_one() -> None:
+    # Frames repeat their intrinsics: one equal to the last that passed passes untested,
+    # and one that differs from it only in a non-finite value is still tested and rejected.
+    frame = EXAMPLES["lpc/camera/depth"]
+    good = frame.intrinsics
+    for bad in (math.nan, math.inf):
+        for poisoned in (
+            msgspec.structs.replace(good, coeffs=[*good.coeffs, bad]),
+            msgspec.structs.replace(good, ppy=bad),
+        ):
+            for intrinsics, ok in (
+                (good, True),
+                (poisoned, False),
+                (good, True),
+                (poisoned, False),
+            ):
+                payload = encode(msgspec.structs.replace(frame, intrinsics=intrinsics))
+                if ok:
+                    assert decode("lpc/camera/depth", payload).intrinsics == good
+                else:
+                    with pytest.raises(BadMessage, match="non-finite value in field intrinsics"):
+                        decode("lpc/camera/depth", payload)
+
+
 def test_decode_rejects_oversized_payload() -> None:
     with pytest.raises(BadMessage, match="exceeds"):
         decode("lpc/emg", b"\x00" * (64 * 1024 + 1))

@@ -166,7 +166,7 @@ class _ScanTable:
     """Candidate pixels of every line, concatenated line after line."""
 
     flat_index: np.ndarray  # (M,) int64 row * width + column
-    line: np.ndarray  # (M,) int64 line number
+    line: np.ndarray  # (M,) line number, unsigned, in the fewest bytes that hold it
     slope_x: np.ndarray  # (M,) x/z of the pixel ray
     slope_y: np.ndarray  # (M,) y/z
     along: np.ndarray  # (M,) s / z
@@ -188,6 +188,8 @@ def _scan_table(intrinsics: Intrinsics, params: ScanParams) -> _ScanTable:
     vy = _slope_limits(*params.y_limits_m, z_near, z_far)
     in_box = (xs >= ux[0]) & (xs <= ux[1]) & (ys >= vy[0]) & (ys <= vy[1])
     parts: list[tuple[np.ndarray, ...]] = []
+    # The smallest type that numbers the lines (a byte): gathered and sorted by every frame.
+    line_type = np.min_scalar_type(len(params.angles_deg) - 1)
     for i, phi in enumerate(params.angles_rad):
         off = np.abs(-np.sin(phi) * xs + np.cos(phi) * ys)
         # Slack so that pixels exactly at the band edge at z_near are not lost to rounding.
@@ -199,7 +201,7 @@ def _scan_table(intrinsics: Intrinsics, params: ScanParams) -> _ScanTable:
         # A pixel whose interval is empty never holds a point of the line.
         some = lo <= hi
         flat, sx, sy, lo, hi = flat[some], sx[some], sy[some], lo[some], hi[some]
-        line = np.full(flat.size, i, dtype=np.int64)
+        line = np.full(flat.size, i, dtype=line_type)
         along = np.cos(phi) * sx + np.sin(phi) * sy
         parts.append((flat, line, sx, sy, along, lo.astype(np.uint16), (hi - lo).astype(np.uint16)))
     columns = [np.ascontiguousarray(np.concatenate(col)) for col in zip(*parts, strict=True)]

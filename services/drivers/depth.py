@@ -14,7 +14,7 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -555,17 +555,43 @@ class SimDeviceSource:
         buffer, instead of a new 200 KB bytes, a ``recv`` that found nothing yet and a reader
         added and removed for every frame (``loop.sock_recv``: 0.52-0.55 ms of CPU a frame,
         against 0.42-0.49 ms, three runs each, alternating, at 90 Hz)."""
+        reader = await self._started_reader()
+        if not self._ready:
+            deadline = reader.loop.time() + timeout
+            while not self._ready:
+                self._check_open()
+                if not await reader.wait(deadline):
+                    return None
+        return self._reading(self._ready.popleft())
+
+    async def deliver_async(self, on_frame: Callable[[DepthReading], None], timeout: float) -> None:
+        """``read_async`` for a reader that only publishes each frame: every frame is handed to
+        ``on_frame`` where the socket's reader callback parses it, with no task woken between
+        its arrival and ``on_frame`` (a loop pass and a task step fewer a frame). Returns once
+        ``timeout`` seconds pass with no frame; raises what ``read_async`` raises
+        (``MalformedFrame``, ``OperationError``) and what ``on_frame`` raised, in the calling
+        task, after the frames before it. Frames parsed while no call runs wait for the next."""
+        reader = await self._started_reader()
+        reader.deliver_to(on_frame, timeout)
+        try:
+            deadline = reader.loop.time() + timeout
+            while True:
+                reader.deliver_ready()
+                reader.raise_error()
+                if self._ready:  # not a frame: a rejected record or a second hello
+                    self._reading(self._ready.popleft())
+                self._check_open()
+                if not await reader.wait(max(deadline, reader.frame_deadline)):
+                    return
+        finally:
+            reader.deliver_to(None, timeout)
+
+    async def _started_reader(self) -> _DeviceReader:
         if self._reader is None:
             self._check_open()
             self._reader = _DeviceReader(self)
             await self._reader.connect(self._sock)
-        if not self._ready:
-            deadline = self._reader.loop.time() + timeout
-            while not self._ready:
-                self._check_open()
-                if not await self._reader.wait(deadline):
-                    return None
-        return self._reading(self._ready.popleft())
+        return self._reader
 
     def _reading(self, item: DeviceHello | DeviceFrame | Rejected) -> DepthReading:
         match item:
@@ -624,6 +650,12 @@ class _DeviceReader(asyncio.BufferedProtocol):
         # that deadline, so a stalled device still ends a wait at its own deadline.
         self._timer: asyncio.TimerHandle | None = None
         self._deadline = 0.0
+        # ``SimDeviceSource.deliver_async``'s receiver of frames, their timeout, and what a
+        # delivery raised (for the task to raise), with the deadline the last frame set.
+        self._on_frame: Callable[[DepthReading], None] | None = None
+        self._timeout = 0.0
+        self._error: Exception | None = None
+        self.frame_deadline = 0.0
 
     async def connect(self, sock: socket.socket) -> None:
         await self.loop.create_unix_connection(lambda: self, sock=sock)
@@ -662,6 +694,29 @@ class _DeviceReader(asyncio.BufferedProtocol):
         else:
             self._arm(self._deadline)
 
+    def deliver_to(self, on_frame: Callable[[DepthReading], None] | None, timeout: float) -> None:
+        self._on_frame, self._timeout = on_frame, timeout
+
+    def deliver_ready(self) -> None:
+        """Hand the frames at the head of the source's queue to the receiver, if one is set,
+        until something that is not a frame, or a delivery that raised (kept for the task)."""
+        on_frame, ready = self._on_frame, self._source._ready
+        while on_frame is not None and ready and self._error is None:
+            if not isinstance(ready[0], DeviceFrame):
+                return
+            try:
+                on_frame(self._source._reading(ready.popleft()))
+            except Exception as exc:  # raised in the task: here it would close the transport
+                self._error = exc
+                return
+            # A frame ends the wait for one: the task's timer is moved on when it fires.
+            self._deadline = self.frame_deadline = self.loop.time() + self._timeout
+
+    def raise_error(self) -> None:
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
     def _wake(self) -> None:
         if self._waiter is not None and not self._waiter.done():
             self._waiter.set_result(True)
@@ -675,7 +730,9 @@ class _DeviceReader(asyncio.BufferedProtocol):
     def buffer_updated(self, nbytes: int) -> None:
         if self._source._feed(self._buffer[:nbytes], handed_over=True):
             self._buffer = self._new_buffer()
-        if self._source._ready:
+        if self._on_frame is not None:
+            self.deliver_ready()
+        if self._source._ready or self._error is not None:
             waiting = self._waiter is not None and not self._waiter.done()
             if not waiting and self._transport is not None and not self._paused:
                 self._paused = True
