@@ -176,6 +176,20 @@ def test_a_refit_inside_rims_lost_in_holes_keeps_the_samples_within_its_silhouet
             6.0,
         ),
         ("cylinder_lying", 0, 0, {}, {}, -5.8, 2.5),  # SGBM 7
+        # SGBM 7 in HH mode, albedo 0.65, texture check 4, a twenty-third pattern: the rims
+        # lie 8.4 and 2.0-2.5 px past the refit, beyond _RIM_PX on the two sides' mean only
+        *[
+            (
+                "cylinder_upright",
+                0,
+                frame,
+                {"albedo": 0.65, "gain_dn": 280.0, "read_noise_dn": 1.5, "pattern_seed": 23},
+                {"sgbm_mode": "hh", "min_texture": 4.0},
+                -6.2,
+                4.5,
+            )
+            for frame in (1, 2)
+        ],
     ],
 )
 def test_a_refit_reaches_the_rims_its_lines_show(
@@ -189,7 +203,7 @@ def test_a_refit_reaches_the_rims_its_lines_show(
 ) -> None:
     """SGBM 7: the refit inside the rims fitted a crest more curved than the round and came
     out ``before_mm`` narrow, its silhouette more than _RIM_PX inside the rims the lines show
-    on both sides, left out the samples a window carried past a rim (laser._past_rims). The
+    on the two sides' mean, left out the samples a window carried past a rim (laser._past_rims). The
     band a window bows a rim over bounds how far inside them the silhouette can lie: widened
     to it (laser._reaching_rims), the width is within ``within_mm``."""
     pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
