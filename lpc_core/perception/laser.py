@@ -3002,7 +3002,10 @@ def analyse_lines(
     message), that array, read-only: the lines' points are not concatenated and checked again.
     """
     angles = np.asarray(scan_lines.angles_rad, dtype=np.float64).reshape(-1)
-    raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
+    if joined is not None:
+        raw = list(scan_lines.points)  # slices of joined: float64 (N, 3) already
+    else:
+        raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
     if joined is None and raw:

@@ -54,6 +54,11 @@ INPUT_TOPICS: MappingProxyType[str, str] = MappingProxyType(
 Job = TypeVar("Job")
 
 
+# Scans messages carry no pixel indices: every line shares this empty, read-only array.
+_NO_PIXELS = np.empty(0, dtype=np.int64)
+_NO_PIXELS.flags.writeable = False
+
+
 def _line_points(message: ScanLines) -> list[np.ndarray]:
     """Each scan line's (N, 3) points as float64, with ``from_wire``'s errors."""
     return _lines_and_rows(message)[0]
@@ -93,8 +98,9 @@ def _scan_lines(message: ScanLines) -> tuple[CoreScanLines, np.ndarray | None]:
         # A read-only view: the lines' pierced segments are slices of it, never written.
         rows = rows.view()
         rows.flags.writeable = False
-    angles = np.radians([line.angle_deg for line in message.lines])
-    no_pixels = np.empty(0, dtype=np.int64)
+    # math.radians multiplies by the same constant pi / 180 as np.radians, on Python floats
+    # (without converting the list for a ufunc).
+    angles = np.array([math.radians(line.angle_deg) for line in message.lines])
     past = [line.past_ends_m for line in message.lines]
     if any(p is not None and len(p) != 2 for p in past):
         raise ValueError("a scan line's past_ends_m must hold two depths, one per end")
@@ -104,7 +110,7 @@ def _scan_lines(message: ScanLines) -> tuple[CoreScanLines, np.ndarray | None]:
     scan_lines = CoreScanLines(
         angles_rad=angles,
         points=tuple(points),
-        pixels=(no_pixels,) * len(points),
+        pixels=(_NO_PIXELS,) * len(points),
         # Scans recorded before the depth past the lines' ends was measured have none.
         past_ends_m=None if any(p is None for p in past) else np.array(past, dtype=np.float64),
         far_past_m=(
