@@ -232,29 +232,12 @@ class LineModel:
         return _line_distance(p[:, 0], p[:, 1], *self.params)
 
 
-# The RANSAC results below are frozen dataclasses whose own __init__ fills the instance's dict
-# in one update: dataclass's frozen __init__ sets each field through object.__setattr__, twice
-# the instructions (17 k -> 9 k a result, callgrind), and a fitted frame builds about six.
-# The default mask is the field's default_factory's.
-
-
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True)
 class LineFit(LineModel, _FitMixin):
     """A line found by :func:`fit_line`, with its inlier mask ``(N,)`` and trial count."""
 
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), compare=False)
     trials: int = 0
-
-    def __init__(
-        self,
-        origin: tuple[float, float],
-        direction: tuple[float, float],
-        inliers: np.ndarray | None = None,
-        trials: int = 0,
-    ) -> None:
-        if inliers is None:
-            inliers = np.zeros(0, bool)
-        self.__dict__.update(origin=origin, direction=direction, inliers=inliers, trials=trials)
 
 
 def _line_distance(
@@ -347,23 +330,12 @@ class CircleModel:
         return _circle_distance(p[:, 0], p[:, 1], *self.params)
 
 
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True)
 class CircleFit(CircleModel, _FitMixin):
     """A circle found by :func:`fit_circle`, with its inlier mask ``(N,)`` and trial count."""
 
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), compare=False)
     trials: int = 0
-
-    def __init__(
-        self,
-        center: tuple[float, float],
-        radius: float,
-        inliers: np.ndarray | None = None,
-        trials: int = 0,
-    ) -> None:
-        if inliers is None:
-            inliers = np.zeros(0, bool)
-        self.__dict__.update(center=center, radius=radius, inliers=inliers, trials=trials)
 
 
 def _circle_distance(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float) -> np.ndarray:
@@ -544,26 +516,12 @@ class EllipseModel:
         return _ellipse_residuals(p[:, 0], p[:, 1], *self.params)
 
 
-@dataclass(frozen=True, init=False)
+@dataclass(frozen=True)
 class EllipseFit(EllipseModel, _FitMixin):
     """An ellipse found by :func:`fit_ellipse`, with its inlier mask ``(N,)`` and trial count."""
 
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool), compare=False)
     trials: int = 0
-
-    def __init__(
-        self,
-        center: tuple[float, float],
-        axis_lengths: tuple[float, float],
-        theta: float,
-        inliers: np.ndarray | None = None,
-        trials: int = 0,
-    ) -> None:
-        if inliers is None:
-            inliers = np.zeros(0, bool)
-        self.__dict__.update(
-            center=center, axis_lengths=axis_lengths, theta=theta, inliers=inliers, trials=trials
-        )
 
 
 def _wrap_half_turn(angle: float) -> float:

@@ -13,7 +13,7 @@ Shape = Literal["sphere", "cylinder", "cuboid", "none"]
 SHAPES: tuple[Shape, ...] = ("sphere", "cylinder", "cuboid")
 
 
-@dataclass(frozen=True, kw_only=True, init=False)
+@dataclass(frozen=True, kw_only=True)
 class LineSummary:
     """The model chosen on one scan line, for display and for the record.
 
@@ -26,25 +26,6 @@ class LineSummary:
     params: tuple[float, ...] = ()
     inlier_fraction: float = 0.0
     n_points: int = 0
-
-    def __init__(
-        self,
-        *,
-        angle_deg: float,
-        model: str,
-        params: tuple[float, ...] = (),
-        inlier_fraction: float = 0.0,
-        n_points: int = 0,
-    ) -> None:
-        # Frozen, filled in one update of the instance's dict: dataclass's frozen __init__ sets
-        # each field through object.__setattr__ (15 k -> about 8 k instructions; four a frame).
-        self.__dict__.update(
-            angle_deg=angle_deg,
-            model=model,
-            params=params,
-            inlier_fraction=inlier_fraction,
-            n_points=n_points,
-        )
 
 
 @dataclass(frozen=True, kw_only=True)
