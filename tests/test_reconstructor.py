@@ -12,6 +12,7 @@ import zenoh
 
 from lpc_core.perception.cloud import reconstruct_cloud
 from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.laser import reconstruct_laser
 from lpc_core.perception.pipeline import ScansState, intrinsics_to_message, scans_step
 from lpc_core.perception.reconstruction import LineSummary
 from lpc_core.perception.reconstruction import Reconstruction as CoreReconstruction
@@ -22,6 +23,7 @@ from lpc_core.perception.reconstructor import (
     ReconstructState,
     Release,
     Submit,
+    _scan_lines,
     frame_arrived,
     frame_done,
     reconstruct_cloud_message,
@@ -195,6 +197,21 @@ def test_scan_lines_from_message_round_trip() -> None:
     assert np.allclose(lines.angles_rad, BALL.angles_rad)
     for got, want in zip(lines.points, BALL.points, strict=True):
         assert np.allclose(got, want, atol=1e-6)
+
+
+def test_reconstruct_message_passes_the_joined_rows_through() -> None:
+    """reconstruct_message hands the laser method the scans' rows joined and checked once:
+    the lines' models, the solid and every figure are those of the lines taken one by one,
+    to the bit, and the rows handed over stay read-only."""
+    for seq, lines in ((3, BALL), (4, scan(cylinder((0.0, 0.0, 0.22), (0.0, 1.0, 0.0), 0.03), 2))):
+        message = _message(seq, lines)
+        joined = reconstruct_message(message)
+        alone = reconstruct_laser(scan_lines_from_message(message), seed=seq)
+        assert joined.shape == alone.shape != "none"
+        assert encode(joined) == encode(reconstruction_message(alone, message))
+    read, rows = _scan_lines(message)
+    assert rows is not None and not rows.flags.writeable
+    assert np.concatenate(read.points).tobytes() == rows.tobytes()
 
 
 def test_scan_lines_from_message_reads_float32_lines_as_each_line_alone() -> None:

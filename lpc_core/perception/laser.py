@@ -3053,7 +3053,11 @@ def _none(
 
 
 def reconstruct_laser(
-    scan_lines: ScanLinesLike, params: LaserParams = LaserParams(), seed: int = 0
+    scan_lines: ScanLinesLike,
+    params: LaserParams = LaserParams(),
+    seed: int = 0,
+    *,
+    joined: np.ndarray | None = None,
 ) -> Reconstruction:
     """Shape, grasp width and wrist angle of the object the optical axis pierces.
 
@@ -3064,6 +3068,8 @@ def reconstruct_laser(
     params : LaserParams
     seed : int
         Seeds every RANSAC draw (use the frame's ``seq``).
+    joined : ndarray, optional
+        ``analyse_lines``'s: the lines' points already concatenated and checked.
 
     Returns a ``Reconstruction`` (``method="laser"``) whose ``lines`` hold each line's chosen
     model and ``confidence`` the fraction of the lines' points the chosen solid explains;
@@ -3071,25 +3077,36 @@ def reconstruct_laser(
     fraction (``f_cuboid``, ``f_sphere``, ``f_cylinder``; a solid that could not win is not
     fitted). ``shape="none"`` comes with a ``reason``.
     """
-    return decide(analyse_lines(scan_lines, params, seed), params, scan_lines)
+    return decide(analyse_lines(scan_lines, params, seed, joined=joined), params, scan_lines)
 
 
 def analyse_lines(
-    scan_lines: ScanLinesLike, params: LaserParams = LaserParams(), seed: int = 0
+    scan_lines: ScanLinesLike,
+    params: LaserParams = LaserParams(),
+    seed: int = 0,
+    *,
+    joined: np.ndarray | None = None,
 ) -> list[LineModels]:
     """First stage of ``reconstruct_laser``: the 2-D models and pierced run of each line.
 
     When a line already has a ``reason`` (too few points, or the optical axis misses the
     object on it) no line is fitted: the frame has no shape whatever the others hold.
+    ``joined``: where the caller holds the lines' points as consecutive slices of one
+    float64 (sum N, 3) array already checked finite (the reconstructor's, from the scans
+    message), that array, read-only: the lines' points are not concatenated and checked again.
     """
     angles = np.asarray(scan_lines.angles_rad, dtype=np.float64).reshape(-1)
-    raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
+    if joined is not None:
+        raw = list(scan_lines.points)  # slices of joined: float64 (N, 3) already
+    else:
+        raw = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in scan_lines.points]
     if len(raw) != len(angles):
         raise ValueError(f"scan_lines has {len(angles)} angles but {len(raw)} point arrays")
-    joined = np.concatenate(raw) if raw else None
-    # The ufunc's reduce, not ndarray.all's Python wrapper.
-    if joined is not None and not np.logical_and.reduce(np.isfinite(joined), axis=None):
-        raise ValueError("scan_lines.points must be finite")
+    if joined is None and raw:
+        joined = np.concatenate(raw)
+        # The ufunc's reduce, not ndarray.all's Python wrapper.
+        if not np.logical_and.reduce(np.isfinite(joined), axis=None):
+            raise ValueError("scan_lines.points must be finite")
     lines = _prepare_lines(angles.tolist(), raw, params, joined)
     if any(ln.reason for ln in lines):
         # A line the optical axis does not pierce (or too short) already decides the frame:

@@ -54,41 +54,63 @@ INPUT_TOPICS: MappingProxyType[str, str] = MappingProxyType(
 Job = TypeVar("Job")
 
 
+# Scans messages carry no pixel indices: every line shares this empty, read-only array.
+_NO_PIXELS = np.empty(0, dtype=np.int64)
+_NO_PIXELS.flags.writeable = False
+
+
 def _line_points(message: ScanLines) -> list[np.ndarray]:
-    """Each scan line's (N, 3) points as float64, with ``from_wire``'s errors. Where
-    ``joined_points`` takes the lines, as the scans service sends them, all are widened at
-    once and each line is a slice of the result (20 -> 12 us a frame on a live recording's
-    scans)."""
+    """Each scan line's (N, 3) points as float64, with ``from_wire``'s errors."""
+    return _lines_and_rows(message)[0]
+
+
+def _lines_and_rows(message: ScanLines) -> tuple[list[np.ndarray], np.ndarray | None]:
+    """``_line_points``, and the float64 rows they are consecutive slices of (finite), or
+    None. Where ``joined_points`` takes the lines, as the scans service sends them, all are
+    widened at once and each line is a slice of the result (20 -> 12 us a frame on a live
+    recording's scans)."""
     wires = [line.points for line in message.lines]
     joined = joined_points(wires)
     if joined is not None:
         rows = joined.astype(np.float64)
         ends = itertools.accumulate(w.shape[0] for w in wires)
-        return [rows[end - w.shape[0] : end] for end, w in zip(ends, wires, strict=True)]
+        return [rows[end - w.shape[0] : end] for end, w in zip(ends, wires, strict=True)], rows
     points = []
     for wire in wires:
         array = np.asarray(from_wire(wire), dtype=np.float64)
         if array.ndim != 2 or array.shape[1] != 3:
             raise ValueError(f"scan line points must be (N, 3), got {array.shape}")
         points.append(array)
-    return points
+    return points, None
 
 
 def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
     """The scan lines of a ``lpc/scans`` message; ``ValueError`` if an array is malformed."""
-    points = _line_points(message)
-    angles = np.radians([line.angle_deg for line in message.lines])
-    no_pixels = np.empty(0, dtype=np.int64)
+    return _scan_lines(message)[0]
+
+
+def _scan_lines(message: ScanLines) -> tuple[CoreScanLines, np.ndarray | None]:
+    """``scan_lines_from_message``, and its lines' points joined as ``reconstruct_laser``
+    takes them (read-only; None where the message's lines came one by one): the float32
+    rows were checked finite and widened once, and need no second concatenation and check."""
+    points, rows = _lines_and_rows(message)
+    if rows is not None:
+        # A read-only view: the lines' pierced segments are slices of it, never written.
+        rows = rows.view()
+        rows.flags.writeable = False
+    # math.radians multiplies by the same constant pi / 180 as np.radians, on Python floats
+    # (without converting the list for a ufunc).
+    angles = np.array([math.radians(line.angle_deg) for line in message.lines])
     past = [line.past_ends_m for line in message.lines]
     if any(p is not None and len(p) != 2 for p in past):
         raise ValueError("a scan line's past_ends_m must hold two depths, one per end")
     far = [line.far_past_m for line in message.lines]
     if any(f is not None and len(f) != 6 for f in far):
         raise ValueError("a scan line's far_past_m must hold two points, one per end")
-    return CoreScanLines(
+    scan_lines = CoreScanLines(
         angles_rad=angles,
         points=tuple(points),
-        pixels=(no_pixels,) * len(points),
+        pixels=(_NO_PIXELS,) * len(points),
         # Scans recorded before the depth past the lines' ends was measured have none.
         past_ends_m=None if any(p is None for p in past) else np.array(past, dtype=np.float64),
         far_past_m=(
@@ -97,6 +119,7 @@ def scan_lines_from_message(message: ScanLines) -> CoreScanLines:
             else np.array(far, dtype=np.float64).reshape(len(far), 2, 3)
         ),
     )
+    return scan_lines, rows
 
 
 def _finite(value: float | None) -> float | None:
@@ -151,7 +174,8 @@ def reconstruct_message(
     scans: ScanLines, params: LaserParams = _DEFAULT, compute_ms: float = 0.0
 ) -> Reconstruction:
     """Reconstruct one ``lpc/scans`` message; RANSAC is seeded by the depth frame's ``seq``."""
-    result = reconstruct_laser(scan_lines_from_message(scans), params, seed=scans.frame_seq)
+    lines, joined = _scan_lines(scans)
+    result = reconstruct_laser(lines, params, seed=scans.frame_seq, joined=joined)
     return reconstruction_message(result, scans, compute_ms)
 
 
