@@ -121,7 +121,7 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
                 strict=True,
             )
         ],
-        capture_points=int(getattr(lines, "capture_count", lines.total_points)),
+        capture_points=lines.capture_count,
         truth=frame.truth,
     )
     return state, message
