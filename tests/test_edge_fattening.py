@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from lpc_core.perception import laser
 from lpc_core.perception.cloud import CloudParams, reconstruct_cloud
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.laser import LaserParams, reconstruct_laser
-from lpc_core.perception.scans import cut_scan_lines
+from lpc_core.perception.scans import ScanLines, cut_scan_lines
 
 INTRINSICS = Intrinsics()
 
@@ -341,6 +342,18 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     assert np.mean(np.abs(errors)) < 0.0052, errors
 
 
+def _setting_frame(setting: str, name: str, trial: int, frame: int) -> tuple[Any, ScanLines]:
+    """Trial ``trial``'s frame ``frame`` of the functional suite's ``name`` under the sweep's
+    ``setting`` (2 trials x 5 frames, as the sweep), and its scan lines."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = lv.views("functional", 2, 5, 0, names=[name], sensor=SETTINGS[setting].sensor())
+    view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
+    return view, cut_scan_lines(view.depth, lv.INTRINSICS)
+
+
 def _box_width_errors(
     monkeypatch: pytest.MonkeyPatch, name: str, block_size: int, without: dict[str, object]
 ) -> tuple[list[float], list[float]]:
@@ -436,15 +449,7 @@ def test_the_box_tilted_left_drops_a_rows_fill_past_its_side_facing_minus_x(
     band to the capture volume), the side's one uncut seed 8.6 mm (its segment on 1.6-1.9 mm
     off the face's plane past it). Through the cut seed the width came out 21.9 mm wide;
     through the uncut seed (``laser._row_fill``) 7.7 mm."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from services.cli import _laser_views as lv
-    from services.cli.bench.sweep import SETTINGS
-
-    sensor = SETTINGS["p1x3p2x6"].sensor()
-    for view in lv.views("functional", 2, 5, 0, names=["cuboid_tilt_left"], sensor=sensor):
-        if (view.trial, view.frame) == (1, 1):
-            break
-    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    view, lines = _setting_frame("p1x3p2x6", "cuboid_tilt_left", 1, 1)
     result = reconstruct_laser(lines, seed=view.seq)
     monkeypatch.setattr(laser, "_row_fill", lambda *_: False)
     before = reconstruct_laser(lines, seed=view.seq)
@@ -528,15 +533,7 @@ def test_the_box_tilted_left_trims_runs_ending_on_a_ramp_to_the_table(
     depth behind (no far background: no occluding edge, no share): its seed lay 2.9 mm past
     the true side and the width came out 1.1 mm wide. With its share of the step behind it
     (``laser._stepped_ends``, 0.83 of a window) the side's median moves in 1.3 mm."""
-    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
-    from services.cli import _laser_views as lv
-    from services.cli.bench.sweep import SETTINGS
-
-    sensor = SETTINGS["sgbm7"].sensor()
-    for view in lv.views("functional", 2, 5, 0, names=["cuboid_tilt_left"], sensor=sensor):
-        if (view.trial, view.frame) == (1, 0):
-            break
-    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    view, lines = _setting_frame("sgbm7", "cuboid_tilt_left", 1, 0)
     result = reconstruct_laser(lines, seed=view.seq)
     monkeypatch.setattr(laser, "_stepped_ends", lambda ln, *_: [0.0] * (2 * len(ln)))
     before = reconstruct_laser(lines, seed=view.seq)
