@@ -478,9 +478,9 @@ SETTINGS: dict[str, Setting] = {
         rig={"supersample": 3, "dot_density": 0.05, "dot_sigma_px": 0.8, "pattern_seed": 24},
         matcher={"block_size": 5, "sgbm_mode": "3way", "uniqueness": 9, "speckle_window": 120},
     ),
-    # Held out from every helper of stop 41: only the lead's before -> after runs on them.
-    "fresh-bm5s": Setting(
-        "fresh",
+    # Held out from every helper of stop 41 (then its "fresh" group); studied from stop 42.
+    "bm5-t15": Setting(
+        "untuned",
         "BM 5, uniqueness 12, texture threshold 15, prefilter cap 35, optics 0.6 px, "
         "a twenty-fifth pattern",
         rig={"blur_sigma_px": 0.6, "pattern_seed": 25},
@@ -492,16 +492,16 @@ SETTINGS: dict[str, Setting] = {
             "pre_filter_cap": 35,
         },
     ),
-    "fresh-sg7p": Setting(
-        "fresh",
+    "sg7-p4": Setting(
+        "untuned",
         "SGBM 7, P1 x 0.75 and P2 x 4, uniqueness 7, speckle window 80 of range 2, "
         "a twenty-sixth pattern",
         rig={"pattern_seed": 26},
         matcher={"uniqueness": 7, "speckle_window": 80},
         smoothness=(0.75, 4.0),
     ),
-    "fresh-b42": Setting(
-        "fresh",
+    "b42-p30": Setting(
+        "untuned",
         "SGBM 9, 42 mm baseline, projector 30 mm from the left imager, albedo 0.7, "
         "read noise 1.3, a twenty-seventh pattern",
         rig={
@@ -513,19 +513,73 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"block_size": 9},
     ),
-    "fresh-hh9s": Setting(
-        "fresh",
+    "hh9-s2": Setting(
+        "untuned",
         "SGBM 9, HH mode, IR 2x supersampled, 0.045 dots/px² of 0.7 px, left-right 2 px, "
         "a twenty-eighth pattern",
         rig={"supersample": 2, "dot_density": 0.045, "dot_sigma_px": 0.7, "pattern_seed": 28},
         matcher={"block_size": 9, "sgbm_mode": "hh", "disp12_max_diff": 2},
     ),
-    "fresh-3way7l": Setting(
-        "fresh",
+    "3way7-l2": Setting(
+        "untuned",
         "SGBM 7, 3-way mode, twice the room light, 1.7 times the shot noise, uniqueness 11, "
         "texture check 5.5, a twenty-ninth pattern",
         rig={"ambient": 0.16, "electrons_per_dn": 6.0, "pattern_seed": 29},
         matcher={"sgbm_mode": "3way", "uniqueness": 11, "min_texture": 5.5},
+    ),
+    # Held out from every helper of stop 42: only the lead's before -> after runs on them.
+    "fresh-bm9u": Setting(
+        "fresh",
+        "BM 9, uniqueness 10, texture threshold 8, prefilter cap 55, "
+        "optics 0.55 px, a thirtieth pattern",
+        rig={"blur_sigma_px": 0.55, "pattern_seed": 30},
+        matcher={
+            "kind": "bm",
+            "block_size": 9,
+            "uniqueness": 10,
+            "texture_threshold": 8,
+            "pre_filter_cap": 55,
+        },
+    ),
+    "fresh-sg5x": Setting(
+        "fresh",
+        "SGBM 5, IR 2x supersampled, P1 and P2 x 1.5, left-right 2 px, 0.065 dots/px², "
+        "a thirty-first pattern",
+        rig={"supersample": 2, "dot_density": 0.065, "pattern_seed": 31},
+        matcher={"block_size": 5, "disp12_max_diff": 2},
+        smoothness=(1.5, 1.5),
+    ),
+    "fresh-b47": Setting(
+        "fresh",
+        "SGBM 7, 47 mm baseline, projector 35 mm from the left imager, 1.6 times the room "
+        "light, 81 % of the signal, a thirty-second pattern",
+        rig={
+            "baseline_m": 0.047,
+            "projector_x_m": 0.035,
+            "ambient": 0.13,
+            "gain_dn": 260.0,
+            "pattern_seed": 32,
+        },
+    ),
+    "fresh-hh5w": Setting(
+        "fresh",
+        "SGBM 5, HH mode, albedo 0.75, uniqueness 8, speckle window 60, dots of brightness "
+        "0.45-1.0, a thirty-third pattern",
+        rig={"albedo": 0.75, "dot_brightness": (0.45, 1.0), "pattern_seed": 33},
+        matcher={"block_size": 5, "sgbm_mode": "hh", "uniqueness": 8, "speckle_window": 60},
+    ),
+    "fresh-3way9s": Setting(
+        "fresh",
+        "SGBM 9, 3-way mode, IR 3x supersampled, 0.04 dots/px² of 0.75 px, 1.4 times the shot "
+        "noise, texture check 4.5, a thirty-fourth pattern",
+        rig={
+            "supersample": 3,
+            "dot_density": 0.04,
+            "dot_sigma_px": 0.75,
+            "electrons_per_dn": 7.0,
+            "pattern_seed": 34,
+        },
+        matcher={"block_size": 9, "sgbm_mode": "3way", "min_texture": 4.5},
     ),
 }
 
