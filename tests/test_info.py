@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from schemas import EmgSample, Health, ProsthesisState, encode
+from services.cli import info
 from services.cli import main as lpc
 from services.mcap_log import LogWriter
 
@@ -88,8 +89,16 @@ def test_info_not_an_mcap_file_is_an_error_without_traceback(
     assert "not an MCAP file" in err and "Traceback" not in err
 
 
-def test_info_says_where_the_gaps_are(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # EMG at 100 Hz for 1 s, a 3 s hole, then on again with two samples lost on the way.
+@pytest.mark.parametrize("gap_slice", [4096, 7])
+def test_info_says_where_the_gaps_are(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    gap_slice: int,
+) -> None:
+    # EMG at 100 Hz for 1 s, a 3 s hole, then on again with two samples lost on the way;
+    # stepped whole and in slices of 7 (the hole falls inside one), the same gap.
+    monkeypatch.setattr(info, "_GAP_SLICE", gap_slice)
     path = tmp_path / "gap.mcap"
     with LogWriter(path) as writer:
         for seq in [*range(1, 101), *range(103, 153)]:

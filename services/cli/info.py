@@ -13,7 +13,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lpc_core.gaps import SOURCE_SEQ_KEYS, Gap, GapState, gap_step
+from lpc_core.gaps import SOURCE_SEQ_KEYS, Gap, GapState, gap_steps
 from services.mcap_log import McapLog, McapLogError, format_time
 
 MAX_GAPS_SHOWN = 20
@@ -42,6 +42,9 @@ class TopicStats:
         return (self.count - 1) / (span / 1e9) if self.count > 1 and span > 0 else 0.0
 
 
+_GAP_SLICE = 4096
+
+
 @dataclass
 class Summary:
     topics: dict[str, TopicStats] = field(default_factory=dict)
@@ -57,11 +60,16 @@ class Summary:
 def summarise(log: McapLog, *, validate: bool = False) -> Summary:
     summary = Summary()
     gaps = GapState()
+    # The file's own order is the order the recorder received them in; stepped a slice at
+    # a time, as the recorder does, where a new state a message copied every track.
+    pending: list[tuple[str, int, int]] = []
     for m in log.messages(ordered=False, decode=validate):
         if not m.key.startswith("lpc/_rejected/"):
-            # The file's own order is the order the recorder received them in.
-            gaps, found = gap_step(gaps, m.key, m.sequence, m.log_time)
-            summary.gaps.extend(found)
+            pending.append((m.key, m.sequence, m.log_time))
+            if len(pending) == _GAP_SLICE:
+                gaps, found = gap_steps(gaps, pending)
+                summary.gaps.extend(found)
+                pending.clear()
         stats = summary.topics.get(m.key)
         if stats is None:
             stats = summary.topics[m.key] = TopicStats(first_ns=m.log_time, last_ns=m.log_time)
@@ -75,6 +83,8 @@ def summarise(log: McapLog, *, validate: bool = False) -> Summary:
             summary.first_ns = m.log_time
         if summary.last_ns is None or m.log_time > summary.last_ns:
             summary.last_ns = m.log_time
+    gaps, found = gap_steps(gaps, pending)
+    summary.gaps.extend(found)
     by_topic = {c.topic: c for c in log.channels.values()}
     for key, stats in summary.topics.items():
         channel = by_topic.get(key)
