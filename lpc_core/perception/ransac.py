@@ -169,13 +169,16 @@ class Segments:
         raw = np.zeros((2, count, width))
         for i, p in enumerate(pts):
             raw[:, i, : n[i]] = p.T
-        self.valid = valid = np.arange(width) < np.array(n, dtype=np.intp)[:, None]
-        with np.errstate(all="ignore"):
-            mean = np.add.reduce(raw, axis=2) / np.maximum(np.array(n, dtype=np.float64), 1.0)
-            centred = np.where(valid, raw - mean[:, :, None], np.nan)
+        counts = np.array(n, dtype=np.float64)
+        self.valid = valid = np.arange(width) < counts[:, None]
+        # The points are finite and every divisor at least 1: no floating-point error to
+        # silence (an error state costs more than the arithmetic here).
+        mean = np.add.reduce(raw, axis=2) / np.maximum(counts, 1.0)
+        given = np.where(valid, raw, np.nan)
+        # Padding stays NaN through the subtraction (a quiet NaN raises no error).
+        centred = given - mean[:, :, None]
         # Indexed, not unpacked: iterating an array ends on a formatted IndexError.
         self.x, self.y = centred[0], centred[1]
-        given = np.where(valid, raw, np.nan)
         self.ox, self.oy = given[0], given[1]
         self.mean = mean.T.tolist()
         self._bases: dict[str, np.ndarray] = {}
