@@ -3129,7 +3129,8 @@ def decide(
     show (``LaserParams.window_fattening_px``); without them such a face keeps its seeds."""
     total = sum(ln.total for ln in lines)
     summaries = tuple(ln.summary() for ln in lines)
-    counts = {m: sum(ln.model == m for ln in lines) for m in MODELS}
+    models = [ln.model for ln in lines]
+    counts = {m: models.count(m) for m in MODELS}
     extra: dict[str, float] = {f"n_{m}": float(k) for m, k in counts.items()}
     failed = next((ln for ln in lines if ln.reason), None)
     if failed is not None:
@@ -3379,17 +3380,18 @@ def _decide(
             # The support pins a resting round's radius already (and _resting_width starts
             # from the solid as fitted).
             pixel_rad = _pixel_rad(lines, params)
-            inner = _rim_free(lines, full, clean, params, pixel_rad, scan_lines, support)
+            seen = _seen_round(lines, full)
+            inner = _rim_free(lines, full, clean, params, pixel_rad, scan_lines, support, seen)
             if inner is not None and inner.radius < solid.radius:
                 # The pull toward the camera only widens a fit: one narrower already (the
                 # camera-facing or plateau-free fit) stands. As in _camera_facing, the rims
                 # shift the radius, hardly the axis.
                 solid = replace(solid, radius=inner.radius)
-            bound = _silhouette_bound(lines, full, params, pixel_rad, scan_lines)
+            bound = _silhouette_bound(lines, full, params, pixel_rad, scan_lines, seen)
             if bound is not None and bound < 2 * solid.radius:
                 extra["silhouette_width_mm"] = 1000 * bound
                 solid = replace(solid, radius=bound / 2)
-            background = _background_bound(lines, solid, full, params, pixel_rad, scan_lines)
+            background = _background_bound(lines, solid, full, params, pixel_rad, scan_lines, seen)
             if background is not None:
                 extra["background_width_mm"] = 1000 * background
                 solid = replace(solid, radius=background / 2)
@@ -3923,6 +3925,27 @@ def _across_view(solid: CylinderSolid, points: np.ndarray) -> np.ndarray | None:
     return np.arctan2(points @ side, points @ towards)
 
 
+class _SeenRound(NamedTuple):
+    """The lines' samples laid end to end (``points``, read-only), the whole arc's fit's
+    ``residuals`` on them and their view angles across its axis (``_across_view``): what
+    ``_rim_free``, ``_silhouette_bound`` and ``_background_bound`` each read of that fit,
+    worked out once a frame (``_seen_round``)."""
+
+    points: np.ndarray
+    residuals: np.ndarray
+    angle: np.ndarray | None
+
+
+def _seen_round(lines: list[LineModels], full: CylinderSolid) -> _SeenRound:
+    samples = _read_only(np.concatenate([ln.points for ln in lines]))
+    angle = _across_view(full, samples)
+    return _SeenRound(
+        samples,
+        _read_only(full.residuals(samples)),
+        None if angle is None else _read_only(angle),
+    )
+
+
 def _rim_free(
     lines: list[LineModels],
     full: CylinderSolid,
@@ -3931,6 +3954,7 @@ def _rim_free(
     pixel_rad: float,
     scan_lines: ScanLinesLike | None = None,
     support: PlaneSolid | None = None,
+    seen: _SeenRound | None = None,
 ) -> CylinderSolid | None:
     """The cylinder refitted on its lines' samples at least ``rim_bias_px`` inside both the
     silhouette the samples show (the extremes of their view angles across the axis: every
@@ -3969,17 +3993,21 @@ def _rim_free(
     The refit's silhouette lies within ``_RIM_PX`` of the rims the lines show on at least one
     side, else it is widened until it lies that far inside them on the two sides' mean
     (``_reaching_rims``; rims without what a window carried past them, ``_past_rims``).
+    ``seen``: ``_seen_round(lines, full)`` where the caller has it.
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
         return None
-    samples = np.concatenate([ln.points for ln in lines])
+    seen = seen or _seen_round(lines, full)
+    samples = seen.points
     thr = params.solid_threshold_m
     lo, hi = params.radius_limits_m
-    angle = _across_view(full, samples)
+    angle = seen.angle
     if angle is None:
         return None
-    residuals = full.residuals(samples)
+    residuals = seen.residuals
+    # The scan lines' correlation (0.2 ms) when first asked: up to twice below.
+    matched = functools.cache(lambda: _matched(scan_lines, params))
     # Under an SGBM-like window the samples run past the silhouette in the plateau the window
     # carries the rim's depth into (the 50 mm bottle tilted right at SGBM 9: 2-9 px past it),
     # so their extent lies too far out to trim the pulled arc inside it. The extent leaves
@@ -3991,7 +4019,7 @@ def _rim_free(
     if not (
         fattened.any()
         and not _lying_along(full, support, params)
-        and _matched(scan_lines, params) is not None
+        and matched() is not None
         and not _rests_behind_rims(lines, full, angle, residuals, params, pixel_rad, scan_lines)
     ):
         fattened[:] = False
@@ -4058,9 +4086,7 @@ def _rim_free(
                 # by the samples, which lie within the round's silhouette where nothing
                 # fattened them (the can under BM 5, its fit within 1 mm, came out 5-13 mm
                 # narrow refitted unbounded).
-                holes = _matched(scan_lines, params) is None and not _fattened_rims(
-                    lines, angle, residuals, params
-                )
+                holes = matched() is None and not _fattened_rims(lines, angle, residuals, params)
                 bounded = holes and flat
                 if (holes and not bounded) or _rests_behind_rims(
                     lines, full, angle, residuals, params, pixel_rad, scan_lines
@@ -4111,7 +4137,7 @@ def _rim_free(
     # 8-12 mm narrow at SGBM 7 with a weak pattern or a projector beside the left imager,
     # whole-arc fits within 3 mm), its silhouette lies inside the rims the lines show.
     solid = _reaching_rims(solid, samples.compress(rims, axis=0), pixel_rad)
-    if _matched(scan_lines, params) is None:
+    if matched() is None:
         solid = _unoccluded_hole(lines, solid, full, samples, params, pixel_rad, scan_lines)
     return solid
 
@@ -4469,6 +4495,7 @@ def _silhouette_bound(
     params: LaserParams,
     pixel_rad: float,
     scan_lines: ScanLinesLike | None,
+    seen: _SeenRound | None = None,
 ) -> float | None:
     """The width of the cylinder along ``full``'s axis whose silhouette is the samples' own
     (the extremes of their view angles across the axis) and whose front meets the samples
@@ -4502,10 +4529,11 @@ def _silhouette_bound(
     towards = np.array([fx, fy, fz]) / distance
     tx, ty, tz = towards.tolist()
     side = np.array([ay * tz - az * ty, az * tx - ax * tz, ax * ty - ay * tx])
-    samples = np.concatenate([ln.points for ln in lines])
+    seen = seen or _seen_round(lines, full)
+    samples = seen.points
     x, y = samples @ towards, samples @ side
     angle = np.arctan2(y, x)
-    residuals = full.residuals(samples)
+    residuals = seen.residuals
     on_round = angle.compress(residuals <= 4 * params.solid_threshold_m)
     if len(on_round) == 0:
         return None
@@ -4552,6 +4580,7 @@ def _background_bound(
     params: LaserParams,
     pixel_rad: float,
     scan_lines: ScanLinesLike | None,
+    seen: _SeenRound | None = None,
 ) -> float | None:
     """The width of ``solid`` (along its axis, about its centre) whose silhouette lies at
     most a pixel past the first background seen past either of the round's outermost
@@ -4585,11 +4614,14 @@ def _background_bound(
     past.
     """
     far = getattr(scan_lines, "far_past_m", None)
-    samples = np.concatenate([ln.points for ln in lines])
-    angle = _across_view(solid, samples)
+    seen = seen or _seen_round(lines, full)
+    samples = seen.points
+    # The view angles depend on the axis alone: full's where solid keeps it (trims change radii).
+    aligned = solid.point is full.point and solid.axis is full.axis
+    angle = seen.angle if aligned else _across_view(solid, samples)
     if angle is None:
         return None
-    on = np.flatnonzero(full.residuals(samples) <= 4 * params.solid_threshold_m)
+    on = np.flatnonzero(seen.residuals <= 4 * params.solid_threshold_m)
     if len(on) == 0:
         return None
     view = _axis_in_view(solid)
