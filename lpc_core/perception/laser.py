@@ -3132,12 +3132,13 @@ def analyse_lines(
     # A block matcher's texture check leaves holes wherever a window holds too few dots, so
     # a line's samples across a round or a face come in clumps a few millimetres apart, and
     # a hole with a slope behind it is a jump longer than ``segment_gap_m``: the pierced
-    # segment stops there with the ``need`` points it was joined across holes for, and one
-    # outlier then leaves its run short (BM 5 with a texture threshold of 15, the line at 45
-    # degrees: 10-12 points over 20 mm of the 40 mm ball, the lying 40 mm marker and the
-    # upright box, each taken across a 7-8 mm hole 5-6 mm deep beside the axis, and 8-9
-    # inliers). The surface goes on past the hole (``_hole``): such a line is fitted again
-    # on the segment joined across every hole beside it; the other lines are as they were.
+    # segment stops there, and once it holds ``need`` points no hole is crossed (only a
+    # shorter one is joined across them), so one outlier leaves its run short (BM 5 with a
+    # texture threshold of 15, the line at 45 degrees: 10-12 points on the lying 40 mm
+    # marker and the upright box, each ended by a 7-8 mm hole beside the axis with the
+    # surface 5-6 mm deeper past it, and 8-9 inliers). The surface goes on past such a hole
+    # (``_hole``): the lines are fitted again, with the short ones' segments joined across
+    # every hole beside them, and kept where no line is short then.
     again = _prepare_lines(angles.tolist(), raw, params, joined, across=thinned)
     if any(ln.reason for ln in again) or all(
         len(again[k].points) == len(lines[k].points) for k in thinned
