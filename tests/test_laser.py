@@ -701,6 +701,26 @@ def test_a_hole_the_optical_axis_pierces_joins_the_segments_either_side() -> Non
     assert s.min() < -0.02 and 0.003 < s.max() < 0.005, (s.min(), s.max())
 
 
+def test_a_line_thinned_by_holes_is_fitted_again_across_them() -> None:
+    """A block matcher's texture check leaves the diagonal line across the can a stretch of
+    ten samples through the axis, then a 9 mm hole (the surface rising behind it, a jump
+    past ``segment_gap_m``), then the rest of the arc. One of the ten is off the arc, so the
+    line's run is nine, short of ``min_points_per_line``, and the frame had no shape; the
+    arc goes on past the hole, and the line fitted across it finds the can."""
+    lines = scan(cylinder((0.0, 0.0, 0.23), (0.0, 1.0, 0.0), 0.03))
+    diagonal = lines.points[1]
+    s = (diagonal[:, 0] + diagonal[:, 1]) / math.sqrt(2)
+    at = int(np.abs(s).argmin())
+    keep = np.zeros(len(s), dtype=bool)
+    keep[at - 8 : at + 2] = True
+    keep |= (s >= s[at + 1] + 0.009) & (s <= 0.025)
+    holed = diagonal[keep]
+    holed[4] *= (holed[4, 2] + 0.003) / holed[4, 2]  # 3 mm behind the arc
+    found = reconstruct_laser(Lines(lines.angles_rad, (lines.points[0], holed, *lines.points[2:])))
+    assert found.shape == "cylinder", found.reason
+    assert abs(found.grasp_width_m - 0.06) * 1000 <= WIDTH_TOL_MM, found.grasp_width_m
+
+
 def _rounded_before(line: LineModels, face: PlaneSolid, samples: int = 8) -> LineModels:
     """``line`` with ``samples`` more before its first, 0.0047 rad apart, each 0.6 mm further
     behind ``face`` than the last: the object's own side falling away at that end too."""
