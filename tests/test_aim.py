@@ -527,3 +527,24 @@ def test_cluster_points_is_single_linkage_of_the_cubes_first_points(seed: int) -
     points = points[rng.permutation(len(points))]
     labels = cluster_points(points, 0.010)
     assert labels.tolist() == _cube_linkage(points, 0.010).tolist()
+
+
+def test_cluster_points_links_a_cloud_of_more_cubes_than_one_leaf_as_defined() -> None:
+    # A frame's cubes fit in the k-d tree's one leaf; a larger cloud's tree splits.
+    rng = np.random.default_rng(11)
+    centres = rng.uniform([-0.04, -0.04, 0.16], [0.04, 0.04, 0.24], (6, 3))
+    points = np.concatenate([c + rng.normal(0.0, 0.006, (60, 3)) for c in centres])
+    cubes = len(np.unique(np.floor(points / 0.0025), axis=0))
+    assert cubes > aim._LEAF_CUBES
+    labels = cluster_points(points, 0.010)
+    assert labels.tolist() == _cube_linkage(points, 0.010).tolist()
+
+
+def test_cluster_points_keeps_far_points_in_order_and_refuses_beyond_its_cells() -> None:
+    # The cube keys' fixed radix holds cells within +-2**16 of the camera: 163 m at this gap.
+    rng = np.random.default_rng(7)
+    blobs = np.concatenate([c + rng.normal(0.0, 0.006, (60, 3)) for c in ([0, 0, 0], [0.02] * 3)])
+    far = blobs + np.array([-160.0, 150.0, 160.0])
+    assert cluster_points(far, 0.010).tolist() == _cube_linkage(far, 0.010).tolist()
+    with pytest.raises(ValueError, match=r"163\.84 m"):
+        cluster_points(blobs + np.array([0.0, 0.0, 164.0]), 0.010)
