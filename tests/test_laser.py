@@ -488,6 +488,41 @@ def test_a_bumpy_potato_is_as_wide_as_its_runs_span(matcher: str | None) -> None
     assert abs(float(np.median(widths)) - 62.0) < 15.0, widths
 
 
+def test_a_rough_round_takes_its_outline_for_an_axis_where_no_guess_holds_its_arcs(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The sweet potato is no cylinder: no axis guess holds 0.9 of its arcs, and on a block
+    matcher's noisy samples the grid's best direction may run across it, a 98 mm round 65 deg
+    off (BM 7 with a high texture threshold, trial 0 frame 1). Its outline's longest extent
+    (laser._seeds_axis, longest) is then tried too, and holds more of the arcs along the
+    potato (laser._cylinder_candidate)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception import laser
+    from lpc_core.perception.scans import cut_scan_lines
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = lv.views("irregular", 2, 5, 0, names=["sweet_potato"],
+                     sensor=SETTINGS["bm7-t20"].sensor())  # fmt: skip
+    view = next(v for v in views if (v.trial, v.frame) == (0, 1))
+    lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+    truth = view.truth.wrist_angle_rad
+
+    def off_deg(result: laser.Reconstruction) -> float:
+        return abs(math.degrees(wrap_half_turn(result.wrist_angle_rad - truth)))
+
+    result = reconstruct_laser(lines, seed=view.seq)
+    seeds_axis = laser._seeds_axis
+    monkeypatch.setattr(
+        laser, "_seeds_axis", lambda ls, p, *, longest=False: None if longest else seeds_axis(ls, p)
+    )
+    before = reconstruct_laser(lines, seed=view.seq)
+    assert result.shape == before.shape == "cylinder"
+    assert off_deg(before) > 45.0 and before.grasp_width_mm > 90.0
+    assert off_deg(result) < 10.0
+    assert abs(result.grasp_width_mm - 62.0) < 25.0
+
+
 _BALL = sphere((0.0, 0.0, 0.2), 0.02)
 _LYING = union(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), _TABLE)
 
