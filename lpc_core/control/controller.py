@@ -137,6 +137,8 @@ _GESTURE_EVENTS = {
 _CUE_ON = frozenset({"guiding", "on_target", "ready"})
 
 EMG, HAND, TARGET = "lpc/emg", "lpc/prosthesis/state", "lpc/grasp/target"
+_WATCHED, _WATCHED_WITH_TARGET = (EMG, HAND), (EMG, HAND, TARGET)
+_VISION_STATES = (S.AIMING, S.READY, S.PRESHAPING)  # the states that rely on the grasp target
 
 
 class TransitionError(RuntimeError):
@@ -327,10 +329,9 @@ def apply_event(
     old = core.mode
     core = evolve(core, previous=old, mode=new, event=event.value, reason=reason)
     if new is not old:
-        vision = (S.AIMING, S.READY, S.PRESHAPING)
-        if new in vision and old not in vision:
+        if new in _VISION_STATES and old not in _VISION_STATES:
             core = evolve(core, vision_since_ns=now_ns)
-        elif new not in vision and new is not S.STOPPED:
+        elif new not in _VISION_STATES and new is not S.STOPPED:
             core = evolve(core, vision_since_ns=None)
         core = _enter(core, new, now_ns, out)
     if event is E.SWITCH_DOF and new is S.DIRECT:
@@ -357,19 +358,20 @@ def _enter(core: ControllerCore, state: State, now_ns: int, out: list[Output]) -
 
 
 def _check_staleness(core: ControllerCore, now_ns: int, out: list[Output]) -> ControllerCore:
-    p = core.params
-    watched = [EMG, HAND]
-    if core.mode in (S.AIMING, S.READY, S.PRESHAPING) or (
-        core.mode is S.STOPPED and TARGET in core.stale
-    ):
-        watched.append(TARGET)
+    mode = core.mode
+    watched = (
+        _WATCHED_WITH_TARGET
+        if mode in _VISION_STATES or (mode is S.STOPPED and TARGET in core.stale)
+        else _WATCHED
+    )
     stale: list[str] = []
     details: list[str] = []
+    limits, seen_ns = core.params.stale_ms, core.seen_ns
     for topic in watched:
-        limit = p.stale_ms.get(topic)
+        limit = limits.get(topic)
         if limit is None:
             continue
-        seen = core.seen_ns.get(topic)
+        seen = seen_ns.get(topic)
         if topic == TARGET and core.vision_since_ns is not None:
             # Vision gets its threshold's grace from the moment the controller relies on it.
             seen = max(seen if seen is not None else 0, core.vision_since_ns)

@@ -24,10 +24,11 @@ Rules, in order:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 from lpc_core.devices.tactor_protocol import N_TACTORS, OFF, TactorOutput
+from lpc_core.perception.state import evolve
 from schemas import TactorCommand
 
 
@@ -161,9 +162,9 @@ def bridge_step(
         since = state.pulse_since_ns if was_pulsing else None
         if event.pulse and since is None:
             since = now_ns
-        state = replace(state, command=event, received_ns=now_ns, pulse_since_ns=since)
+        state = evolve(state, command=event, received_ns=now_ns, pulse_since_ns=since)
     elif isinstance(event, PortOpened):
-        state = replace(state, written=None, written_ns=None)
+        state = evolve(state, written=None, written_ns=None)
     elif not isinstance(event, Tick):
         raise ValueError(f"event must be TactorCommand, Tick or PortOpened, got {type(event)}")
     p = state.params
@@ -172,11 +173,12 @@ def bridge_step(
     last = state.written_ns
     tokens = _tokens(state, now_ns)
     wanted = last is None or desired != state.written or now_ns - last >= p.refresh_ns
-    # One copy for the bucket and what was written (dataclasses.replace re-runs __init__).
+    # Copies by ``evolve``, not ``dataclasses.replace``: a state update needs no __init__, and
+    # the bridge steps for every cue and wake-up on the control loop.
     if wanted and (tokens >= 1.0 - 1e-9 or last is None):
         outputs.append(desired)
         tokens = max(0.0, tokens - 1.0)
-        state = replace(state, written=desired, written_ns=now_ns, tokens=tokens, tokens_ns=now_ns)
+        state = evolve(state, written=desired, written_ns=now_ns, tokens=tokens, tokens_ns=now_ns)
     else:
-        state = replace(state, tokens=tokens, tokens_ns=now_ns)
-    return replace(state, wake_ns=_next_wake(state, desired, now_ns)), outputs
+        state = evolve(state, tokens=tokens, tokens_ns=now_ns)
+    return evolve(state, wake_ns=_next_wake(state, desired, now_ns)), outputs
