@@ -15,7 +15,7 @@ from lpc_core.perception import laser
 from lpc_core.perception.cloud import CloudParams, reconstruct_cloud
 from lpc_core.perception.intrinsics import Intrinsics
 from lpc_core.perception.laser import LaserParams, reconstruct_laser
-from lpc_core.perception.scans import ScanLines, cut_scan_lines
+from lpc_core.perception.scans import ScanLines, cut_scan_lines, residual_correlation
 
 INTRINSICS = Intrinsics()
 
@@ -542,3 +542,30 @@ def test_the_box_tilted_left_trims_runs_ending_on_a_ramp_to_the_table(
     assert before.grasp_width_m - truth > 0.001
     assert abs(result.grasp_width_m - truth) < 0.0005
     assert before.grasp_width_m - result.grasp_width_m > 0.001
+
+
+def test_a_weakly_correlated_frame_with_no_fattening_in_view_takes_a_blocks() -> None:
+    """SGBM 3, the upright box, trial 1 frame 0: no face run shows the fattening, the
+    residuals' correlation (0.20) is short of SGBM's gate, and depth lies past the edges facing
+    +x: untrimmed, the width came out 12.8 mm wide. A matching window still fattened its edges
+    (``laser._weak_gate``): with a block's fattening taken off, 2.3 mm."""
+    view, lines = _setting_frame("sgbm3", "cuboid_upright", 1, 0)
+    result = reconstruct_laser(lines, seed=view.seq)
+    before = reconstruct_laser(lines, LaserParams(weak_correlation_gate=0.0), seed=view.seq)
+    assert result.shape == before.shape == "cuboid"
+    assert before.extra["fattening_px"] == 0.0
+    assert result.extra["fattening_px"] == LaserParams().hole_fattening_px
+    truth = view.truth.grasp_width_m
+    assert before.grasp_width_m - truth > 0.010
+    assert abs(result.grasp_width_m - truth) < 0.003
+
+
+def test_lpc_noise_models_frames_stay_below_the_weak_correlation_gate() -> None:
+    """lpc's noise model draws each pixel's error on its own: its frames' residuals stay
+    uncorrelated (at most 0.10 over its four suites), so none takes a window's fattening."""
+    from services.cli import _laser_views as lv
+
+    gate = LaserParams().weak_correlation_gate
+    for view in lv.views("functional", 1, 5, 0):
+        lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+        assert residual_correlation(lines.angles_rad, lines.points) < gate - 0.03
