@@ -597,7 +597,11 @@ def _edge_points(
         offsets = geometry.ends_q[2 * i + k]
         # A hole (no depth) ends the face only where no pixel past it comes back onto the
         # straight line: a block matcher leaves holes inside a face too (BM 5's tilted box),
-        # and at the edge the hole runs on into the background or out of the walk.
+        # and at the edge the hole runs on out of the walk. One with the background's depth
+        # past it is the band where the matcher dropped the windows straddling the edge (its
+        # left-right check fails there): the edge lies anywhere in it, and its first pixel
+        # up to 3 mm before the edge (BM 5, the box tilted right, trial 0 frame 2; SGBM 9,
+        # the box tilted left, trial 1 frame 1): no point there.
         hole = -1
         for step, d in enumerate(depths):
             den = 1.0 - b * (q0 + offsets[step])
@@ -612,7 +616,9 @@ def _edge_points(
         else:
             if hole < 0:
                 continue
-        step = hole if hole >= 0 else step
+            step = hole
+        if hole >= 0 and step != hole:
+            continue
         # Half a pixel before the first pixel off (step j is j + 1 px past the end), along
         # the line's image direction: a pixel there moves s / z by 1 / |(fx cos, fy sin)|.
         q = q0 + (step + 0.5) * (1.0 if k else -1.0) / math.hypot(fx * cos, fy * sin)
