@@ -1122,7 +1122,8 @@ def test_a_cut_line_leaving_the_face_turns_a_tied_box_onto_its_axis() -> None:
     its sides as uncut seeds' ends do, and with them the box is within a degree
     (laser._with_face_edges). SGBM (block 7), the same pose: one such point lies 3.1 mm past
     a side an uncut seed settles, inside the band the matcher carried the face on; it is
-    left out (laser._edges_within_uncut_sides), or the box turned 2.6 degrees (1.4 -> 4.0)."""
+    moved in onto that side (laser._edges_onto_uncut_sides), or the box turned 4.0 degrees
+    (1.5 with it)."""
     from services.cli import _laser_views as lv
 
     view, result = _bench_frame("cuboid_tilt_left", 1, 1, kind="sgbm", block_size=9)
@@ -1132,3 +1133,14 @@ def test_a_cut_line_leaving_the_face_turns_a_tied_box_onto_its_axis() -> None:
     assert _axis_error_deg(view, result) < 1.0
     view, result = _bench_frame("cuboid_tilt_left", 1, 1, kind="sgbm", block_size=7)
     assert _axis_error_deg(view, result) < 2.0
+
+
+def test_an_edge_point_past_an_uncut_side_still_turns_the_box() -> None:
+    """super2, the box tilted right, trial 1 frame 0: a cut line's edge point lies more than
+    3 mm past a side an uncut seed settles. Dropped (stop 41's rule), the box turned 8.2
+    degrees off its axis and read 1.4 mm narrow; moved in onto that side it still says how far along
+    the side the face reaches (laser._edges_onto_uncut_sides)."""
+    view, result = _setting_frame("super2", "cuboid_tilt_right", 1, 0, suite="functional")
+    assert result.grasp_width_m is not None
+    assert _axis_error_deg(view, result) < 2.0
+    assert abs(result.grasp_width_m - view.truth.grasp_width_m) < 0.0005
