@@ -88,13 +88,17 @@ class ScanLine(Struct, frozen=True, kw_only=True):
     measured (scans recorded before it was). ``far_past_m``: the point (metres, camera frame)
     of the first pixel past the line's first and last point along it whose depth lies beyond
     the capture volume (six floats: the first end's x, y, z, then the last end's), zeros
-    where none does; None where not measured.
+    where none does; None where not measured. ``edge_past_m``: where the line leaves the
+    face its first and last point lie on, for an end at the capture volume's side (six
+    floats as ``far_past_m``; ``lpc_core.perception.scans._edge_points``), zeros where it
+    does not within 40 px; None where not measured.
     """
 
     angle_deg: float
     points: NDArray
     past_ends_m: list[float] | None = None
     far_past_m: list[float] | None = None
+    edge_past_m: list[float] | None = None
 
 
 class ScanLines(Message, frozen=True, kw_only=True, tag="scans"):

@@ -275,6 +275,10 @@ def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_i
     far = scan_lines_from_message(decoded).far_past_m
     assert far is not None and far.shape == (4, 2, 3)
     assert np.allclose(far[:, :, 2], 0.26, atol=0.003), far
+    # Where each line leaves the face past an end at the capture volume's side: the ball
+    # lies inside it, so none; the message carries the cut's zeros as they are.
+    edge = scan_lines_from_message(decoded).edge_past_m
+    assert edge is not None and np.array_equal(edge, np.zeros((4, 2, 3)))
 
     class OldScanLine(msgspec.Struct, frozen=True, kw_only=True):
         angle_deg: float
@@ -299,7 +303,7 @@ def test_scans_carry_the_depth_past_the_line_ends_and_old_scans_decode_without_i
     from_old = decode("lpc/scans", msgspec.msgpack.encode(old))
     assert all(ln.past_ends_m is None for ln in from_old.lines)
     lines = scan_lines_from_message(from_old)
-    assert lines.past_ends_m is None and lines.far_past_m is None
+    assert lines.past_ends_m is None and lines.far_past_m is None and lines.edge_past_m is None
     assert [p.tolist() for p in lines.points] == [
         p.tolist() for p in scan_lines_from_message(decoded).points
     ]

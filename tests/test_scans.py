@@ -379,3 +379,28 @@ def test_orthonormal_columns_without_numpys_gufuncs(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(scans, "_QR_R_RAW", None)
     a = np.random.default_rng(6).normal(size=(5, 20, 3))
     assert _orthonormal_columns(a).tobytes() == np.linalg.qr(a)[0].tobytes()
+
+
+def test_cut_finds_where_a_line_cut_at_the_capture_volumes_side_leaves_the_face() -> None:
+    """A face sloping along x (z = 0.2 + 0.3 x), 120 x 60 mm, with nothing behind it: the
+    line along x is cut at the capture volume's sides (x = +-50 mm) and leaves the face at
+    its edges (x = +-60 mm), within a pixel (1.1 mm there) on the face's own depth; the
+    lines' other ends lie inside the capture volume (the face's sides at y = +-30 mm): none."""
+    xs, ys = INTR.pixel_rays()
+    z = 0.2 / (1.0 - 0.3 * xs)  # the ray (xs, ys, 1) meets z = 0.2 + 0.3 x there
+    face = (np.abs(xs * z) <= 0.06) & (np.abs(ys * z) <= 0.03)
+    depth = np.where(face, np.rint(z / INTR.depth_scale), 0).astype(np.uint16)
+    lines = cut_scan_lines(depth, INTR)
+    edge = lines.edge_past_m
+    assert edge is not None and edge.shape == (4, 2, 3)
+    pixel = 0.2 / INTR.fx
+    for point, x in ((edge[0, 0], -0.06), (edge[0, 1], 0.06)):
+        assert point[0] == pytest.approx(x, abs=1.5 * pixel), edge[0]
+        assert point[2] == pytest.approx(0.2 + 0.3 * point[0], abs=0.0005), edge[0]
+        assert point[1] == pytest.approx(0.0, abs=1e-9)
+    # The 90-degree line ends at the face's sides inside the capture volume, and the two
+    # diagonal lines too.
+    assert np.array_equal(edge[1:], np.zeros((3, 2, 3))), edge
+    # A face wider than the walk past the side (40 px): the line never leaves it there.
+    wide = np.where(np.abs(ys * z) <= 0.03, np.rint(z / INTR.depth_scale), 0).astype(np.uint16)
+    assert np.array_equal(cut_scan_lines(wide, INTR).edge_past_m[0], np.zeros((2, 3)))

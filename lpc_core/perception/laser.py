@@ -1020,6 +1020,9 @@ class _Seeds:
     cropped: np.ndarray  # (K,) bool: at the capture volume's edge, not the object's
     occluding: np.ndarray | None = None  # (K,) bool: its run ends where its segment does
     reach: np.ndarray | None = None  # (K,) m: cut, the face ending within this past it; else 0
+    # (K, 3): cut with a reach, where its line leaves the face past it (the scans'
+    # edge_past_m); zeros elsewhere: for the direction only (_with_face_edges)
+    edges: np.ndarray | None = None
     # (K,) the share of the window's trim each uncut seed's place took (its run ended at the
     # face's edge with a far background behind it): for the direction only
     fattened: np.ndarray | None = None
@@ -1189,6 +1192,7 @@ def _collect_seeds(
     face: PlaneSolid | None = None,
     past: list[list[float]] | None = None,
     pixel_rad: float = 0.0,
+    edges: list[list[list[float]]] | None = None,
 ) -> _Seeds:
     """The seed points, two per line; with ``extend``, each moved outward along its scan line
     by ``edge_extension`` samples (the last inlier lies up to one sample inside the edge).
@@ -1202,11 +1206,14 @@ def _collect_seeds(
     within about half its window of the edge, and on a flat face those fattened pixels lie
     on the face's own plane, so nothing in the line itself tells them apart. With a ``face``
     and ``past``, an uncut seed whose run ends on the segment falling away toward a far
-    background is flagged ``receding`` (``_receding_ends``).
+    background is flagged ``receding`` (``_receding_ends``). A seed cut where the face ends
+    within its reach keeps where its line leaves the face past it (``edges``, the scans'
+    ``edge_past_m``) as its ``edges`` entry.
     """
     # In samples: a sample is a pixel along x or y, as far as a window's half reaches.
     trim = params.edge_fattening_px if face is not None else 0.0
     pts, cropped, occludes, reach = [], [], [], []
+    face_edges: list[list[float]] = []
     hw, margin = params.capture_half_width_m, params.crop_margin_m
     zlo, zhi = params.capture_z_m
     for line in lines:
@@ -1267,6 +1274,12 @@ def _collect_seeds(
             cropped.append(at_crop)
             occludes.append(bool(occluding))
             reach.append(ends_within)
+            edge = (
+                edges[line.index][k]
+                if ends_within > 0 and edges is not None and line.index < len(edges)
+                else _NO_EDGE
+            )
+            face_edges.append(edge if edge[2] > 0.0 else _NO_EDGE)
     receding = None
     if face is not None and past is not None:
         ends = _receding_ends(lines, face, past, params)
@@ -1276,9 +1289,13 @@ def _collect_seeds(
         cropped=np.array(cropped, dtype=bool),
         occluding=np.array(occludes, dtype=bool),
         reach=np.array(reach),
+        edges=np.array(face_edges) if any(e[2] > 0.0 for e in face_edges) else None,
         receding=receding,
         resuming=None if face is None else np.array(_resuming_ends(lines, face, params)),
     )
+
+
+_NO_EDGE = [0.0, 0.0, 0.0]
 
 
 # A face's run that stops this many samples short of its segment's end at the capture
@@ -1778,6 +1795,62 @@ def _unfattened_seeds(seeds: _Seeds, trim_rad: float) -> np.ndarray:
     return pts
 
 
+def _with_face_edges(
+    uv: np.ndarray, cropped: np.ndarray, reach: np.ndarray | None, edge_uv: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The seeds ``uv`` (in the face's plane, sorted around it) with where the cut lines
+    leave the face (``edge_uv``, the seeds' ``edges`` in the plane) as uncut seeds, sorted
+    around it again; their ``cropped`` flags and ``reach``.
+
+    A face filling the capture volume (the 85 mm box tilted right) keeps about one uncut
+    seed a side, and the count's directions then tie over some 20 degrees; past a seed cut
+    at the capture volume's side, the pixel where its line leaves the face lies on the
+    face's side, as an uncut seed's end does (fattened as much: the matcher carries the
+    face's depth past its edge there too). From the scene's truth, that point for every such
+    seed of the three upright and tilted boxes over the 69 studied stereo settings would
+    take their in-plane direction error 2.99 -> 2.45 degrees; the scans' reading gives 2.46
+    (used as the tie-break's tolerance instead, the exact reach made it worse: h40ang2)."""
+    if edge_uv is None or not len(edge_uv):
+        return uv, cropped, reach
+    joined = np.concatenate([uv, edge_uv])
+    order = sort_around(joined, np.zeros(2))
+    flags = np.concatenate([cropped, np.zeros(len(edge_uv), dtype=bool)])[order]
+    if reach is None:
+        return joined[order], flags, None
+    return joined[order], flags, np.concatenate([reach, np.zeros(len(edge_uv))])[order]
+
+
+def _edges_onto_uncut_sides(
+    uv: np.ndarray, cropped: np.ndarray, edge_uv: np.ndarray, direction: np.ndarray
+) -> np.ndarray:
+    """The edge points ``edge_uv``, each moved in onto any side of the seeds' own rectangle
+    (along ``direction`` and across it) that an uncut seed settles and that it lies past.
+
+    An uncut seed's end already lies at its side's fattened edge; a cut line's point past
+    it stands in for such an end, so it cannot lie further out on that side. One that does
+    was read where a matcher carried the face's depth on along the line past the edge:
+    where the depth stays on the face's straight line up to a hole running out of the walk,
+    the hole begins 6-12 px past the true edge (median 8, growing with the window: 5 px at
+    SGBM 3, 11 at SGBM 11), against 3 px where the depth leaves the line (the upright and
+    tilted boxes over stop 41's 69 settings). Such a point still says how far along that
+    side the face reaches, so it is moved in onto the side, not dropped: dropping the ones
+    more than 3 mm out turned on whether a point lay 3.1 or 2.9 mm past (SGBM 7, the box
+    tilted left, trial 1 frame 1: 1.4 or 4.0 degrees); moved in, the four-line angle over
+    the 74 studied settings went 1.734 -> 1.688 degrees (46 settings better, 24 worse).
+    Past a side only cut seeds settle, the face goes on beyond the capture volume, and the
+    point is what it is for."""
+    u = direction / np.linalg.norm(direction)
+    axes = np.array([u, [-u[1], u[0]]]).T
+    c, ce = uv @ axes, edge_uv @ axes
+    for axis in range(2):
+        low, high = int(np.argmin(c[:, axis])), int(np.argmax(c[:, axis]))
+        if not cropped[low]:
+            ce[:, axis] = np.maximum(ce[:, axis], c[low, axis])
+        if not cropped[high]:
+            ce[:, axis] = np.minimum(ce[:, axis], c[high, axis])
+    return ce @ axes.T
+
+
 @dataclass(frozen=True)
 class _Face:
     width: float
@@ -1825,10 +1898,25 @@ def _face_geometry(
     else:
         reach = None if seeds.reach is None else seeds.reach[order]
         fattened = trim_px > 0 and pixel_rad > 0
+        edge_uv = None
+        # Only with a measured window fattening: the edge point stands in for an uncut
+        # seed's fattened end; with none (lpc's own noise model) the cut seeds settle it.
+        if fattened and seeds.edges is not None:
+            found = seeds.edges[:, 2] > 0
+            edge_uv = (plane.project(seeds.edges[found]) - origin) @ to_plane
         direction, classic = _seeds_direction(uv, cropped, reach, params, fattened=fattened)
         valid = (~cropped).tolist()
         tol = params.edge_tolerance_m
         score = _rectangle_score(pts, valid, direction.tolist(), tol)
+        if edge_uv is not None and len(edge_uv):
+            # The seeds' own direction only places the sides the edge points are moved in
+            # onto; the count runs again with the points kept as uncut seeds.
+            edge_uv = _edges_onto_uncut_sides(uv, cropped, edge_uv, direction)
+            e_direction, e_classic = _seeds_direction(
+                *_with_face_edges(uv, cropped, reach, edge_uv), params, fattened=fattened
+            )
+            e_score = _rectangle_score(pts, valid, e_direction.tolist(), tol)
+            direction, classic, score = e_direction, e_classic, e_score
         if score[0] < sum(valid) and trim_px > 0 and pixel_rad > 0 and seeds.fattened is not None:
             # Seeds off every side the count gives them: each occluding seed takes back the
             # fattening it took (its share of the window's trim) along its line, and the
@@ -1839,11 +1927,24 @@ def _face_geometry(
             trimmed = _unfattened_seeds(seeds, trim_px * pixel_rad).take(order, axis=0)
             t_uv = (trimmed - origin) @ to_plane
             t_direction, t_classic = _seeds_direction(
-                t_uv, cropped, reach, params, fattened=fattened
+                *_with_face_edges(t_uv, cropped, reach, edge_uv), params, fattened=fattened
             )
-            if _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol) >= score and (
-                _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
-            ):
+            t_score = _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol)
+            kept = t_score >= score and _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
+            if not kept and edge_uv is not None and len(edge_uv):
+                # The edge points were moved in onto the untrimmed seeds' sides, which the
+                # trim moves in: with them the trimmed count can lose a side's seed it holds
+                # alone (SGBM 7, the box tilted left, trial 1 frame 0: 3 -> 2 seeds, and the
+                # untrimmed direction stood 5.0 degrees off, 0.8 mm narrow; 1.1 degrees and
+                # 0.2 mm with the trimmed seeds' own count).
+                t_direction, t_classic = _seeds_direction(
+                    t_uv, cropped, reach, params, fattened=fattened
+                )
+                t_score = _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol)
+                kept = (
+                    t_score >= score and _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
+                )
+            if kept:
                 direction, classic = t_direction, t_classic
         pts_all = pts
         if beyond is not None and len(beyond):
@@ -3461,6 +3562,7 @@ def _decide(
     window = False
     shares = params
     past = getattr(scan_lines, "past_ends_m", None)
+    edge_past = getattr(scan_lines, "edge_past_m", None)
     if params.edge_fattening_px == 0 and params.measure_fattening:
         measured = _fattening(on_face)
         if measured == 0 and params.window_fattening_px > 0:
@@ -3488,6 +3590,14 @@ def _decide(
         on_face, params, extend=True, face=solid,
         past=np.asarray(past, dtype=np.float64).tolist() if past is not None else None,
         pixel_rad=_pixel_rad(lines, params),
+        # Not where the fattening is a block matcher's assumed one (a hole past an occluding
+        # edge, no run showing it): an edge point stands in for an uncut seed's fattened end,
+        # and how far those ends lie past the edges is then unknown (BM 5, the box tilted
+        # right, trial 1 frame 1: 0.9 -> 2.6 degrees, 2.9 -> 4.8 mm narrow with them).
+        edges=(
+            None if edge_past is None or "hole_past_edge" in extra
+            else np.asarray(edge_past, dtype=np.float64).tolist()
+        ),
     )  # fmt: skip
     seeds = replace(seeds, points=solid.project(seeds.points))
     if seeds.occluding is not None:

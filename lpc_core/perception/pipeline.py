@@ -85,6 +85,12 @@ def _far_past(lines: CoreScanLines) -> list[list[float] | None]:
     return lines.far_past_m.reshape(len(lines.points), 6).tolist()
 
 
+def _edge_past(lines: CoreScanLines) -> list[list[float] | None]:
+    if lines.edge_past_m is None:
+        return [None] * len(lines.points)
+    return lines.edge_past_m.reshape(len(lines.points), 6).tolist()
+
+
 def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[ScansState, ScanLines]:
     """Cut the four scan lines of one depth frame. ``t_ns`` stays the frame's capture time."""
     del now_ns  # capture time, not processing time, travels with the scans
@@ -111,13 +117,15 @@ def scans_step(state: ScansState, frame: DepthFrame, now_ns: int) -> tuple[Scans
                 points=points,
                 past_ends_m=past,
                 far_past_m=far,
+                edge_past_m=edge,
             )
             # The angles in degrees in one call (the same ufunc loop as four scalar calls).
-            for angle, points, past, far in zip(
+            for angle, points, past, far, edge in zip(
                 np.degrees(lines.angles_rad).tolist(),
                 wire,
                 _past_ends(lines),
                 _far_past(lines),
+                _edge_past(lines),
                 strict=True,
             )
         ],

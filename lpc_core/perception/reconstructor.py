@@ -107,6 +107,9 @@ def _scan_lines(message: ScanLines) -> tuple[CoreScanLines, np.ndarray | None]:
     far = [line.far_past_m for line in message.lines]
     if any(f is not None and len(f) != 6 for f in far):
         raise ValueError("a scan line's far_past_m must hold two points, one per end")
+    edge = [line.edge_past_m for line in message.lines]
+    if any(e is not None and len(e) != 6 for e in edge):
+        raise ValueError("a scan line's edge_past_m must hold two points, one per end")
     scan_lines = CoreScanLines(
         angles_rad=angles,
         points=tuple(points),
@@ -117,6 +120,11 @@ def _scan_lines(message: ScanLines) -> tuple[CoreScanLines, np.ndarray | None]:
             None
             if any(f is None for f in far)
             else np.array(far, dtype=np.float64).reshape(len(far), 2, 3)
+        ),
+        edge_past_m=(
+            None
+            if any(e is None for e in edge)
+            else np.array(edge, dtype=np.float64).reshape(len(edge), 2, 3)
         ),
     )
     return scan_lines, rows

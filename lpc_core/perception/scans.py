@@ -80,7 +80,10 @@ class ScanLines:
     where it holds none (as in a depth image); None when not measured. ``far_past_m`` (L, 2,
     3): per line, the point of the first pixel past its first and last point whose depth
     lies beyond the capture volume (``far_past_ends``), zeros where none does within
-    ``_FAR_STEPS_PX``; None when not measured.
+    ``_FAR_STEPS_PX``; None when not measured. ``edge_past_m`` (L, 2, 3): per line, the point
+    past its first and last point where the line leaves the surface its end lies on
+    (``_edge_points``), zeros where it does not within ``_FAR_STEPS_PX``; None when not
+    measured.
     """
 
     angles_rad: np.ndarray
@@ -90,6 +93,7 @@ class ScanLines:
     capture_count: int = -1
     past_ends_m: np.ndarray | None = None
     far_past_m: np.ndarray | None = None
+    edge_past_m: np.ndarray | None = None
 
     def plane_coords(self, i: int) -> np.ndarray:
         """(N_i, 2) in-plane coordinates (s, z) of line ``i``."""
@@ -261,6 +265,10 @@ class _Geometry:
     ends_row: np.ndarray
     ends_col: np.ndarray
     ends_flat: np.ndarray  # the same as flat pixel offsets
+    # Per line, its direction (cos, sin) in the scan plane; per line end (rows as ends_row's),
+    # each _FAR_STEPS_PX pixel's offset in s / z along the line: Python floats (_edge_points).
+    cos_sin: list[list[float]]
+    ends_q: list[list[float]]
     far_units: int  # the deepest depth (units) inside the capture volume's far limit
 
 
@@ -272,6 +280,10 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     far_row, far_col = _past_offsets(intrinsics, tuple(angles.tolist()), far=True)
     ends_row, ends_col = np.hstack([d_row, far_row]), np.hstack([d_col, far_col])
     ends_flat = ends_row * intrinsics.width + ends_col
+    cos_sin = np.column_stack([np.cos(angles), np.sin(angles)])
+    ends_q = far_col / intrinsics.fx * cos_sin[:, :1].repeat(2, axis=0) + (
+        far_row / intrinsics.fy * cos_sin[:, 1:].repeat(2, axis=0)
+    )
     for offsets in (ends_row, ends_col, ends_flat):
         offsets.setflags(write=False)
     # In units, as the depth image holds it: z = units * depth_scale lies beyond the far limit
@@ -282,7 +294,7 @@ def _geometry(intrinsics: Intrinsics, params: ScanParams) -> _Geometry:
     far_units -= far_units * scale > far_m
     return _Geometry(
         _scan_table(intrinsics, params), _volume_window(intrinsics, params), angles, ends_row,
-        ends_col, ends_flat, int(far_units),
+        ends_col, ends_flat, cos_sin.tolist(), ends_q.tolist(), int(far_units),
     )  # fmt: skip
 
 
@@ -339,6 +351,7 @@ def cut_scan_lines(
     count = len(bounds) - 1
     past = _past_medians(count, filled, values[:, :near], intrinsics.depth_scale)
     far = _far_points(count, filled, flat[:, near:], values[:, near:], intrinsics, geometry)
+    edges = _edge_points(count, filled, values[:, near:], pts, bounds, intrinsics, params, geometry)
     capture_count = -1
     if count_capture:
         win = geometry.window
@@ -355,6 +368,7 @@ def cut_scan_lines(
         capture_count=capture_count,
         past_ends_m=past,
         far_past_m=far,
+        edge_past_m=edges,
     )
 
 
@@ -503,6 +517,115 @@ def _far_points(
         r, c = divmod(int(flat[k, step]), width)
         z = float(values[k, step]) * intrinsics.depth_scale
         rows[2 * filled[k // 2] + k % 2] = (z * (c - ppx) / fx, z * (r - ppy) / fy, z)
+    return out
+
+
+# A line's end surface is the straight line through its last _EDGE_FIT_SAMPLES samples (in
+# the scan plane); a pixel past the end leaves it where its depth lies more than _EDGE_OFF_M
+# off that line (as laser._PAST_ON_FACE_M reads the depth past a line's end on the face) or
+# has none. Only ends within _EDGE_SIDE_M of the capture volume's sides are walked: elsewhere
+# the line's own samples show where it leaves the face (laser.crop_margin_m is 1.5 mm).
+_EDGE_FIT_SAMPLES = 20
+_EDGE_OFF_M = 0.003
+_EDGE_SIDE_M = 0.003
+
+
+def _edge_points(
+    count: int,
+    filled: list[int],
+    values: np.ndarray,
+    pts: np.ndarray,
+    bounds: list[int],
+    intrinsics: Intrinsics,
+    params: ScanParams,
+    geometry: _Geometry,
+) -> np.ndarray:
+    """(L, 2, 3): per line, where it leaves the face past its first and last point when that
+    point lies at the capture volume's side (within _EDGE_SIDE_M of it in x or y): the point,
+    on the straight line (in the scan plane) through the line's last _EDGE_FIT_SAMPLES
+    samples at that end, half a pixel before the first pixel within ``_FAR_STEPS_PX`` past
+    the end whose depth lies off that straight line by more than _EDGE_OFF_M or is missing
+    with none past it back on the line; zeros where every pixel there stays on it, the end
+    lies inside the capture volume, or the line has fewer samples than the fit takes. ``pts``
+    are the lines' points concatenated (line ``i``'s in ``bounds[i]:bounds[i + 1]``),
+    ``values`` the depth of the ``filled`` lines' pixels past their ends, as
+    ``_pixels_past_ends`` gives them.
+
+    A line keeps only the samples inside the capture volume: where it is cut at the volume's
+    side the face goes on past it, and the median depth 8-30 px past the end
+    (``past_line_ends``) tells only whether the face ends within that window. The pixels past
+    the end go on along the face's straight section in the scan plane until the face's edge,
+    where a matcher puts the background's depth or none: that pixel locates the face's side
+    to a pixel or so where it crosses the line (the 85 mm box tilted right fills the capture
+    volume and keeps about one uncut seed a side)."""
+    out = np.zeros((count, 2, 3))
+    n, side = _EDGE_FIT_SAMPLES, _EDGE_SIDE_M
+    (x0, x1), (y0, y1) = params.x_limits_m, params.y_limits_m
+    # A handful of ends: Python floats throughout (numpy's per-call cost dominates), and the
+    # walk stops at the first pixel off the face (2-4 px past a cut end, median).
+    ends = pts[[j for i in filled for j in (bounds[i], bounds[i + 1] - 1)]].tolist()
+    todo = [
+        r for r, (x, y, _) in enumerate(ends)
+        if (x <= x0 + side or x >= x1 - side or y <= y0 + side or y >= y1 - side)
+        and bounds[filled[r // 2] + 1] - bounds[filled[r // 2]] >= n
+    ]  # fmt: skip
+    if not todo:
+        return out
+    scale, fx, fy = intrinsics.depth_scale, intrinsics.fx, intrinsics.fy
+    rows = out.reshape(-1, 3)
+    for r, depths in zip(todo, values[todo].tolist(), strict=True):
+        i = filled[r // 2]
+        lo = bounds[i] if r % 2 == 0 else bounds[i + 1] - n
+        cos, sin = geometry.cos_sin[i]
+        # Least squares z = a + b s in the scan plane over the end's samples (sums in one
+        # pass of Python floats: numpy's calls cost more than 20 samples' arithmetic).
+        s1 = s2 = z1 = sz = 0.0
+        for x, y, z in pts[lo : lo + n].tolist():
+            s = x * cos + y * sin
+            s1 += s
+            s2 += s * s
+            z1 += z
+            sz += s * z
+        var = n * s2 - s1 * s1
+        if var <= 0.0:
+            continue
+        b = (n * sz - s1 * z1) / var
+        a = (z1 - b * s1) / n
+        k = r % 2
+        x, y, z_end = ends[r]
+        q0 = (x * cos + y * sin) / z_end
+        offsets = geometry.ends_q[2 * i + k]
+        # A hole (no depth) ends the face only where no pixel past it comes back onto the
+        # straight line: a block matcher leaves holes inside a face too (BM 5's tilted box),
+        # and at the edge the hole runs on out of the walk. One with the background's depth
+        # past it is the band where the matcher dropped the windows straddling the edge (its
+        # left-right check fails there): the edge lies anywhere in it, and its first pixel
+        # up to 3 mm before the edge (BM 5, the box tilted right, trial 0 frame 2; SGBM 9,
+        # the box tilted left, trial 1 frame 1): no point there.
+        hole = -1
+        for step, d in enumerate(depths):
+            den = 1.0 - b * (q0 + offsets[step])
+            if den <= 0.0:
+                break
+            if d == 0:
+                hole = step if hole < 0 else hole
+                continue
+            if abs(d * scale - a / den) > _EDGE_OFF_M:
+                break
+            hole = -1
+        else:
+            if hole < 0:
+                continue
+            step = hole
+        if hole >= 0 and step != hole:
+            continue
+        # Half a pixel before the first pixel off (step j is j + 1 px past the end), along
+        # the line's image direction: a pixel there moves s / z by 1 / |(fx cos, fy sin)|.
+        q = q0 + (step + 0.5) * (1.0 if k else -1.0) / math.hypot(fx * cos, fy * sin)
+        den = 1.0 - b * q
+        if den > 0.0:
+            z = a / den
+            rows[2 * i + k] = (q * z * cos, q * z * sin, z)
     return out
 
 
