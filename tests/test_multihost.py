@@ -467,16 +467,18 @@ def test_multihost_offloaded_reconstruction_goes_stale_and_resumes(
     d.start_service("laptop", "reconstructor", "reconstructor", ["--method", "cloud"])
     # Wait for the controller to act on a target from the laptop. A pre-shape alone is not
     # enough: the wearable's last target stays fresh for the staleness threshold, and a
-    # pre-shape on it (seen once in CI) comes before any target from the laptop.
+    # pre-shape on it (seen once in CI) comes before any target from the laptop. And it must
+    # still be pre-shaping when the cable is cut: a new target sends it back to ready (CI at
+    # e4257f7 cut the cable in ready, after a pre-shape on the laptop's target had ended).
 
     def preshaping_on_the_laptops_target() -> bool:
         targets = d.probe.of("lpc/grasp/target", moved)
         if not targets:
             return False
-        first = min(t["r"] for t in targets)
-        return any(
-            s["state"] == "preshaping" and s["event"] == "auto_preshape"
-            for s in d.controller_states(first)
+        states = d.controller_states(min(t["r"] for t in targets))
+        return (
+            any(s["state"] == "preshaping" and s["event"] == "auto_preshape" for s in states)
+            and states[-1]["state"] == "preshaping"
         )
 
     netns.wait_until(preshaping_on_the_laptops_target, 60, "a pre-shape on the laptop's target")
