@@ -1926,26 +1926,22 @@ def _face_geometry(
             # fatten there) spreads them instead.
             trimmed = _unfattened_seeds(seeds, trim_px * pixel_rad).take(order, axis=0)
             t_uv = (trimmed - origin) @ to_plane
-            t_direction, t_classic = _seeds_direction(
-                *_with_face_edges(t_uv, cropped, reach, edge_uv), params, fattened=fattened
-            )
-            t_score = _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol)
-            kept = t_score >= score and _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
-            if not kept and edge_uv is not None and len(edge_uv):
-                # The edge points were moved in onto the untrimmed seeds' sides, which the
-                # trim moves in: with them the trimmed count can lose a side's seed it holds
-                # alone (SGBM 7, the box tilted left, trial 1 frame 0: 3 -> 2 seeds, and the
-                # untrimmed direction stood 5.0 degrees off, 0.8 mm narrow; 1.1 degrees and
-                # 0.2 mm with the trimmed seeds' own count).
-                t_direction, t_classic = _seeds_direction(
-                    t_uv, cropped, reach, params, fattened=fattened
-                )
-                t_score = _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol)
-                kept = (
-                    t_score >= score and _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
-                )
-            if kept:
-                direction, classic = t_direction, t_classic
+            # The trimmed seeds with the edge points, then without them: the edge points were
+            # moved in onto the untrimmed seeds' sides, which the trim moves in, so with them
+            # the trimmed count can lose a side's seed it holds alone (SGBM 7, the box tilted
+            # left, trial 1 frame 0: 3 -> 2 seeds, and the untrimmed direction stood 5.0
+            # degrees off, 0.8 mm narrow; 1.1 degrees and 0.2 mm with the trimmed seeds' own
+            # count).
+            tries = [_with_face_edges(t_uv, cropped, reach, edge_uv)]
+            if edge_uv is not None and len(edge_uv):
+                tries.append((t_uv, cropped, reach))
+            for t_seeds in tries:
+                t_direction, t_classic = _seeds_direction(*t_seeds, params, fattened=fattened)
+                if _rectangle_score(t_uv.tolist(), valid, t_direction.tolist(), tol) >= score and (
+                    _turn_deg(direction, t_direction) <= _UNFATTEN_MAX_TURN_DEG
+                ):
+                    direction, classic = t_direction, t_classic
+                    break
         pts_all = pts
         if beyond is not None and len(beyond):
             pts_all = pts + ((beyond - origin) @ to_plane).tolist()
@@ -3237,10 +3233,7 @@ def analyse_lines(
         # A line the optical axis does not pierce (or too short) already decides the frame:
         # no shape. While the hand is still aiming this is most frames; fit nothing.
         return lines
-    # One generator per frame serves every line's fits (default_rng's own PCG64, which mixes
-    # the seed's bits; built directly, a third cheaper than through default_rng's checks).
-    rng = np.random.Generator(np.random.PCG64(seed & 0x7FFFFFFFFFFFFFFF))
-    _fit_lines_models(lines, params, rng)
+    _fit_lines_models(lines, params, _lines_rng(seed))
     need = params.min_points_per_line
     thinned = frozenset(ln.index for ln in lines if ln.reason and len(ln.run) < need)
     if not thinned:
@@ -3260,9 +3253,15 @@ def analyse_lines(
         len(again[k].points) == len(lines[k].points) for k in thinned
     ):
         return lines
-    rng = np.random.Generator(np.random.PCG64(seed & 0x7FFFFFFFFFFFFFFF))
-    _fit_lines_models(again, params, rng)
+    _fit_lines_models(again, params, _lines_rng(seed))
     return lines if any(ln.reason for ln in again) else again
+
+
+def _lines_rng(seed: int) -> np.random.Generator:
+    """The generator that serves every line's fits in a frame: default_rng's own PCG64, which
+    mixes the seed's bits, built directly (a third cheaper than through default_rng's
+    checks)."""
+    return np.random.Generator(np.random.PCG64(seed & 0x7FFFFFFFFFFFFFFF))
 
 
 def decide(
@@ -3563,6 +3562,7 @@ def _decide(
     shares = params
     past = getattr(scan_lines, "past_ends_m", None)
     edge_past = getattr(scan_lines, "edge_past_m", None)
+    hole_past_edge = False
     if params.edge_fattening_px == 0 and params.measure_fattening:
         measured = _fattening(on_face)
         if measured == 0 and params.window_fattening_px > 0:
@@ -3582,6 +3582,7 @@ def _decide(
                 if correlation is not None:
                     extra["weak_correlation"] = correlation
                 else:
+                    hole_past_edge = True
                     extra["hole_past_edge"] = 1.0
                 window = True
                 shares = replace(params, far_window_shares=min(params.far_window_shares, 1.0))
@@ -3595,7 +3596,7 @@ def _decide(
         # and how far those ends lie past the edges is then unknown (BM 5, the box tilted
         # right, trial 1 frame 1: 0.9 -> 2.6 degrees, 2.9 -> 4.8 mm narrow with them).
         edges=(
-            None if edge_past is None or "hole_past_edge" in extra
+            None if edge_past is None or hole_past_edge
             else np.asarray(edge_past, dtype=np.float64).tolist()
         ),
     )  # fmt: skip
