@@ -527,9 +527,9 @@ SETTINGS: dict[str, Setting] = {
         rig={"ambient": 0.16, "electrons_per_dn": 6.0, "pattern_seed": 29},
         matcher={"sgbm_mode": "3way", "uniqueness": 11, "min_texture": 5.5},
     ),
-    # Held out from every helper of stop 42: only the lead's before -> after runs on them.
-    "fresh-bm9u": Setting(
-        "fresh",
+    # Held out from every helper of stop 42 (then its "fresh" group); studied from stop 43.
+    "bm9-t8": Setting(
+        "untuned",
         "BM 9, uniqueness 10, texture threshold 8, prefilter cap 55, "
         "optics 0.55 px, a thirtieth pattern",
         rig={"blur_sigma_px": 0.55, "pattern_seed": 30},
@@ -541,16 +541,16 @@ SETTINGS: dict[str, Setting] = {
             "pre_filter_cap": 55,
         },
     ),
-    "fresh-sg5x": Setting(
-        "fresh",
+    "sg5-x2": Setting(
+        "untuned",
         "SGBM 5, IR 2x supersampled, P1 and P2 x 1.5, left-right 2 px, 0.065 dots/px², "
         "a thirty-first pattern",
         rig={"supersample": 2, "dot_density": 0.065, "pattern_seed": 31},
         matcher={"block_size": 5, "disp12_max_diff": 2},
         smoothness=(1.5, 1.5),
     ),
-    "fresh-b47": Setting(
-        "fresh",
+    "b47-p35": Setting(
+        "untuned",
         "SGBM 7, 47 mm baseline, projector 35 mm from the left imager, 1.6 times the room "
         "light, 81 % of the signal, a thirty-second pattern",
         rig={
@@ -561,15 +561,15 @@ SETTINGS: dict[str, Setting] = {
             "pattern_seed": 32,
         },
     ),
-    "fresh-hh5w": Setting(
-        "fresh",
+    "hh5-w": Setting(
+        "untuned",
         "SGBM 5, HH mode, albedo 0.75, uniqueness 8, speckle window 60, dots of brightness "
         "0.45-1.0, a thirty-third pattern",
         rig={"albedo": 0.75, "dot_brightness": (0.45, 1.0), "pattern_seed": 33},
         matcher={"block_size": 5, "sgbm_mode": "hh", "uniqueness": 8, "speckle_window": 60},
     ),
-    "fresh-3way9s": Setting(
-        "fresh",
+    "3way9-x3": Setting(
+        "untuned",
         "SGBM 9, 3-way mode, IR 3x supersampled, 0.04 dots/px² of 0.75 px, 1.4 times the shot "
         "noise, texture check 4.5, a thirty-fourth pattern",
         rig={
@@ -580,6 +580,62 @@ SETTINGS: dict[str, Setting] = {
             "pattern_seed": 34,
         },
         matcher={"block_size": 9, "sgbm_mode": "3way", "min_texture": 4.5},
+    ),
+    # Held out from every helper of stop 43: only the lead's before -> after runs on them.
+    "fresh-bm7s": Setting(
+        "fresh",
+        "BM 7, uniqueness 8, texture threshold 12, prefilter cap 45, speckle window 120, "
+        "0.05 dots/px², a thirty-fifth pattern",
+        rig={"dot_density": 0.05, "pattern_seed": 35},
+        matcher={
+            "kind": "bm",
+            "block_size": 7,
+            "uniqueness": 8,
+            "texture_threshold": 12,
+            "pre_filter_cap": 45,
+            "speckle_window": 120,
+        },
+    ),
+    "fresh-sg9h": Setting(
+        "fresh",
+        "SGBM 9, P1 x 1.25 and P2 x 2.5, uniqueness 12, left-right 3 px, 75 % of the signal, "
+        "a thirty-sixth pattern",
+        rig={"gain_dn": 240.0, "pattern_seed": 36},
+        matcher={"block_size": 9, "uniqueness": 12, "disp12_max_diff": 3},
+        smoothness=(1.25, 2.5),
+    ),
+    "fresh-b53": Setting(
+        "fresh",
+        "SGBM 5, 53 mm baseline, projector 20 mm from the left imager, albedo 0.7, "
+        "read noise 1.5, a thirty-seventh pattern",
+        rig={
+            "baseline_m": 0.053,
+            "projector_x_m": 0.02,
+            "albedo": 0.7,
+            "read_noise_dn": 1.5,
+            "pattern_seed": 37,
+        },
+        matcher={"block_size": 5},
+    ),
+    "fresh-hh7b": Setting(
+        "fresh",
+        "SGBM 7, HH mode, optics 0.8 px, dots of 0.8 px, 1.5 times the room light, "
+        "a thirty-eighth pattern",
+        rig={"blur_sigma_px": 0.8, "dot_sigma_px": 0.8, "ambient": 0.12, "pattern_seed": 38},
+        matcher={"sgbm_mode": "hh"},
+    ),
+    "fresh-3way5d": Setting(
+        "fresh",
+        "SGBM 5, 3-way mode, 0.075 dots/px² of 0.55 px and brightness 0.5-1.0, 1.3 times the "
+        "shot noise, uniqueness 6, a thirty-ninth pattern",
+        rig={
+            "dot_density": 0.075,
+            "dot_sigma_px": 0.55,
+            "dot_brightness": (0.5, 1.0),
+            "electrons_per_dn": 7.7,
+            "pattern_seed": 39,
+        },
+        matcher={"block_size": 5, "sgbm_mode": "3way", "uniqueness": 6},
     ),
 }
 
