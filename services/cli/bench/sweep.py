@@ -596,13 +596,12 @@ SETTINGS: dict[str, Setting] = {
             "speckle_window": 120,
         },
     ),
-    "fresh-sg9h": Setting(
+    "fresh-hh9l": Setting(
         "fresh",
-        "SGBM 9, P1 x 1.25 and P2 x 2.5, uniqueness 12, left-right 3 px, 75 % of the signal, "
+        "SGBM 9, HH mode, uniqueness 12, left-right 3 px, 75 % of the signal, "
         "a thirty-sixth pattern",
         rig={"gain_dn": 240.0, "pattern_seed": 36},
-        matcher={"block_size": 9, "uniqueness": 12, "disp12_max_diff": 3},
-        smoothness=(1.25, 2.5),
+        matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 12, "disp12_max_diff": 3},
     ),
     "fresh-b53": Setting(
         "fresh",
