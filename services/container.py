@@ -26,6 +26,7 @@ import contextlib
 import contextvars
 import functools
 import json
+import math
 import os
 import signal
 import sys
@@ -124,7 +125,7 @@ class ServiceRunner:
             bus.health.counters["cpu_ms"] = self.cpu_ns // 1_000_000
             bus.health.counters["restarts"] = self.restarts
             bus.publish_health()
-            await asyncio.sleep(HEALTH_PERIOD_S)
+            await until_health_report()
 
     def _close(self, bus: Bus, last_words: str | None) -> None:
         bus.health.counters["cpu_ms"] = self.cpu_ns // 1_000_000
@@ -305,10 +306,34 @@ class _ControlLoop:
             self.loop.close()
 
 
+async def until_health_report() -> None:
+    """Sleep until the next health report of a service in the container is due: on the grid
+    of whole ``HEALTH_PERIOD_S`` of the running loop's clock (``time.monotonic``, which both of
+    its loops read), at the grid point nearest one period from now. Each service on its own
+    phase from its start took a wake-up of its loop per report, eight a second; on the grid
+    they share one pass of each loop, their timers due at the very same time (``asyncio.sleep``
+    would add its delay to a later reading of the clock, a few microseconds apart for each).
+    Rounded, not floored: a timer that fires a hair before its grid point (the loop runs what
+    is due within its clock's resolution) still waits a whole period, not a hair."""
+    loop = asyncio.get_running_loop()
+    due = math.floor(loop.time() / HEALTH_PERIOD_S + 1.5) * HEALTH_PERIOD_S
+    report = loop.create_future()
+    timer = loop.call_at(due, _resolve, report)
+    try:
+        await report
+    finally:
+        timer.cancel()
+
+
+def _resolve(future: asyncio.Future[None]) -> None:
+    if not future.done():  # not cancelled meanwhile
+        future.set_result(None)
+
+
 async def _container_health(bus: Bus, runners: list[ServiceRunner]) -> None:
     while True:
         _publish_container_health(bus, runners)
-        await asyncio.sleep(HEALTH_PERIOD_S)
+        await until_health_report()
 
 
 def _publish_container_health(bus: Bus, runners: list[ServiceRunner]) -> None:

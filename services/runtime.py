@@ -732,13 +732,14 @@ class Router:
         item = (str(sample.key_expr), sample.payload.to_bytes(), self._clock.now_ns())
         self._enqueue(route, item, route is not None or self._wakes(item[0]))
         for rider in self._riders:
-            if rider._subs_for(item[0]):
-                rider._enqueue(None, item, rider._wakes(item[0]))
+            subs, wakes = rider._route(item[0])
+            if subs:
+                rider._enqueue(None, item, wakes)
 
     def deliver(self, key: str, payload: bytes) -> None:
         """A sample published in this process, for the subscriptions of this router that want
         it: pushed at once from this router's own loop, queued for it from any other thread."""
-        subs = self._subs_for(key)
+        subs, wakes = self._route(key)  # one look-up (under the lock) for both
         if not subs:
             return  # a loop woken for nothing costs more than the check
         item = (key, payload, self._clock.now_ns())
@@ -746,7 +747,7 @@ class Router:
         # without asking asyncio: its answer costs a getpid system call, at every put of the
         # process for each of its routers.
         if self._loop._thread_id != threading.get_ident():  # type: ignore[attr-defined]
-            self._enqueue(None, item, self._wakes(key))
+            self._enqueue(None, item, wakes)
             return
         for sub in subs:
             sub._push(item)
