@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from schemas import AimCue, EmgSample
+from services.cli.bench import footprint
 from services.cli.bench.footprint import (
     Captures,
     CpuQuota,
@@ -65,6 +66,20 @@ def test_footprint_quota_is_written_and_removed() -> None:
     assert not quota.path.exists()
 
 
+def test_footprint_holds_the_set_to_whole_cpus_and_the_devices_to_the_rest() -> None:
+    allowed = sorted(os.sched_getaffinity(0))
+    own, rest = footprint._pinned(0.5)
+    if len(allowed) < 2:
+        assert (own, rest) == (None, None)  # nothing left for the devices: no pinning
+        return
+    assert own == {allowed[-1]} and rest == set(allowed[:-1])
+    assert footprint._pinned(1.0)[0] == {allowed[-1]}
+    # As many CPUs as the quota needs, whole: 1.5 CPUs are two.
+    assert footprint._pinned(len(allowed)) == (None, None)
+    if len(allowed) > 2:
+        assert len(footprint._pinned(1.5)[0]) == 2
+
+
 def test_footprint_smoke_together_under_a_quota() -> None:
     _quota_or_skip().close()
     bench = subprocess.Popen(
@@ -84,6 +99,9 @@ def test_footprint_smoke_together_under_a_quota() -> None:
         assert not list(Path("/sys/fs/cgroup").glob(pattern))
     report = json.loads(stdout)
     assert report["mode"] == "together" and report["cgroup"] in ("v1", "v2")
+    # Held to one whole CPU for a quota of 1.0 where the machine has another for the devices.
+    pinned = footprint._pinned(1.0)[0]
+    assert report["on_cpus"] == (sorted(pinned) if pinned else None)
     # By default the simulated camera is a device outside the set, measured on its own.
     assert report["devices"] == "outside"
     assert report["outside_set"]["sim-camera"]["rss_mb"] > 10
