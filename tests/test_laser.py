@@ -546,6 +546,42 @@ def test_a_bumpy_potato_spans_its_segments_where_a_block_matcher_ends_its_runs_s
     assert max(widths) < 62.0, widths
 
 
+def test_a_band_with_no_table_beside_it_bends_along_a_cylinder(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The jar cap from the front under BM 7 with a low texture threshold, trial 1 frames
+    0-2: every run is a straight piece, no table shows on two lines, so no disc is tried, and
+    the 15 mm band won as a face 14-15 mm wide, 88 deg off. A cylinder along the runs' short
+    spread holds the band's receding ends as well (laser._band_candidate): a round 49-65 mm
+    across along the cap's axis."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception import laser
+    from lpc_core.perception.scans import cut_scan_lines
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = [
+        v
+        for v in lv.views(
+            "irregular", 2, 5, 0, names=["jar_cap"], sensor=SETTINGS["bm7-t6"].sensor()
+        )
+        if v.detail == "front" and v.trial == 1 and v.frame < 3
+    ]
+    lines = [cut_scan_lines(v.depth, lv.INTRINSICS) for v in views]
+
+    def off_deg(result: laser.Reconstruction, view: lv.View) -> float:
+        truth = view.truth.wrist_angle_rad
+        return abs(math.degrees(wrap_half_turn(result.wrist_angle_rad - truth)))
+
+    after = [reconstruct_laser(ls, seed=v.seq) for ls, v in zip(lines, views, strict=True)]
+    monkeypatch.setattr(laser, "_band_candidate", lambda *a: None)
+    before = [reconstruct_laser(ls, seed=v.seq) for ls, v in zip(lines, views, strict=True)]
+    for b, a, v in zip(before, after, views, strict=True):
+        assert b.shape == "cuboid" and off_deg(b, v) > 80.0 and b.grasp_width_mm < 20.0
+        assert a.shape == "cylinder" and off_deg(a, v) < 30.0
+        assert abs(a.grasp_width_mm - 60.0) < 15.0
+
+
 _BALL = sphere((0.0, 0.0, 0.2), 0.02)
 _LYING = union(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), _TABLE)
 

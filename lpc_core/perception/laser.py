@@ -3449,6 +3449,18 @@ def _decide(
                 "cylinder", float(fraction), solid, residuals=solid.residuals(clean)
             )
             shape, support, supported = "cylinder", table, True
+        else:
+            # No disc where no table shows on two lines (the jar cap's lines hold its band, a
+            # few samples of its top and three or none of the table: BM 7 with a low texture
+            # threshold, trial 1): the band's bend along it, by the same margin.
+            band = _band_candidate(clean, candidates["cuboid"].solid, params)
+            if (
+                band is not None
+                and band.score >= candidates["cuboid"].score + params.cylinder_margin
+            ):
+                extra["band_axis"] = 1.0
+                candidates["cylinder"] = band
+                shape = "cylinder"
     for name, c in candidates.items():
         extra[f"f_{name}"] = c.score
     confidence = candidates[shape].score
@@ -3682,6 +3694,34 @@ def _decide(
         points=total,
         extra=extra,
     )
+
+
+def _band_candidate(clean: np.ndarray, face: PlaneSolid, params: LaserParams) -> _Candidate | None:
+    """A cylinder along the direction the runs ``clean`` spread least across in ``face``'s
+    plane, convex toward the camera, within the radius limits; or ``None``.
+
+    A short round seen from its side (the jar cap's 15 mm band from the front) shows the
+    lines a band straight across it, along its axis, and every run too short for its bend
+    along the band to leave the threshold: straight pieces all, and a face wins (0.70-0.89
+    of the runs, 14-15 mm wide across the band, 88 degrees off, under BM 7 with a low
+    texture threshold, trial 1 frames 0-2). The band's ends recede from that face; a
+    cylinder along its short side holds them (0.99-1.00 of the runs, 64-71 mm across)."""
+    e1, e2 = orthonormal_basis(face.normal)
+    uv = (clean - clean.mean(axis=0)) @ np.column_stack([e1, e2])
+    _, vectors = np.linalg.eigh(uv.T @ uv)
+    axis = vectors[0, 0] * e1 + vectors[1, 0] * e2
+    solid = CylinderSolid.estimate(clean, axis, iterations=params.cylinder_iterations)
+    if not solid:
+        return None
+    lo, hi = params.radius_limits_m
+    if not lo <= solid.radius <= hi:
+        return None
+    centre = _closest_to_optical_axis(solid.point, solid.axis)
+    if float(np.median(clean[:, 2])) >= centre[2]:
+        return None  # the runs lie behind the axis: a concave face, no round's side
+    residuals = solid.residuals(clean)
+    fraction = _fraction(residuals, params.solid_threshold_m)
+    return _Candidate("cylinder", fraction, solid, residuals=residuals)
 
 
 # The resting rule's support search starts every frame from PCG64(0)'s first state: set on a
