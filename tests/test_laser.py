@@ -523,6 +523,65 @@ def test_a_rough_round_takes_its_outline_for_an_axis_where_no_guess_holds_its_ar
     assert abs(result.grasp_width_mm - 62.0) < 25.0
 
 
+def test_a_bumpy_potato_spans_its_segments_where_a_block_matcher_ends_its_runs_short() -> None:
+    """Under BM 9 with a strict speckle filter the sweet potato's runs end 5-10 mm inside its
+    limbs, and the runs alone made it 32-44 mm wide (median 39.6, short of the paper's 20 mm
+    rule for 62 mm). Where the runs span more than a round could, the lines' segments, whose
+    samples past the runs are the potato's surface up to the plateau the matcher smears past
+    its rim, span it (laser._round_width, _runs_to_rims)."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception.scans import cut_scan_lines
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = lv.views("irregular", 2, 5, 0, names=["sweet_potato"],
+                     sensor=SETTINGS["bm9-s150"].sensor())  # fmt: skip
+    widths = []
+    for view in views:
+        result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
+        assert result.shape == "cylinder", (view.trial, view.frame, result.reason)
+        widths.append(result.grasp_width_mm)
+    assert abs(float(np.median(widths)) - 62.0) <= 20.0, widths
+    # The segments stop at the rims: no frame reads the potato wider than it is.
+    assert max(widths) < 62.0, widths
+
+
+def test_a_band_with_no_table_beside_it_bends_along_a_cylinder(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The jar cap from the front under BM 7 with a low texture threshold, trial 1 frames
+    0-2: every run is a straight piece, no table shows on two lines, so no disc is tried, and
+    the 15 mm band won as a face 14-15 mm wide, 88 deg off. A cylinder along the runs' short
+    spread holds the band's receding ends as well (laser._band_candidate): a round 49-65 mm
+    across along the cap's axis."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception import laser
+    from lpc_core.perception.scans import cut_scan_lines
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = [
+        v
+        for v in lv.views(
+            "irregular", 2, 5, 0, names=["jar_cap"], sensor=SETTINGS["bm7-t6"].sensor()
+        )
+        if v.detail == "front" and v.trial == 1 and v.frame < 3
+    ]
+    lines = [cut_scan_lines(v.depth, lv.INTRINSICS) for v in views]
+
+    def off_deg(result: laser.Reconstruction, view: lv.View) -> float:
+        truth = view.truth.wrist_angle_rad
+        return abs(math.degrees(wrap_half_turn(result.wrist_angle_rad - truth)))
+
+    after = [reconstruct_laser(ls, seed=v.seq) for ls, v in zip(lines, views, strict=True)]
+    monkeypatch.setattr(laser, "_band_candidate", lambda *a: None)
+    before = [reconstruct_laser(ls, seed=v.seq) for ls, v in zip(lines, views, strict=True)]
+    for b, a, v in zip(before, after, views, strict=True):
+        assert b.shape == "cuboid" and off_deg(b, v) > 80.0 and b.grasp_width_mm < 20.0
+        assert a.shape == "cylinder" and off_deg(a, v) < 30.0
+        assert abs(a.grasp_width_mm - 60.0) < 15.0
+
+
 _BALL = sphere((0.0, 0.0, 0.2), 0.02)
 _LYING = union(cylinder((0.0, 0.0, 0.2), (0.0, 1.0, 0.0), 0.02), _TABLE)
 
