@@ -263,24 +263,33 @@ class SphereSolid:
             center, radius = mean + scale * sol[:3], float(scale * np.sqrt(r2))
         else:
             center, radius = np.asarray(init[0], dtype=np.float64), float(init[1])
-        # [J | -r] as rows (5, N): J'J and -J'r from one product, on contiguous rows (a
-        # third of the cost of the columns of an (N, 5) array).
+        # [-J | r] as rows (5, N): J'J and -J'r from one product, on contiguous rows (a
+        # third of the cost of the columns of an (N, 5) array). Negating J and r flips the
+        # sign of every product with them and none of their sums' bits: J'J and J'r come out
+        # as from J and -r, without negating the radial directions (a numpy call a pass).
         rows = np.ascontiguousarray(points.T)
+        x, y, z = rows[0], rows[1], rows[2]
         aug = np.empty((5, len(points)))
-        aug[3] = -1.0
+        aug[3] = 1.0
         w, squares, jacobian, residual = np.empty(rows.shape), np.empty(rows.shape), aug[:3], aug[4]
+        wx, wy, wz, sx, sy, sz = w[0], w[1], w[2], squares[0], squares[1], squares[2]
         c = center.tolist()
         for _ in range(iterations):
-            # The centre as a (3, 1) column from Python floats, and the squares summed down
-            # the rows by one reduction (it adds x^2 + y^2, then z^2, as three row sums did):
-            # a frame fits up to ten spheres of two to four passes, and each numpy call here
-            # costs more than its arithmetic.
-            np.subtract(rows, np.array([[c[0]], [c[1]], [c[2]]]), out=w)
-            rho = np.sqrt(np.add.reduce(np.multiply(w, w, out=squares), axis=0))
+            # Row by row with Python floats, and the squares summed as x^2 + y^2, then z^2
+            # (the order of the rows' reduction): a frame fits up to ten spheres of two to
+            # four passes, and numpy's broadcasting and reductions cost more than their
+            # arithmetic here.
+            np.subtract(x, c[0], out=wx)
+            np.subtract(y, c[1], out=wy)
+            np.subtract(z, c[2], out=wz)
+            np.multiply(w, w, out=squares)
+            rho = np.add(sx, sy)
+            rho += sz
+            np.sqrt(rho, out=rho)
             if not np.minimum.reduce(rho) > 0:  # rho.min() without its Python wrapper
                 return FailedSolid("a point sits on the centre")
-            np.divide(w, -rho, out=jacobian)
-            np.subtract(radius, rho, out=residual)
+            np.divide(w, rho, out=jacobian)
+            np.subtract(rho, radius, out=residual)
             normal = aug @ aug.T
             try:
                 step = _solve(normal[:4, :4], normal[:4, 4])
