@@ -83,13 +83,20 @@ def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
     Minimises sum((u - a)^2 + (v - b)^2 - r^2)^2, linear in (a, b, r^2 - a^2 - b^2); the
     points are centred and scaled first so the normal equations stay well conditioned.
     """
-    n = len(uv)
-    # (u, v, u^2 + v^2) about the mean as contiguous rows (3, N).
-    rows = np.ascontiguousarray(uv.T)
+    found = _circle_2d(np.ascontiguousarray(uv.T))
+    return None if found is None else (np.array(found[:2]), found[2])
+
+
+def _circle_2d(rows: np.ndarray) -> tuple[float, float, float] | None:
+    """:func:`fit_circle_2d` of the points as contiguous rows (2, N): centre and radius in
+    Python floats."""
+    n = rows.shape[1]
     # np.add.reduce: ndarray.sum's own reduction, without its Python wrapper.
-    mean = np.add.reduce(rows, axis=1) / n
+    mu, mv = (np.add.reduce(rows, axis=1) / n).tolist()
+    # (u, v, u^2 + v^2) about the mean as contiguous rows (3, N), row by row (no broadcast).
     d = np.empty((3, n))
-    np.subtract(rows, mean[:, None], out=d[:2])
+    np.subtract(rows[0], mu, out=d[0])
+    np.subtract(rows[1], mv, out=d[1])
     np.add(d[0] * d[0], d[1] * d[1], out=d[2])
     scale2 = float(np.add.reduce(d[2])) / n
     if not (math.isfinite(scale2) and scale2 > 0):
@@ -110,7 +117,7 @@ def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
     if not r2 > 0:
         return None
     scale = math.sqrt(scale2)
-    return mean + scale * np.array(sol[:2]), scale * math.sqrt(r2)
+    return mu + scale * sol[0], mv + scale * sol[1], scale * math.sqrt(r2)
 
 
 _Row3 = tuple[float, float, float]
@@ -348,13 +355,13 @@ class CylinderSolid:
         # Coordinates as rows (3, N): each pass of the normal equations then works on
         # contiguous rows, a third cheaper than on the columns of (N, 3).
         rows = np.ascontiguousarray(points.T)
-        start = fit_circle_2d((np.array([e1, e2]) @ rows).T)
+        start = _circle_2d(np.array([e1, e2]) @ rows)
         if start is None:
             return FailedSolid("points are collinear across the axis")
-        u, v = start[0].tolist()
+        u, v, r0 = start
         # The state (centre, axis, basis across it, radius) is kept in Python floats: each
         # Levenberg-Marquardt step is a handful of 3-vectors besides the normal equations.
-        state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
+        state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, r0)
         aug = np.empty((6, rows.shape[1]))
         aug[4] = 1.0
         cost, jtj, rhs = _cylinder_normal_equations(rows, *state, aug)
