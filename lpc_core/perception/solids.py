@@ -313,8 +313,20 @@ class SphereSolid:
         return cls(center=np.array(c), radius=radius)
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
-        w = np.asarray(points, dtype=np.float64) - self.center
-        return np.abs(np.sqrt(squared_norms(w)) - self.radius)
+        # Column by column with Python floats: an (N, 3) array less a 3-vector is broadcast
+        # by numpy three elements at a time; the same differences, squares and sums as
+        # squared_norms of that array (x^2 + y^2, then + z^2).
+        p = np.asarray(points, dtype=np.float64)
+        cx, cy, cz = self.center.tolist()
+        x, y, z = p[:, 0] - cx, p[:, 1] - cy, p[:, 2] - cz
+        x *= x
+        y *= y
+        z *= z
+        x += y
+        x += z
+        np.sqrt(x, out=x)
+        x -= self.radius
+        return np.abs(x, out=x)
 
     def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
         """View angle (radians) from each point's ray, seen from the camera at the origin, in
