@@ -181,6 +181,37 @@ def test_silhouette_distance_matches_cross_product_form() -> None:
     assert np.array_equal(got, math.asin(0.02 / math.sqrt(centre @ centre)) - off)
 
 
+def test_round_distances_match_the_whole_array_forms() -> None:
+    """The sphere's residuals and the cylinder's residuals and silhouette distances, worked
+    column by column, are the bits of the (N, 3) forms (np.einsum's squared norms for the
+    cylinder's), on contiguous points and on a transposed (Fortran-ordered) array alike."""
+    rng = np.random.default_rng(9)
+    for k in range(20):
+        points = rng.normal(size=(int(rng.integers(5, 300)), 3)) * 0.02 + [0.0, 0.0, 0.2]
+        if k % 2:
+            points = np.asfortranarray(points)
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        centre, r = rng.normal(size=3) * 0.01 + [0.0, 0.0, 0.22], 0.02
+        w = points - centre
+        assert np.array_equal(
+            SphereSolid(center=centre, radius=r).residuals(points),
+            np.abs(np.sqrt((w * w).sum(axis=1)) - r),
+        )
+        cylinder = CylinderSolid(point=centre, axis=axis, radius=r)
+        q = w - (w @ axis)[:, None] * axis
+        assert np.array_equal(
+            cylinder.residuals(points), np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - r)
+        )
+        across = points - (points @ axis)[:, None] * axis
+        c = centre - (centre @ axis) * axis
+        cross = np.cross(across, c)
+        off = np.arctan2(np.sqrt(np.einsum("ij,ij->i", cross, cross)), across @ c)
+        angle = math.asin(r / math.sqrt(c @ c)) - off
+        scale = np.einsum("ij,ij->i", across, across) / np.einsum("ij,ij->i", points, points)
+        assert np.array_equal(cylinder.silhouette_distance(points), angle * np.sqrt(scale))
+
+
 def test_solve_gives_numpys_bits_and_raises_on_a_singular_system() -> None:
     """The sphere's and cylinder's steps solve through LAPACK's dgesv directly: the same
     floats numpy.linalg.solve gives, on the normal equations of random Jacobians."""

@@ -902,14 +902,18 @@ def _line_scorer(seg: Segments, threshold: float) -> Scorer:
         x0, y0, x1, y1 = p[0, 0], p[1, 0], p[0, 1], p[1, 1]
         # The line through p0 and p1, (y0 - y1, x1 - x0, x0 y1 - x1 y0) = (-e_y, e_x, e x p0):
         # |e x (p - p0)| = |e| * distance, for every hypothesis and point in one product.
-        coef = np.empty((*x0.shape, 3))
-        np.subtract(y0, y1, out=coef[:, :, 0])
-        np.subtract(x1, x0, out=coef[:, :, 1])
-        np.subtract(x0 * y1, x1 * y0, out=coef[:, :, 2])
-        length = np.hypot(coef[:, :, 0], coef[:, :, 1])
+        a, b = y0 - y1, x1 - x0
+        length = np.hypot(a, b)
         # Unit normals, so the product below is the distance itself and the test is against a
-        # scalar; repeated points (length 0) give NaN, which is never an inlier.
-        coef /= length[:, :, None]
+        # scalar; repeated points (length 0) give NaN, which is never an inlier. Each divided
+        # on its contiguous (L, T) block into its column: dividing the (L, T, 3) array by the
+        # lengths broadcast them three elements at a time.
+        coef = np.empty((*x0.shape, 3))
+        np.divide(a, length, out=coef[:, :, 0])
+        np.divide(b, length, out=coef[:, :, 1])
+        c = x0 * y1
+        c -= x1 * y0
+        np.divide(c, length, out=coef[:, :, 2])
         dist = coef @ basis  # (L, T, W); NaN on padding, never an inlier
         np.abs(dist, out=dist)
         inl = dist <= threshold

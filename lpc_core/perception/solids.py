@@ -83,13 +83,20 @@ def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
     Minimises sum((u - a)^2 + (v - b)^2 - r^2)^2, linear in (a, b, r^2 - a^2 - b^2); the
     points are centred and scaled first so the normal equations stay well conditioned.
     """
-    n = len(uv)
-    # (u, v, u^2 + v^2) about the mean as contiguous rows (3, N).
-    rows = np.ascontiguousarray(uv.T)
+    found = _circle_2d(np.ascontiguousarray(uv.T))
+    return None if found is None else (np.array(found[:2]), found[2])
+
+
+def _circle_2d(rows: np.ndarray) -> tuple[float, float, float] | None:
+    """:func:`fit_circle_2d` of the points as contiguous rows (2, N): centre and radius in
+    Python floats."""
+    n = rows.shape[1]
     # np.add.reduce: ndarray.sum's own reduction, without its Python wrapper.
-    mean = np.add.reduce(rows, axis=1) / n
+    mu, mv = (np.add.reduce(rows, axis=1) / n).tolist()
+    # (u, v, u^2 + v^2) about the mean as contiguous rows (3, N), row by row (no broadcast).
     d = np.empty((3, n))
-    np.subtract(rows, mean[:, None], out=d[:2])
+    np.subtract(rows[0], mu, out=d[0])
+    np.subtract(rows[1], mv, out=d[1])
     np.add(d[0] * d[0], d[1] * d[1], out=d[2])
     scale2 = float(np.add.reduce(d[2])) / n
     if not (math.isfinite(scale2) and scale2 > 0):
@@ -110,7 +117,7 @@ def fit_circle_2d(uv: np.ndarray) -> tuple[np.ndarray, float] | None:
     if not r2 > 0:
         return None
     scale = math.sqrt(scale2)
-    return mean + scale * np.array(sol[:2]), scale * math.sqrt(r2)
+    return mu + scale * sol[0], mv + scale * sol[1], scale * math.sqrt(r2)
 
 
 _Row3 = tuple[float, float, float]
@@ -263,24 +270,33 @@ class SphereSolid:
             center, radius = mean + scale * sol[:3], float(scale * np.sqrt(r2))
         else:
             center, radius = np.asarray(init[0], dtype=np.float64), float(init[1])
-        # [J | -r] as rows (5, N): J'J and -J'r from one product, on contiguous rows (a
-        # third of the cost of the columns of an (N, 5) array).
+        # [-J | r] as rows (5, N): J'J and -J'r from one product, on contiguous rows (a
+        # third of the cost of the columns of an (N, 5) array). Negating J and r flips the
+        # sign of every product with them and none of their sums' bits: J'J and J'r come out
+        # as from J and -r, without negating the radial directions (a numpy call a pass).
         rows = np.ascontiguousarray(points.T)
+        x, y, z = rows[0], rows[1], rows[2]
         aug = np.empty((5, len(points)))
-        aug[3] = -1.0
+        aug[3] = 1.0
         w, squares, jacobian, residual = np.empty(rows.shape), np.empty(rows.shape), aug[:3], aug[4]
+        wx, wy, wz, sx, sy, sz = w[0], w[1], w[2], squares[0], squares[1], squares[2]
         c = center.tolist()
         for _ in range(iterations):
-            # The centre as a (3, 1) column from Python floats, and the squares summed down
-            # the rows by one reduction (it adds x^2 + y^2, then z^2, as three row sums did):
-            # a frame fits up to ten spheres of two to four passes, and each numpy call here
-            # costs more than its arithmetic.
-            np.subtract(rows, np.array([[c[0]], [c[1]], [c[2]]]), out=w)
-            rho = np.sqrt(np.add.reduce(np.multiply(w, w, out=squares), axis=0))
+            # Row by row with Python floats, and the squares summed as x^2 + y^2, then z^2
+            # (the order of the rows' reduction): a frame fits up to ten spheres of two to
+            # four passes, and numpy's broadcasting and reductions cost more than their
+            # arithmetic here.
+            np.subtract(x, c[0], out=wx)
+            np.subtract(y, c[1], out=wy)
+            np.subtract(z, c[2], out=wz)
+            np.multiply(w, w, out=squares)
+            rho = np.add(sx, sy)
+            rho += sz
+            np.sqrt(rho, out=rho)
             if not np.minimum.reduce(rho) > 0:  # rho.min() without its Python wrapper
                 return FailedSolid("a point sits on the centre")
-            np.divide(w, -rho, out=jacobian)
-            np.subtract(radius, rho, out=residual)
+            np.divide(w, rho, out=jacobian)
+            np.subtract(rho, radius, out=residual)
             normal = aug @ aug.T
             try:
                 step = _solve(normal[:4, :4], normal[:4, 4])
@@ -297,8 +313,20 @@ class SphereSolid:
         return cls(center=np.array(c), radius=radius)
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
-        w = np.asarray(points, dtype=np.float64) - self.center
-        return np.abs(np.sqrt(squared_norms(w)) - self.radius)
+        # Column by column with Python floats: an (N, 3) array less a 3-vector is broadcast
+        # by numpy three elements at a time; the same differences, squares and sums as
+        # squared_norms of that array (x^2 + y^2, then + z^2).
+        p = np.asarray(points, dtype=np.float64)
+        cx, cy, cz = self.center.tolist()
+        x, y, z = p[:, 0] - cx, p[:, 1] - cy, p[:, 2] - cz
+        x *= x
+        y *= y
+        z *= z
+        x += y
+        x += z
+        np.sqrt(x, out=x)
+        x -= self.radius
+        return np.abs(x, out=x)
 
     def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
         """View angle (radians) from each point's ray, seen from the camera at the origin, in
@@ -339,13 +367,13 @@ class CylinderSolid:
         # Coordinates as rows (3, N): each pass of the normal equations then works on
         # contiguous rows, a third cheaper than on the columns of (N, 3).
         rows = np.ascontiguousarray(points.T)
-        start = fit_circle_2d((np.array([e1, e2]) @ rows).T)
+        start = _circle_2d(np.array([e1, e2]) @ rows)
         if start is None:
             return FailedSolid("points are collinear across the axis")
-        u, v = start[0].tolist()
+        u, v, r0 = start
         # The state (centre, axis, basis across it, radius) is kept in Python floats: each
         # Levenberg-Marquardt step is a handful of 3-vectors besides the normal equations.
-        state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, start[1])
+        state = ([u * a + v * b for a, b in zip(e1, e2, strict=True)], d, e1, e2, r0)
         aug = np.empty((6, rows.shape[1]))
         aug[4] = 1.0
         cost, jtj, rhs = _cylinder_normal_equations(rows, *state, aug)
@@ -392,8 +420,9 @@ class CylinderSolid:
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
         w = np.asarray(points, dtype=np.float64) - self.point
-        q = w - (w @ self.axis)[:, None] * self.axis
-        return np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - self.radius)
+        # The part across the axis column by column (no (N, 3) outer product to broadcast).
+        q = _off_axis(w, w @ self.axis, self.axis)
+        return np.abs(np.sqrt(_einsum_norms(q)) - self.radius)
 
     def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
         """View angle (radians) from each point's ray in to the cylinder's silhouette (its two
@@ -423,9 +452,42 @@ def silhouette_distance(
     if axis is None:
         return _tangent_angle(p, c, radius)
     a = np.asarray(axis, dtype=np.float64)
-    across = p - (p @ a)[:, None] * a
+    across = np.empty(p.shape)
+    for k, qk in enumerate(_off_axis(p, p @ a, a)):
+        across[:, k] = qk
     angle = _tangent_angle(across, c - (c @ a) * a, radius)
-    return angle * np.sqrt(np.einsum("ij,ij->i", across, across) / np.einsum("ij,ij->i", p, p))
+    return angle * np.sqrt(_einsum_norms(across) / _einsum_norms(p))
+
+
+def _off_axis(
+    w: np.ndarray, along: np.ndarray, axis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The columns of ``w - along[:, None] * axis`` for (N, 3) ``w``, ``along`` (N,) and a
+    3-vector ``axis``: the same products and differences, each column on its own (numpy's
+    broadcast of the (N, 3) outer product costs more than the three columns)."""
+    ax, ay, az = axis.tolist()
+    qx, qy, qz = along * ax, along * ay, along * az
+    np.subtract(w[:, 0], qx, out=qx)
+    np.subtract(w[:, 1], qy, out=qy)
+    np.subtract(w[:, 2], qz, out=qz)
+    return qx, qy, qz
+
+
+def _einsum_norms(q: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """``np.einsum("ij,ij->i", q, q)`` of (N, 3) vectors with contiguous rows (or the three
+    columns of such an array), to the bit, on whole columns at a third of its cost. Over
+    contiguous rows einsum adds a row's three squares as (x^2 + z^2) + y^2 (its unrolled sum
+    of products; the same on 2.8 million random rows); over strided ones (a transposed
+    array) it adds them in turn, so those are left to it."""
+    if isinstance(q, np.ndarray):
+        if q.strides[1] != q.itemsize:
+            return np.einsum("ij,ij->i", q, q)
+        q = q[:, 0], q[:, 1], q[:, 2]
+    x, y, z = q
+    out = x * x
+    out += z * z
+    out += y * y
+    return out
 
 
 def fattening_trim_m(
@@ -460,11 +522,11 @@ def _tangent_angle(points: np.ndarray, centre: np.ndarray, radius: float) -> np.
     # moveaxis and dtype checks, which cost more than the arithmetic on a frame's points).
     cx, cy, cz = centre.tolist()
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
-    cross = np.empty(points.shape)
-    np.subtract(y * cz, z * cy, out=cross[:, 0])
-    np.subtract(z * cx, x * cz, out=cross[:, 1])
-    np.subtract(x * cy, y * cx, out=cross[:, 2])
-    off = np.arctan2(np.sqrt(np.einsum("ij,ij->i", cross, cross)), points @ centre)
+    cross = y * cz, z * cx, x * cy
+    np.subtract(cross[0], z * cy, out=cross[0])
+    np.subtract(cross[1], x * cz, out=cross[1])
+    np.subtract(cross[2], y * cx, out=cross[2])
+    off = np.arctan2(np.sqrt(_einsum_norms(cross)), points @ centre)
     return half - off
 
 
