@@ -546,6 +546,50 @@ def test_a_bumpy_potato_spans_its_segments_where_a_block_matcher_ends_its_runs_s
     assert max(widths) < 62.0, widths
 
 
+def test_a_bumpy_potato_is_no_narrower_than_its_runs_where_its_fit_took_one_bump(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Under BM 9 with a 25 % uniqueness ratio the sweet potato's trimmed fit curves along one
+    bump: 28-37 mm across where its runs span 38-48 mm and the whole arc's fit 37-47 mm, and
+    the median width (36.9 mm) missed the paper's 20 mm rule for 62 mm. Where the runs and the
+    whole arc's fit both reach past the trimmed fit by more than a matcher fattens, and the
+    segments go on past the runs, the whole arc's fit is the width (laser._bump_fit).
+    The 40 mm cylinder lying under SGBM 9 (fattened: fits of 34-36 mm, runs spanning 43 mm,
+    the whole arc's fit 49 mm) keeps its width."""
+    pytest.importorskip("cv2", reason="needs pip install 'lpc[stereo]'")
+    from lpc_core.perception import laser
+    from lpc_core.perception.scans import cut_scan_lines
+    from services.cli import _laser_views as lv
+    from services.cli.bench.sweep import SETTINGS
+
+    views = list(lv.views("irregular", 2, 5, 0, names=["sweet_potato"],
+                          sensor=SETTINGS["bm9-c25"].sensor()))  # fmt: skip
+    lines = [cut_scan_lines(v.depth, lv.INTRINSICS) for v in views]
+
+    def widths() -> list[float]:
+        results = [reconstruct_laser(ls, seed=v.seq) for ls, v in zip(lines, views, strict=True)]
+        assert all(r.shape == "cylinder" for r in results), [r.reason for r in results]
+        return [r.grasp_width_mm for r in results]
+
+    after = widths()
+    monkeypatch.setattr(laser, "_bump_fit", lambda *a: False)
+    before = widths()
+    assert abs(float(np.median(before)) - 62.0) > 20.0, before
+    assert abs(float(np.median(after)) - 62.0) <= 20.0, after
+    # The segments stop at the rims: no frame reads the potato wider than it is.
+    assert max(after) < 62.0, after
+
+    sgbm9 = SETTINGS["sgbm9"].sensor()
+    lying = lv.views("functional", 1, 5, 0, names=["cylinder_lying"], sensor=sgbm9)
+    lying = [v for v in lying if v.frame in (1, 4)]
+    for view in lying:
+        scan_lines = cut_scan_lines(view.depth, lv.INTRINSICS)
+        monkeypatch.undo()
+        width = reconstruct_laser(scan_lines, seed=view.seq).grasp_width_mm
+        monkeypatch.setattr(laser, "_bump_fit", lambda *a: False)
+        assert width == reconstruct_laser(scan_lines, seed=view.seq).grasp_width_mm
+
+
 def test_a_band_with_no_table_beside_it_bends_along_a_cylinder(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
