@@ -93,6 +93,13 @@ class CloudParams:
     # rim has its background far behind (see _round_facing). 0 turns it off.
     rim_band_px: float = 2.0
     rim_bulge_m: float = 0.0003
+    # A window matcher flattens a standing can's arc over its flanks, not over its crest: where
+    # the crest alone (its close points at least ``crest_inset`` of the half-width in view
+    # inside the camera-facing fit's silhouette) spans a width more than ``crest_narrower_m``
+    # narrower, the crest's radius stands (see _flattened_flanks); only where the frame's
+    # residuals are correlated like a window matcher's. 0 turns it off.
+    crest_inset: float = 0.3
+    crest_narrower_m: float = 0.0025
     edge_fattening_px: float = 0.0
     # A round resting on the supporting plane is fitted again touching it, as the four-line
     # method does (``LaserParams.rest_gap_ratio``, ``solids.resting_width``). 0 turns it off.
@@ -169,6 +176,8 @@ class CloudParams:
             "silhouette_margin_px",
             "rim_band_px",
             "rim_bulge_m",
+            "crest_inset",
+            "crest_narrower_m",
             "edge_fattening_px",
             "window_fattening_px",
             "hole_fattening_px",
@@ -1346,6 +1355,38 @@ def _round_facing(
     return _facing_passes(points, fixed, params, pixel_rad, passes, banded_sides=far)[0]
 
 
+def _flattened_flanks(
+    points: np.ndarray, model: CylinderModel, params: CloudParams
+) -> CylinderModel:
+    """The cylinder refitted (its axis kept) on its crest: its close points at least
+    ``crest_inset`` of its half-width in view inside its silhouette, where that spans a width
+    more than ``crest_narrower_m`` narrower than ``model``; else ``model``.
+
+    A window matcher carries the rims' depth toward the camera over the flanks (a window's
+    reach and, with strong smoothness, further: SGBM 11, BM 11, P1 x 3 and P2 x 6, the 60-75 mm
+    cans 2-5 mm wide), and the camera-facing fit (_round_facing) follows the flattened arc
+    where no rim band stands out of it. The crest lies further in than a window reaches from
+    either rim (its half-width in view is 26-39 px at the benchmark's ranges), so its bend is
+    the can's own; a tight window's smoothing bends it slightly more than the can does, by
+    less than ``crest_narrower_m`` in width (SGBM 3-7: 0.5-1.5 mm), so only a larger gap
+    tells a flattened arc."""
+    if params.crest_narrower_m <= 0:
+        return model
+    solid = _solid(model)
+    close = solid.residuals(points) <= params.fit_threshold_m
+    crest = close & (solid.silhouette_distance(points) >= params.crest_inset * _half_width(solid))
+    if np.count_nonzero(crest) < max(10, len(points) // 8):
+        return model
+    refit = CylinderSolid.estimate(points[crest], solid.axis, iterations=2)
+    if (
+        not refit
+        or not params.radius_min_m <= refit.radius
+        or 2 * (model.radius - refit.radius) <= params.crest_narrower_m
+    ):
+        return model
+    return CylinderModel(refit.point, refit.axis, refit.radius)
+
+
 def _along_table(model: SphereModel | CylinderModel, support: np.ndarray | None) -> bool:
     """Whether the cylinder's axis lies nearer the supporting plane (``support``, its points)
     than its normal: a can lying on its table, the table along a whole side of it. False for
@@ -2123,6 +2164,14 @@ def reconstruct_cloud(
             cylinder.axis,
             params,
         )
+        # A can lying on its table keeps the resting fit's width; per-pixel noise, as lpc's
+        # noise model's, flattens no flank, and a tapering object's crest bends tighter.
+        if (
+            resting is None
+            and params.crest_narrower_m > 0
+            and _window_matched(depth, intrinsics, params)
+        ):
+            cylinder = _flattened_flanks(segment, cylinder, params)
         axis = _canonical_axis(cylinder.axis)
         on_axis = segment[fit.inliers] - cylinder.center
         middle = cylinder.center + float(np.median(on_axis @ axis)) * axis
