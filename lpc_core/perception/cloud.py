@@ -1363,13 +1363,14 @@ def _flattened_flanks(
     more than ``crest_narrower_m`` narrower than ``model``; else ``model``.
 
     A window matcher carries the rims' depth toward the camera over the flanks (a window's
-    reach and, with strong smoothness, further: SGBM 11, BM 11, P1 x 3 and P2 x 6, the 60-75 mm
-    cans 2-5 mm wide), and the camera-facing fit (_round_facing) follows the flattened arc
+    reach and, with strong smoothness, further: SGBM 11 and P1 x 3 with P2 x 6 left the 50-75
+    mm cans 2-5 mm wide), and the camera-facing fit (_round_facing) follows the flattened arc
     where no rim band stands out of it. The crest lies further in than a window reaches from
     either rim (its half-width in view is 26-39 px at the benchmark's ranges), so its bend is
-    the can's own; a tight window's smoothing bends it slightly more than the can does, by
-    less than ``crest_narrower_m`` in width (SGBM 3-7: 0.5-1.5 mm), so only a larger gap
-    tells a flattened arc."""
+    the can's own; a tight window's smoothing bends it slightly more than the can does, and
+    the crest's fit has its own noise: its width came out 0.5-1.5 mm narrower on SGBM 3-7,
+    within ``crest_narrower_m``, so only a larger gap tells a flattened arc. (A block
+    matcher's frames mostly read too little correlation for the caller's gate, BM 11's too.)"""
     if params.crest_narrower_m <= 0:
         return model
     solid = _solid(model)
