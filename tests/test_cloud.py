@@ -994,6 +994,34 @@ def test_a_can_whose_crest_bends_as_its_flanks_keeps_its_fit() -> None:
     assert abs(1000 * (fixed.radius - 0.03)) < 0.3
 
 
+def _edge_on_prism(circumradius: float) -> tuple[np.ndarray, CylinderModel]:
+    """A hexagonal prism standing 0.25 m away with an edge toward the camera: the two faces
+    that meet in it (the next two are edge-on), 0.3 mm noise, and a cylinder's RANSAC start."""
+    rng = np.random.default_rng(0)
+    corners = np.radians([-60.0, 0.0, 60.0])
+    x, z = circumradius * np.sin(corners), 0.25 - circumradius * np.cos(corners)
+    face, t = rng.integers(0, 2, 2000), rng.uniform(0.0, 1.0, 2000)
+    points = np.column_stack(
+        [
+            x[face] + t * (x[face + 1] - x[face]),
+            rng.uniform(-0.05, 0.05, 2000),
+            z[face] + t * (z[face + 1] - z[face]),
+        ]
+    )
+    points += rng.normal(0.0, 0.0003, points.shape)
+    start = CylinderModel(np.array([0.001, 0.0, 0.252]), np.array([0.0, 1.0, 0.0]), 0.03)
+    return points, start
+
+
+def test_a_prisms_ridge_keeps_the_fit_the_crest_would_shrink() -> None:
+    points, start = _edge_on_prism(0.03)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert _flattened_flanks(points, fixed, PARAMS) is fixed
+    # Without the ridge's test the crest, the faces meeting in it, takes 5 mm off the radius.
+    ridged = _flattened_flanks(points, fixed, replace(PARAMS, ridge_proud_m=0.0))
+    assert 1000 * (fixed.radius - ridged.radius) > 4.0
+
+
 def test_camera_facing_moves_in_past_a_rim_band_a_wide_window_pulled() -> None:
     points, start = _pulled_can(0.003, 3.5)
     fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)

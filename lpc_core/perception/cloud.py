@@ -97,9 +97,15 @@ class CloudParams:
     # the crest alone (its close points at least ``crest_inset`` of the half-width in view
     # inside the camera-facing fit's silhouette) spans a width more than ``crest_narrower_m``
     # narrower, the crest's radius stands (see _flattened_flanks); only where the frame's
-    # residuals are correlated like a window matcher's. 0 turns it off.
+    # residuals are correlated like a window matcher's. 0 turns it off. A faceted ridge
+    # turned toward the camera (a hexagonal prism's edge) also bends tighter than the fit:
+    # where the crest's middle (its close points at least 1 - ``ridge_middle`` of the
+    # half-width in) stands out of the crest's circle by more than ``ridge_proud_m`` beyond
+    # the rest of the crest, the fit stands.
     crest_inset: float = 0.3
     crest_narrower_m: float = 0.0025
+    ridge_middle: float = 0.35
+    ridge_proud_m: float = 0.00015
     edge_fattening_px: float = 0.0
     # A round resting on the supporting plane is fitted again touching it, as the four-line
     # method does (``LaserParams.rest_gap_ratio``, ``solids.resting_width``). 0 turns it off.
@@ -1370,7 +1376,13 @@ def _flattened_flanks(
     the can's own; a tight window's smoothing bends it slightly more than the can does, and
     the crest's fit has its own noise: its width came out 0.5-1.5 mm narrower on SGBM 3-7,
     within ``crest_narrower_m``, so only a larger gap tells a flattened arc. (A block
-    matcher's frames mostly read too little correlation for the caller's gate, BM 11's too.)"""
+    matcher's frames mostly read too little correlation for the caller's gate, BM 11's too.)
+
+    A prism standing with an edge toward the camera, taken for a cylinder, has a crest that
+    bends tighter too, but as a ridge: its faces meet in the crest's middle, which stands out
+    of the crest's circle (+0.19..+0.39 mm over the outer crest on SGBM 5-11's hexagonal
+    prism) where a can's arc sits on it (-0.12..+0.06 mm on the cans the rule fired on); the
+    narrower radius there would shrink the prism past its width (_proud_ridge)."""
     if params.crest_narrower_m <= 0:
         return model
     solid = _solid(model)
@@ -1383,9 +1395,24 @@ def _flattened_flanks(
         not refit
         or not params.radius_min_m <= refit.radius
         or 2 * (model.radius - refit.radius) <= params.crest_narrower_m
+        or _proud_ridge(points[crest], refit, params)
     ):
         return model
     return CylinderModel(refit.point, refit.axis, refit.radius)
+
+
+def _proud_ridge(crest: np.ndarray, solid: CylinderSolid, params: CloudParams) -> bool:
+    """Whether the crest's middle (points at least 1 - ``ridge_middle`` of the half-width in
+    view inside ``solid``'s silhouette) lies out of ``solid`` by more than ``ridge_proud_m``
+    beyond the rest of ``crest`` (medians): two faces meeting in a ridge, not an arc."""
+    if params.ridge_proud_m <= 0:
+        return False
+    middle = solid.silhouette_distance(crest) >= (1 - params.ridge_middle) * _half_width(solid)
+    if min(np.count_nonzero(middle), np.count_nonzero(~middle)) < 5:
+        return False
+    outward = _outward(crest, solid)
+    proud = float(np.median(outward[middle])) - float(np.median(outward[~middle]))
+    return proud > params.ridge_proud_m
 
 
 def _along_table(model: SphereModel | CylinderModel, support: np.ndarray | None) -> bool:
