@@ -23,6 +23,7 @@ from lpc_core.perception.cloud import (
     _column_counts,
     _contiguous,
     _facing_passes,
+    _flattened_flanks,
     _support_refit,
     _within_support,
     crop_points,
@@ -956,6 +957,69 @@ def _pulled_can(pull_m: float, decay_px: float) -> tuple[np.ndarray, CylinderMod
     points += across / np.linalg.norm(across, axis=1)[:, None] * pull[:, None]
     start = CylinderModel(centre + np.array([0.001, 0.0, 0.002]), axis, radius + 0.003)
     return points, start
+
+
+def _flanked_can(pull_m: float, reach_px: float) -> tuple[np.ndarray, CylinderModel]:
+    """_pulled_can's 30 mm can, its flanks pulled toward the camera by ``pull_m`` at the
+    silhouette, falling linearly to nothing ``reach_px`` in (a window's reach), its crest
+    untouched."""
+    rng = np.random.default_rng(0)
+    centre, radius, axis = np.array([0.0, 0.0, 0.25]), 0.03, np.array([0.0, 1.0, 0.0])
+    phi, y = rng.uniform(-np.pi / 2, np.pi / 2, 4000), rng.uniform(-0.05, 0.05, 4000)
+    points = np.column_stack([radius * np.sin(phi), y, 0.25 - radius * np.cos(phi)])
+    points += rng.normal(0.0, 0.0003, points.shape)
+    inside_px = silhouette_distance(points, centre, radius, axis) * INTR.fx
+    points, inside_px = points[inside_px > 0], inside_px[inside_px > 0]
+    pull = pull_m * np.clip(1.0 - inside_px / reach_px, 0.0, 1.0)
+    across = points - centre
+    across[:, 1] = 0.0
+    points += across / np.linalg.norm(across, axis=1)[:, None] * pull[:, None]
+    start = CylinderModel(centre + np.array([0.001, 0.0, 0.002]), axis, radius + 0.003)
+    return points, start
+
+
+def test_a_can_whose_flanks_a_window_flattened_takes_its_crests_radius() -> None:
+    points, start = _flanked_can(0.003, 9.0)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert 1000 * (fixed.radius - 0.03) > 3.0  # the 6 px margin keeps the flattened flanks
+    crest = _flattened_flanks(points, fixed, PARAMS)
+    assert 1000 * (crest.radius - 0.03) < 1.6
+    assert _flattened_flanks(points, fixed, replace(PARAMS, crest_narrower_m=0.0)) is fixed
+
+
+def test_a_can_whose_crest_bends_as_its_flanks_keeps_its_fit() -> None:
+    points, start = _flanked_can(0.0, 9.0)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert _flattened_flanks(points, fixed, PARAMS) is fixed
+    assert abs(1000 * (fixed.radius - 0.03)) < 0.3
+
+
+def _edge_on_prism(circumradius: float) -> tuple[np.ndarray, CylinderModel]:
+    """A hexagonal prism standing 0.25 m away with an edge toward the camera: the two faces
+    that meet in it (the next two are edge-on), 0.3 mm noise, and a cylinder's RANSAC start."""
+    rng = np.random.default_rng(0)
+    corners = np.radians([-60.0, 0.0, 60.0])
+    x, z = circumradius * np.sin(corners), 0.25 - circumradius * np.cos(corners)
+    face, t = rng.integers(0, 2, 2000), rng.uniform(0.0, 1.0, 2000)
+    points = np.column_stack(
+        [
+            x[face] + t * (x[face + 1] - x[face]),
+            rng.uniform(-0.05, 0.05, 2000),
+            z[face] + t * (z[face + 1] - z[face]),
+        ]
+    )
+    points += rng.normal(0.0, 0.0003, points.shape)
+    start = CylinderModel(np.array([0.001, 0.0, 0.252]), np.array([0.0, 1.0, 0.0]), 0.03)
+    return points, start
+
+
+def test_a_prisms_ridge_keeps_the_fit_the_crest_would_shrink() -> None:
+    points, start = _edge_on_prism(0.03)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert _flattened_flanks(points, fixed, PARAMS) is fixed
+    # Without the ridge's test the crest, the faces meeting in it, takes 5 mm off the radius.
+    ridged = _flattened_flanks(points, fixed, replace(PARAMS, ridge_proud_m=0.0))
+    assert 1000 * (fixed.radius - ridged.radius) > 4.0
 
 
 def test_camera_facing_moves_in_past_a_rim_band_a_wide_window_pulled() -> None:

@@ -93,6 +93,19 @@ class CloudParams:
     # rim has its background far behind (see _round_facing). 0 turns it off.
     rim_band_px: float = 2.0
     rim_bulge_m: float = 0.0003
+    # A window matcher flattens a standing can's arc over its flanks, not over its crest: where
+    # the crest alone (its close points at least ``crest_inset`` of the half-width in view
+    # inside the camera-facing fit's silhouette) spans a width more than ``crest_narrower_m``
+    # narrower, the crest's radius stands (see _flattened_flanks); only where the frame's
+    # residuals are correlated like a window matcher's. 0 turns it off. A faceted ridge
+    # turned toward the camera (a hexagonal prism's edge) also bends tighter than the fit:
+    # where the crest's middle (its close points at least 1 - ``ridge_middle`` of the
+    # half-width in) stands out of the crest's circle by more than ``ridge_proud_m`` beyond
+    # the rest of the crest, the fit stands.
+    crest_inset: float = 0.3
+    crest_narrower_m: float = 0.0025
+    ridge_middle: float = 0.35
+    ridge_proud_m: float = 0.0001
     edge_fattening_px: float = 0.0
     # A round resting on the supporting plane is fitted again touching it, as the four-line
     # method does (``LaserParams.rest_gap_ratio``, ``solids.resting_width``). 0 turns it off.
@@ -169,6 +182,8 @@ class CloudParams:
             "silhouette_margin_px",
             "rim_band_px",
             "rim_bulge_m",
+            "crest_inset",
+            "crest_narrower_m",
             "edge_fattening_px",
             "window_fattening_px",
             "hole_fattening_px",
@@ -1346,6 +1361,61 @@ def _round_facing(
     return _facing_passes(points, fixed, params, pixel_rad, passes, banded_sides=far)[0]
 
 
+def _flattened_flanks(
+    points: np.ndarray, model: CylinderModel, params: CloudParams
+) -> CylinderModel:
+    """The cylinder refitted (its axis kept) on its crest: its close points at least
+    ``crest_inset`` of its half-width in view inside its silhouette, where that spans a width
+    more than ``crest_narrower_m`` narrower than ``model``; else ``model``.
+
+    A window matcher carries the rims' depth toward the camera over the flanks (a window's
+    reach and, with strong smoothness, further: SGBM 11 and P1 x 3 with P2 x 6 left the 50-75
+    mm cans 2-5 mm wide), and the camera-facing fit (_round_facing) follows the flattened arc
+    where no rim band stands out of it. The crest lies further in than a window reaches from
+    either rim (its half-width in view is 26-39 px at the benchmark's ranges), so its bend is
+    the can's own; a tight window's smoothing bends it slightly more than the can does, and
+    the crest's fit has its own noise: its width came out 0.5-1.5 mm narrower on SGBM 3-7,
+    within ``crest_narrower_m``, so only a larger gap tells a flattened arc. (A block
+    matcher's frames mostly read too little correlation for the caller's gate, BM 11's too.)
+
+    A prism standing with an edge toward the camera, taken for a cylinder, has a crest that
+    bends tighter too, but as a ridge: its faces meet in the crest's middle, which stands out
+    of the crest's circle where a can's arc sits on it (over the outer crest, the studied
+    settings' hexagonal prism read +0.04..+0.39 mm, mostly +0.19 and more; the standing cans
+    the rule fired on -0.11..+0.12, with two noisy frames and two lying cans at 0.18-0.22);
+    the narrower radius there would shrink the prism past its width (_proud_ridge)."""
+    if params.crest_narrower_m <= 0:
+        return model
+    solid = _solid(model)
+    close = solid.residuals(points) <= params.fit_threshold_m
+    crest = close & (solid.silhouette_distance(points) >= params.crest_inset * _half_width(solid))
+    if np.count_nonzero(crest) < max(10, len(points) // 8):
+        return model
+    refit = CylinderSolid.estimate(points[crest], solid.axis, iterations=2)
+    if (
+        not refit
+        or not params.radius_min_m <= refit.radius
+        or 2 * (model.radius - refit.radius) <= params.crest_narrower_m
+        or _proud_ridge(points[crest], refit, params)
+    ):
+        return model
+    return CylinderModel(refit.point, refit.axis, refit.radius)
+
+
+def _proud_ridge(crest: np.ndarray, solid: CylinderSolid, params: CloudParams) -> bool:
+    """Whether the crest's middle (points at least 1 - ``ridge_middle`` of the half-width in
+    view inside ``solid``'s silhouette) lies out of ``solid`` by more than ``ridge_proud_m``
+    beyond the rest of ``crest`` (medians): two faces meeting in a ridge, not an arc."""
+    if params.ridge_proud_m <= 0:
+        return False
+    middle = solid.silhouette_distance(crest) >= (1 - params.ridge_middle) * _half_width(solid)
+    if min(np.count_nonzero(middle), np.count_nonzero(~middle)) < 5:
+        return False
+    outward = _outward(crest, solid)
+    proud = float(np.median(outward[middle])) - float(np.median(outward[~middle]))
+    return proud > params.ridge_proud_m
+
+
 def _along_table(model: SphereModel | CylinderModel, support: np.ndarray | None) -> bool:
     """Whether the cylinder's axis lies nearer the supporting plane (``support``, its points)
     than its normal: a can lying on its table, the table along a whole side of it. False for
@@ -2123,6 +2193,14 @@ def reconstruct_cloud(
             cylinder.axis,
             params,
         )
+        # A can lying on its table keeps the resting fit's width; per-pixel noise, as lpc's
+        # noise model's, flattens no flank, and a tapering object's crest bends tighter.
+        if (
+            resting is None
+            and params.crest_narrower_m > 0
+            and _window_matched(depth, intrinsics, params)
+        ):
+            cylinder = _flattened_flanks(segment, cylinder, params)
         axis = _canonical_axis(cylinder.axis)
         on_axis = segment[fit.inliers] - cylinder.center
         middle = cylinder.center + float(np.median(on_axis @ axis)) * axis
