@@ -43,6 +43,8 @@ from lpc_core.perception.cloud import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from lpc_core.perception.reconstruction import Reconstruction
     from lpc_core.sim.stereo import StereoSensor
     from services.cli._laser_views import View
@@ -944,25 +946,22 @@ def _pulled_can(pull_m: float, decay_px: float) -> tuple[np.ndarray, CylinderMod
     the camera) by ``pull_m`` decaying over ``decay_px`` in from the silhouette, as a wide
     window pulls them (SGBM 11: +2.5 mm within 2 px, +1.0 at 4-6, +0.3 at 8-10), and the
     RANSAC start a little off."""
-    rng = np.random.default_rng(0)
-    centre, radius, axis = np.array([0.0, 0.0, 0.25]), 0.03, np.array([0.0, 1.0, 0.0])
-    phi, y = rng.uniform(-np.pi / 2, np.pi / 2, 4000), rng.uniform(-0.05, 0.05, 4000)
-    points = np.column_stack([radius * np.sin(phi), y, 0.25 - radius * np.cos(phi)])
-    points += rng.normal(0.0, 0.0003, points.shape)
-    inside_px = silhouette_distance(points, centre, radius, axis) * INTR.fx
-    points = points[inside_px > 0]
-    pull = pull_m * np.exp(-inside_px[inside_px > 0] / decay_px)
-    across = points - centre
-    across[:, 1] = 0.0
-    points += across / np.linalg.norm(across, axis=1)[:, None] * pull[:, None]
-    start = CylinderModel(centre + np.array([0.001, 0.0, 0.002]), axis, radius + 0.003)
-    return points, start
+    return _can_pulled_in(lambda inside_px: pull_m * np.exp(-inside_px / decay_px))
 
 
 def _flanked_can(pull_m: float, reach_px: float) -> tuple[np.ndarray, CylinderModel]:
     """_pulled_can's 30 mm can, its flanks pulled toward the camera by ``pull_m`` at the
     silhouette, falling linearly to nothing ``reach_px`` in (a window's reach), its crest
     untouched."""
+    return _can_pulled_in(lambda inside_px: pull_m * np.clip(1.0 - inside_px / reach_px, 0.0, 1.0))
+
+
+def _can_pulled_in(
+    pull: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, CylinderModel]:
+    """The 30 mm can's camera-facing side at 0.25 m, each point pulled toward the camera,
+    across the axis, by ``pull`` of its distance in from the silhouette (px), and the RANSAC
+    start a little off."""
     rng = np.random.default_rng(0)
     centre, radius, axis = np.array([0.0, 0.0, 0.25]), 0.03, np.array([0.0, 1.0, 0.0])
     phi, y = rng.uniform(-np.pi / 2, np.pi / 2, 4000), rng.uniform(-0.05, 0.05, 4000)
@@ -970,10 +969,9 @@ def _flanked_can(pull_m: float, reach_px: float) -> tuple[np.ndarray, CylinderMo
     points += rng.normal(0.0, 0.0003, points.shape)
     inside_px = silhouette_distance(points, centre, radius, axis) * INTR.fx
     points, inside_px = points[inside_px > 0], inside_px[inside_px > 0]
-    pull = pull_m * np.clip(1.0 - inside_px / reach_px, 0.0, 1.0)
     across = points - centre
     across[:, 1] = 0.0
-    points += across / np.linalg.norm(across, axis=1)[:, None] * pull[:, None]
+    points += across / np.linalg.norm(across, axis=1)[:, None] * pull(inside_px)[:, None]
     start = CylinderModel(centre + np.array([0.001, 0.0, 0.002]), axis, radius + 0.003)
     return points, start
 
