@@ -34,7 +34,7 @@ def test_every_setting_builds_its_sensor_and_the_untuned_differ_from_the_tuning(
     tuning = [s for n, s in sensors.items() if sweep.SETTINGS[n].group == "tuning"]
     untuned = [s for n, s in sensors.items() if sweep.SETTINGS[n].group == "untuned"]
     fresh = [s for n, s in sensors.items() if sweep.SETTINGS[n].group == "fresh"]
-    assert len(tuning) == 8 and len(untuned) == 71 and len(fresh) == 5
+    assert len(tuning) == 8 and len(untuned) == 76 and len(fresh) == 5
     assert len(set(map(repr, sensors.values()))) == len(sensors)  # no setting twice
 
 

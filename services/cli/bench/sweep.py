@@ -581,9 +581,9 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"block_size": 9, "sgbm_mode": "3way", "min_texture": 4.5},
     ),
-    # Held out from every helper of stop 43: only the lead's before -> after runs on them.
-    "fresh-bm7s": Setting(
-        "fresh",
+    # Held out from every helper of stop 43 (then its "fresh" group); studied from stop 44.
+    "bm7-s120": Setting(
+        "untuned",
         "BM 7, uniqueness 8, texture threshold 12, prefilter cap 45, speckle window 120, "
         "0.05 dots/px², a thirty-fifth pattern",
         rig={"dot_density": 0.05, "pattern_seed": 35},
@@ -596,15 +596,15 @@ SETTINGS: dict[str, Setting] = {
             "speckle_window": 120,
         },
     ),
-    "fresh-hh9l": Setting(
-        "fresh",
+    "hh9-l3": Setting(
+        "untuned",
         "SGBM 9, HH mode, uniqueness 12, left-right 3 px, 75 % of the signal, "
         "a thirty-sixth pattern",
         rig={"gain_dn": 240.0, "pattern_seed": 36},
         matcher={"block_size": 9, "sgbm_mode": "hh", "uniqueness": 12, "disp12_max_diff": 3},
     ),
-    "fresh-b53": Setting(
-        "fresh",
+    "b53-p20": Setting(
+        "untuned",
         "SGBM 5, 53 mm baseline, projector 20 mm from the left imager, albedo 0.7, "
         "read noise 1.5, a thirty-seventh pattern",
         rig={
@@ -616,15 +616,15 @@ SETTINGS: dict[str, Setting] = {
         },
         matcher={"block_size": 5},
     ),
-    "fresh-hh7b": Setting(
-        "fresh",
+    "hh7-b8": Setting(
+        "untuned",
         "SGBM 7, HH mode, optics 0.8 px, dots of 0.8 px, 1.5 times the room light, "
         "a thirty-eighth pattern",
         rig={"blur_sigma_px": 0.8, "dot_sigma_px": 0.8, "ambient": 0.12, "pattern_seed": 38},
         matcher={"sgbm_mode": "hh"},
     ),
-    "fresh-3way5d": Setting(
-        "fresh",
+    "3way5-d75": Setting(
+        "untuned",
         "SGBM 5, 3-way mode, 0.075 dots/px² of 0.55 px and brightness 0.5-1.0, 1.3 times the "
         "shot noise, uniqueness 6, a thirty-ninth pattern",
         rig={
@@ -635,6 +635,66 @@ SETTINGS: dict[str, Setting] = {
             "pattern_seed": 39,
         },
         matcher={"block_size": 5, "sgbm_mode": "3way", "uniqueness": 6},
+    ),
+    # Held out from every helper of stop 44: only the lead's before -> after runs on them.
+    "fresh-bm9w": Setting(
+        "fresh",
+        "BM 9, uniqueness 6, texture threshold 10, prefilter cap 40, speckle window 100 and "
+        "range 2, 0.06 dots/px² of 0.75 px, a fortieth pattern",
+        rig={"dot_density": 0.06, "dot_sigma_px": 0.75, "pattern_seed": 40},
+        matcher={
+            "kind": "bm",
+            "block_size": 9,
+            "uniqueness": 6,
+            "texture_threshold": 10,
+            "pre_filter_cap": 40,
+            "speckle_window": 100,
+            "speckle_range": 2,
+        },
+    ),
+    "fresh-sg7m": Setting(
+        "fresh",
+        "SGBM 7, P1 x 1.25 and P2 x 3, uniqueness 9, albedo 0.8, read noise 1.8, "
+        "a forty-first pattern",
+        rig={"albedo": 0.8, "read_noise_dn": 1.8, "pattern_seed": 41},
+        matcher={"uniqueness": 9},
+        smoothness=(1.25, 3.0),
+    ),
+    "fresh-b58": Setting(
+        "fresh",
+        "SGBM 7, 58 mm baseline, projector 45 mm from the left imager, 1.1 times the room "
+        "light, 72 % of the signal, a forty-second pattern",
+        rig={
+            "baseline_m": 0.058,
+            "projector_x_m": 0.045,
+            "ambient": 0.09,
+            "gain_dn": 230.0,
+            "pattern_seed": 42,
+        },
+    ),
+    "fresh-hh5s": Setting(
+        "fresh",
+        "SGBM 5, HH mode, uniqueness 10, left-right 2 px, speckle window 100, 0.035 dots/px² "
+        "of 0.6 px, read noise 2.2, a forty-third pattern",
+        rig={
+            "dot_density": 0.035,
+            "dot_sigma_px": 0.6,
+            "read_noise_dn": 2.2,
+            "pattern_seed": 43,
+        },
+        matcher={
+            "block_size": 5,
+            "sgbm_mode": "hh",
+            "uniqueness": 10,
+            "disp12_max_diff": 2,
+            "speckle_window": 100,
+        },
+    ),
+    "fresh-3way11": Setting(
+        "fresh",
+        "SGBM 11, 3-way mode, uniqueness 7, albedo 0.6, optics 0.75 px, a forty-fourth pattern",
+        rig={"albedo": 0.6, "blur_sigma_px": 0.75, "pattern_seed": 44},
+        matcher={"block_size": 11, "sgbm_mode": "3way", "uniqueness": 7},
     ),
 }
 
