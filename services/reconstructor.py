@@ -57,8 +57,10 @@ def _yield_to_control(pids: list[int]) -> None:
 
 
 async def serve(bus: Bus, args: argparse.Namespace) -> None:
-    # Workers' results, in the order they came back; ``None`` once the frame pump has stopped.
-    results: asyncio.Queue[tuple[int, bytes | str] | None] = asyncio.Queue()
+    # Workers' results that wait for the task below, in the order they came back (see
+    # ``finished``); ``None`` once the frame pump has stopped, an exception once handling a
+    # result in the pool's reader raised.
+    results: asyncio.Queue[tuple[int, bytes | str] | BaseException | None] = asyncio.Queue()
     # A depth frame (about 600 kB) does not fit the pipe's socket buffer (208 kB): handed to a
     # busy worker, its write would hold the loop until that worker is done. Scans are 4-5 kB.
     ahead = args.ahead if args.method == "laser" else 0
@@ -69,15 +71,38 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
     reconstructions = bus.publisher("lpc/reconstruction")
     targets = bus.publisher("lpc/grasp/target")
     topic = INPUT_TOPICS[args.method]
+    carrying = False  # inside carry_out
 
     def finished(seq: int, result: bytes | str) -> None:
-        results.put_nowait((seq, result))
+        # Called by the pool's pipe reader on the loop: the result is handled there, as the
+        # pump hands a frame on in its own step, not queued for the task below (one task
+        # wake-up and loop pass a frame fewer). Queued only behind results that wait there
+        # already (their order kept), and when the pool reports a result from inside
+        # ``carry_out`` (a worker found dead as a frame is submitted): ``state`` is then
+        # being replaced by the caller. What raises is raised by the task, as before.
+        nonlocal state
+        if carrying or not results.empty():
+            results.put_nowait((seq, result))
+            return
+        try:
+            state, outputs = frame_done(state, seq, result)
+            carry_out(outputs)
+        except Exception as exc:
+            results.put_nowait(exc)
 
     started = time.monotonic()
     pool = PipePool(args.workers, init_worker, (args.method, initial_state(args).params), finished)
     niced = 0
 
     def carry_out(outputs: list[Output]) -> None:
+        nonlocal carrying
+        carrying = True
+        try:
+            _carry_out(outputs)
+        finally:
+            carrying = False
+
+    def _carry_out(outputs: list[Output]) -> None:
         nonlocal window, niced
         bus.health.counters["worker_restarts"] = pool.restarts
         if pool.restarts != niced:  # a restarted worker starts at the service's niceness
@@ -131,6 +156,8 @@ async def serve(bus: Bus, args: argparse.Namespace) -> None:
             if done is None:
                 reader.result()
                 return
+            if isinstance(done, BaseException):
+                raise done
             state, outputs = frame_done(state, *done)
             carry_out(outputs)
     finally:

@@ -3,6 +3,7 @@ methods, the service with either method."""
 
 from __future__ import annotations
 
+import asyncio
 import collections
 
 import msgspec
@@ -36,6 +37,7 @@ from lpc_core.perception.reconstructor import (
 )
 from lpc_core.sim.scene import Plane, Scene, cylinder_object, render_depth, sphere_object
 from schemas import (
+    BadMessage,
     DepthFrame,
     GraspTarget,
     ObjectTruth,
@@ -47,6 +49,8 @@ from schemas import (
     from_wire,
     to_wire,
 )
+from services import reconstructor as reconstructor_service
+from services.runtime import Bus, zenoh_config
 from tests.conftest import spawn_service, wait_for
 from tests.test_laser import cylinder, scan, sphere
 
@@ -492,3 +496,95 @@ def _wait_subscribed(publisher: zenoh.Publisher, process) -> None:
         return publisher.matching_status.matching
 
     wait_for(matching, 60.0, "the reconstructor's subscriber")
+
+
+class _PromptPool:
+    """Stands in for ``PipePool`` in the service: each job is worked out at once, in this
+    process (the real worker's ``work``, or ``answer``), and reported either from inside
+    ``submit`` (as ``PipePool`` reports the jobs of a worker it finds dead there) or from a
+    loop callback (as its pipe reader reports results)."""
+
+    inline = False
+    answer: bytes | None = None
+
+    def __init__(self, workers, initializer, initargs, on_done) -> None:
+        self._work = initializer(*initargs)
+        self._on_done = on_done
+        self._loop = asyncio.get_running_loop()
+        self.restarts = 0
+        self.pids: list[int] = []
+
+    async def ready(self) -> None:
+        pass
+
+    def submit(self, tag, job: bytes) -> None:
+        result = self.answer if self.answer is not None else self._work(job)
+        if self.inline:
+            self._on_done(tag, result)
+        else:
+            self._loop.call_soon(self._on_done, tag, result)
+
+    def close(self) -> None:
+        pass
+
+
+def _serve_in_process(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch, frames: int
+) -> tuple[dict[str, list[int]], BaseException | None]:
+    """The service on this process's loop with a ``_PromptPool``: ``frames`` scans put; the
+    seqs it published on each key, in the order they came, and what it raised."""
+    monkeypatch.setattr(reconstructor_service, "PipePool", _PromptPool)
+    published: dict[str, list[int]] = collections.defaultdict(list)
+
+    async def run() -> BaseException | None:
+        loop = asyncio.get_running_loop()
+        with zenoh.open(zenoh_config(connect=[], listen=[endpoint])) as session:
+            bus = Bus(session, "reconstructor", loop=loop, quiet=True)
+            subs = [
+                session.declare_subscriber(
+                    key,
+                    lambda s, key=key: published[key].append(decode(key, s.payload.to_bytes()).seq),
+                )
+                for key in ("lpc/reconstruction", "lpc/grasp/target")
+            ]
+            args = reconstructor_service.parser().parse_args(["--max-pending", "50"])
+            task = asyncio.create_task(reconstructor_service.serve(bus, args))
+            scans = bus.publisher("lpc/scans")
+            await asyncio.sleep(0.2)  # the pump subscribes
+            for k in range(frames):
+                scans.put(_message(4000 + k, BALL))
+                await asyncio.sleep(0.01)
+            await asyncio.sleep(0.5)
+            task.cancel()
+            (error,) = await asyncio.gather(task, return_exceptions=True)
+            for sub in subs:
+                sub.undeclare()
+            bus.close()
+            return None if isinstance(error, asyncio.CancelledError) else error
+
+    return published, asyncio.run(run())
+
+
+@pytest.mark.parametrize("inline", [False, True])
+def test_reconstructor_service_releases_results_reported_in_or_out_of_a_submit_in_order(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch, inline: bool
+) -> None:
+    monkeypatch.setattr(_PromptPool, "inline", inline)
+    published, error = _serve_in_process(endpoint, monkeypatch, 4)
+    assert error is None
+    # Zenoh keeps the order of each key's samples, not across keys.
+    assert published == {
+        "lpc/reconstruction": [4000, 4001, 4002, 4003],
+        "lpc/grasp/target": [4000, 4001, 4002, 4003],
+    }
+
+
+def test_reconstructor_service_stops_on_a_result_it_cannot_decode(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Handled where the pool reports it (a loop callback), the error still stops the service,
+    # for its supervisor to restart it.
+    monkeypatch.setattr(_PromptPool, "answer", b"not msgpack")
+    published, error = _serve_in_process(endpoint, monkeypatch, 1)
+    assert isinstance(error, BadMessage)
+    assert not published
