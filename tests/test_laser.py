@@ -859,6 +859,30 @@ def test_a_line_thinned_by_holes_is_fitted_again_across_them() -> None:
     assert abs(found.grasp_width_m - 0.06) * 1000 <= WIDTH_TOL_MM, found.grasp_width_m
 
 
+def _ball_in_clumps(seed: int) -> Lines:
+    """A 40 mm ball whose diagonal line a block matcher's texture check left in four clumps
+    (holes of 4-7 mm between them, the surface going on across each), 11 samples where a
+    whole line holds 26, two of them 3 mm behind the arc (mismatched windows)."""
+    lines = scan(sphere((0.0, 0.0, 0.242), 0.02), seed)
+    diagonal = lines.points[1]
+    s = (diagonal[:, 0] + diagonal[:, 1]) / math.sqrt(2)
+    clumps = ((-0.0155, -0.012), (-0.005, 0.002), (0.0075, 0.0105), (0.0145, 0.017))
+    holed = diagonal[np.any([(s >= lo) & (s <= hi) for lo, hi in clumps], axis=0)]
+    behind = [3, 8]
+    holed[behind] *= ((holed[behind, 2] + 0.003) / holed[behind, 2])[:, None]
+    return Lines(lines.angles_rad, (lines.points[0], holed, *lines.points[2:]))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_ball_seen_through_holes_counts_the_samples_its_holes_hid(seed: int) -> None:
+    """The arc holds 9 of the 11 samples left, or fewer, short of ``min_points_per_line``,
+    and the frame had no shape (all 6 seeds); across its holes the run spans 16 samples'
+    worth of the arc."""
+    found = reconstruct_laser(_ball_in_clumps(seed), seed=seed)
+    assert found.shape == "sphere", found.reason
+    assert abs(found.grasp_width_m - 0.04) * 1000 <= WIDTH_TOL_MM, found.grasp_width_m
+
+
 def _ball_into_a_slope(seed: int) -> Lines:
     """A 40 mm ball whose diagonal line runs on past its far flank, without a jump, into a
     trough and then a steep face rising toward the camera and bending toward it (the
