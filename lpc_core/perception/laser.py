@@ -69,6 +69,7 @@ from lpc_core.perception.solids import (
     SphereSolid,
     best_cylinder_axis,
     column_sums,
+    einsum_norms,
     fattening_trim_m,
     fit_circle_2d,
     hemisphere_directions,
@@ -2823,7 +2824,7 @@ def _beyond_edges(
         h = (pts - plane.point) @ n  # > 0: in front of the face
         moves = pts[1:] - pts[:-1]
         rise = h[1:] - h[:-1]  # rise[i]: from point i to i + 1
-        run = np.sqrt(np.maximum(np.einsum("ij,ij->i", moves, moves) - rise * rise, 0.0))
+        run = np.sqrt(np.maximum(einsum_norms(moves) - rise * rise, 0.0))
         below = h <= params.solid_threshold_m
         along_x = abs(math.cos(line.angle)) > _ALONG_ROW_COS
         # Steps a walk may take: none across a row's gap wider than the fattening (_row_gap).
@@ -4531,9 +4532,7 @@ def _rim_free(
             rim = (inset < _RIM_PX * pixel_rad) & on
             if np.count_nonzero(rim) < _ROUND_GOES_ON:
                 return None
-            w = samples.compress(rim, axis=0) - full.point
-            across = w - (w @ full.axis)[:, None] * full.axis
-            bow = np.sqrt(np.einsum("ij,ij->i", across, across)) - full.radius
+            bow = full.offsets(samples.compress(rim, axis=0))
             flat = _flat_fit(full, first, last, pixel_rad)
             if float(np.median(bow)) < params.rim_bow_m and not (flat and occluding):
                 # Residuals correlated like an SGBM window's on a round not lying along a
@@ -5259,9 +5258,14 @@ def _smoothed_rim(ln: LineModels, k: int, full: CylinderSolid, pixel_rad: float)
     if inset[j] < 0.5 * _RIM_PX * pixel_rad:
         return False  # the line runs along the axis there: no rim profile across it
     across = run.take((0, j), axis=0)
-    across = across - (across @ full.axis)[:, None] * full.axis
-    reach = np.sqrt(np.einsum("ij,ij->i", across, across))
-    seen = float(reach[0] - reach[1])
+    # Two samples: their parts across the axis and lengths in Python floats, as numpy forms
+    # them (the products, the differences, einsum's (x^2 + z^2) + y^2 and the root).
+    ax, ay, az = full.axis.tolist()
+    reach = []
+    for (x, y, z), t in zip(across.tolist(), (across @ full.axis).tolist(), strict=True):
+        qx, qy, qz = x - t * ax, y - t * ay, z - t * az
+        reach.append(math.sqrt(qx * qx + qz * qz + qy * qy))
+    seen = reach[0] - reach[1]
     ray = half - float(inset[j])
     chord = full.radius**2 - (distance * math.sin(ray)) ** 2
     if chord <= 0:
