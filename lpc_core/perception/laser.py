@@ -1172,7 +1172,7 @@ def _behind_ends(lines: list[LineModels], past: list[list[float]]) -> list[tuple
             z = float(line.points[run[0] if k == 0 else run[-1], 2])
             beyond = line.beyond[k] if line.beyond else _NO_POINTS
             if len(beyond):
-                behind = float(np.median((beyond[-4:] if k == 0 else beyond[:4])[:, 2]))
+                behind = median((beyond[-4:, 2] if k == 0 else beyond[:4, 2]).tolist())
             else:
                 behind = past[line.index][k] if line.index < len(past) else 0.0
             out.append((z, behind))
@@ -4534,7 +4534,7 @@ def _rim_free(
                 return None
             bow = full.offsets(samples.compress(rim, axis=0))
             flat = _flat_fit(full, first, last, pixel_rad)
-            if float(np.median(bow)) < params.rim_bow_m and not (flat and occluding):
+            if median(bow.tolist()) < params.rim_bow_m and not (flat and occluding):
                 # Residuals correlated like an SGBM window's on a round not lying along a
                 # support: the window flattened the whole arc's fit, and rims fattened along
                 # with it lie on that fit (no bow) while the fit is too wide all the same (the
