@@ -4702,7 +4702,7 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
     for ln in lines:
         z = ln.sz[:, 1]
         mark = np.zeros(len(z), dtype=bool)
-        run = np.flatnonzero(on[start : start + len(z)])
+        run = on[start : start + len(z)].nonzero()[0]
         start += len(z)
         count = min(_RIM_RISE_SAMPLES, len(run) // 3)
         if count >= 2:
@@ -4711,7 +4711,7 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
                 rise = depths[1:] - depths[:-1]  # np.diff's own subtraction, without its wrapper
                 steepest = float(rise.max())
                 if steepest > 0:
-                    rim = int(np.flatnonzero(rise >= _RIM_RISE * steepest)[-1])
+                    rim = int((rise >= _RIM_RISE * steepest).nonzero()[0][-1])
                     mark[end[rim + 2 :]] = True
         marks.append(mark)
     return np.concatenate(marks) if marks else np.zeros(0, dtype=bool)
@@ -4794,7 +4794,7 @@ def _smeared_past(
     for ln in lines:
         mark = np.zeros(len(ln.points), dtype=bool)
         marks.append(mark)
-        inliers = np.flatnonzero(full.residuals(ln.points) <= 4 * params.solid_threshold_m)
+        inliers = (full.residuals(ln.points) <= 4 * params.solid_threshold_m).nonzero()[0]
         if past is None or len(inliers) == 0:
             continue
         c, s_ = math.cos(ln.angle), math.sin(ln.angle)
@@ -4866,7 +4866,7 @@ def _fattened_rims(
     quantum (``_end_plateaus``, as ``_fattened`` reads a segment's end): a round's depth changes
     fastest at its silhouette, so the samples reached both rims and a matcher's window carried
     the rim's depth past them, as it pulled the arc inside them toward the camera."""
-    on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
+    on = (residuals <= 4 * params.solid_threshold_m).nonzero()[0]
     if len(on) == 0:
         return False
     for ln, k in _outermost_samples(lines, angle, on):
@@ -5112,7 +5112,7 @@ def _background_bound(
     angle = seen.angle if aligned else _across_view(solid, samples)
     if angle is None:
         return None
-    on = np.flatnonzero(seen.residuals <= 4 * params.solid_threshold_m)
+    on = (seen.residuals <= 4 * params.solid_threshold_m).nonzero()[0]
     if len(on) == 0:
         return None
     view = _axis_in_view(solid)
@@ -5131,7 +5131,7 @@ def _background_bound(
         end = ln.points[k]
         deeper = float(end[2]) + 2 * full.radius
         beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
-        behind = np.flatnonzero(beyond[:, 2] > deeper)
+        behind = (beyond[:, 2] > deeper).nonzero()[0]
         if len(behind):
             # The line's samples run outward from the segment: back from its first end.
             seen = beyond[behind[-1] if side == 0 else behind[0]]
@@ -5253,7 +5253,7 @@ def _smoothed_rim(ln: LineModels, k: int, full: CylinderSolid, pixel_rad: float)
     if angle is None:
         return False
     inset = np.abs(angle - angle[0])
-    within = np.flatnonzero(inset <= _RIM_PX * pixel_rad)
+    within = (inset <= _RIM_PX * pixel_rad).nonzero()[0]
     j = int(within[-1])
     if inset[j] < 0.5 * _RIM_PX * pixel_rad:
         return False  # the line runs along the axis there: no rim profile across it
