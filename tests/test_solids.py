@@ -12,6 +12,7 @@ from lpc_core.perception.solids import (
     PlaneSolid,
     SphereSolid,
     best_cylinder_axis,
+    einsum_norms,
     fit_circle_2d,
     hemisphere_directions,
     orthonormal_basis,
@@ -210,6 +211,30 @@ def test_round_distances_match_the_whole_array_forms() -> None:
         angle = math.asin(r / math.sqrt(c @ c)) - off
         scale = np.einsum("ij,ij->i", across, across) / np.einsum("ij,ij->i", points, points)
         assert np.array_equal(cylinder.silhouette_distance(points), angle * np.sqrt(scale))
+
+
+def test_einsum_norms_are_einsums_bits_in_either_precision() -> None:
+    """Row-wise squared norms as ``np.einsum("ij,ij->i", d, d)`` gives them, to the bit, on
+    float64 rows (summed (x^2 + z^2) + y^2), on float32 rows (which einsum sums in turn: a
+    float32 array through the float64 order differs on about a fifth of its rows) and on a
+    transposed array."""
+    rng = np.random.default_rng(12)
+    for dtype in (np.float64, np.float32):
+        for k in range(10):
+            d = (rng.normal(size=(int(rng.integers(1, 400)), 3)) * 0.2).astype(dtype)
+            if k % 2:
+                d = np.asfortranarray(d)
+            got = einsum_norms(d)
+            assert got.dtype == dtype
+            assert np.array_equal(got, np.einsum("ij,ij->i", d, d))
+
+
+def test_cylinder_offsets_are_signed_distances_from_the_surface() -> None:
+    axis = np.array([0.0, 1.0, 0.0])
+    cylinder = CylinderSolid(point=np.array([0.0, 0.0, 0.2]), axis=axis, radius=0.02)
+    points = np.array([[0.0, 0.5, 0.2], [0.03, -0.1, 0.2], [0.0, 0.0, 0.21]])
+    assert np.allclose(cylinder.offsets(points), [-0.02, 0.01, -0.01], atol=1e-15)
+    assert np.array_equal(cylinder.residuals(points), np.abs(cylinder.offsets(points)))
 
 
 def test_solve_gives_numpys_bits_and_raises_on_a_singular_system() -> None:

@@ -69,6 +69,7 @@ from lpc_core.perception.solids import (
     SphereSolid,
     best_cylinder_axis,
     column_sums,
+    einsum_norms,
     fattening_trim_m,
     fit_circle_2d,
     hemisphere_directions,
@@ -1201,7 +1202,7 @@ def _behind_ends(lines: list[LineModels], past: list[list[float]]) -> list[tuple
             z = float(line.points[run[0] if k == 0 else run[-1], 2])
             beyond = line.beyond[k] if line.beyond else _NO_POINTS
             if len(beyond):
-                behind = float(np.median((beyond[-4:] if k == 0 else beyond[:4])[:, 2]))
+                behind = median((beyond[-4:, 2] if k == 0 else beyond[:4, 2]).tolist())
             else:
                 behind = past[line.index][k] if line.index < len(past) else 0.0
             out.append((z, behind))
@@ -2853,7 +2854,7 @@ def _beyond_edges(
         h = (pts - plane.point) @ n  # > 0: in front of the face
         moves = pts[1:] - pts[:-1]
         rise = h[1:] - h[:-1]  # rise[i]: from point i to i + 1
-        run = np.sqrt(np.maximum(np.einsum("ij,ij->i", moves, moves) - rise * rise, 0.0))
+        run = np.sqrt(np.maximum(einsum_norms(moves) - rise * rise, 0.0))
         below = h <= params.solid_threshold_m
         along_x = abs(math.cos(line.angle)) > _ALONG_ROW_COS
         # Steps a walk may take: none across a row's gap wider than the fattening (_row_gap).
@@ -4563,11 +4564,9 @@ def _rim_free(
             rim = (inset < _RIM_PX * pixel_rad) & on
             if np.count_nonzero(rim) < _ROUND_GOES_ON:
                 return None
-            w = samples.compress(rim, axis=0) - full.point
-            across = w - (w @ full.axis)[:, None] * full.axis
-            bow = np.sqrt(np.einsum("ij,ij->i", across, across)) - full.radius
+            bow = full.offsets(samples.compress(rim, axis=0))
             flat = _flat_fit(full, first, last, pixel_rad)
-            if float(np.median(bow)) < params.rim_bow_m and not (flat and occluding):
+            if median(bow.tolist()) < params.rim_bow_m and not (flat and occluding):
                 # Residuals correlated like an SGBM window's on a round not lying along a
                 # support: the window flattened the whole arc's fit, and rims fattened along
                 # with it lie on that fit (no bow) while the fit is too wide all the same (the
@@ -4735,7 +4734,7 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
     for ln in lines:
         z = ln.sz[:, 1]
         mark = np.zeros(len(z), dtype=bool)
-        run = np.flatnonzero(on[start : start + len(z)])
+        run = on[start : start + len(z)].nonzero()[0]
         start += len(z)
         count = min(_RIM_RISE_SAMPLES, len(run) // 3)
         if count >= 2:
@@ -4744,7 +4743,7 @@ def _past_rims(lines: list[LineModels], on: np.ndarray) -> np.ndarray:
                 rise = depths[1:] - depths[:-1]  # np.diff's own subtraction, without its wrapper
                 steepest = float(rise.max())
                 if steepest > 0:
-                    rim = int(np.flatnonzero(rise >= _RIM_RISE * steepest)[-1])
+                    rim = int((rise >= _RIM_RISE * steepest).nonzero()[0][-1])
                     mark[end[rim + 2 :]] = True
         marks.append(mark)
     return np.concatenate(marks) if marks else np.zeros(0, dtype=bool)
@@ -4827,7 +4826,7 @@ def _smeared_past(
     for ln in lines:
         mark = np.zeros(len(ln.points), dtype=bool)
         marks.append(mark)
-        inliers = np.flatnonzero(full.residuals(ln.points) <= 4 * params.solid_threshold_m)
+        inliers = (full.residuals(ln.points) <= 4 * params.solid_threshold_m).nonzero()[0]
         if past is None or len(inliers) == 0:
             continue
         c, s_ = math.cos(ln.angle), math.sin(ln.angle)
@@ -4899,7 +4898,7 @@ def _fattened_rims(
     quantum (``_end_plateaus``, as ``_fattened`` reads a segment's end): a round's depth changes
     fastest at its silhouette, so the samples reached both rims and a matcher's window carried
     the rim's depth past them, as it pulled the arc inside them toward the camera."""
-    on = np.flatnonzero(residuals <= 4 * params.solid_threshold_m)
+    on = (residuals <= 4 * params.solid_threshold_m).nonzero()[0]
     if len(on) == 0:
         return False
     for ln, k in _outermost_samples(lines, angle, on):
@@ -5145,7 +5144,7 @@ def _background_bound(
     angle = seen.angle if aligned else _across_view(solid, samples)
     if angle is None:
         return None
-    on = np.flatnonzero(seen.residuals <= 4 * params.solid_threshold_m)
+    on = (seen.residuals <= 4 * params.solid_threshold_m).nonzero()[0]
     if len(on) == 0:
         return None
     view = _axis_in_view(solid)
@@ -5164,7 +5163,7 @@ def _background_bound(
         end = ln.points[k]
         deeper = float(end[2]) + 2 * full.radius
         beyond = ln.beyond[side] if ln.beyond else _NO_POINTS
-        behind = np.flatnonzero(beyond[:, 2] > deeper)
+        behind = (beyond[:, 2] > deeper).nonzero()[0]
         if len(behind):
             # The line's samples run outward from the segment: back from its first end.
             seen = beyond[behind[-1] if side == 0 else behind[0]]
@@ -5286,14 +5285,19 @@ def _smoothed_rim(ln: LineModels, k: int, full: CylinderSolid, pixel_rad: float)
     if angle is None:
         return False
     inset = np.abs(angle - angle[0])
-    within = np.flatnonzero(inset <= _RIM_PX * pixel_rad)
+    within = (inset <= _RIM_PX * pixel_rad).nonzero()[0]
     j = int(within[-1])
     if inset[j] < 0.5 * _RIM_PX * pixel_rad:
         return False  # the line runs along the axis there: no rim profile across it
     across = run.take((0, j), axis=0)
-    across = across - (across @ full.axis)[:, None] * full.axis
-    reach = np.sqrt(np.einsum("ij,ij->i", across, across))
-    seen = float(reach[0] - reach[1])
+    # Two samples: their parts across the axis and lengths in Python floats, as numpy forms
+    # them (the products, the differences, einsum's (x^2 + z^2) + y^2 and the root).
+    ax, ay, az = full.axis.tolist()
+    reach = []
+    for (x, y, z), t in zip(across.tolist(), (across @ full.axis).tolist(), strict=True):
+        qx, qy, qz = x - t * ax, y - t * ay, z - t * az
+        reach.append(math.sqrt(qx * qx + qz * qz + qy * qy))
+    seen = reach[0] - reach[1]
     ray = half - float(inset[j])
     chord = full.radius**2 - (distance * math.sin(ray)) ** 2
     if chord <= 0:

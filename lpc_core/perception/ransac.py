@@ -147,7 +147,6 @@ class Segments:
 
     __slots__ = (
         "_bases",
-        "_gathers",
         "count",
         "mean",
         "n",
@@ -182,7 +181,6 @@ class Segments:
         self.ox, self.oy = given[0], given[1]
         self.mean = mean.T.tolist()
         self._bases: dict[str, np.ndarray] = {}
-        self._gathers: dict[tuple[str, int], np.ndarray] = {}
 
     def take(self, rows: Sequence[int]) -> Segments:
         """The lines ``rows`` only, sharing this batch's centring."""
@@ -195,28 +193,17 @@ class Segments:
         out.ox, out.oy = self.ox.take(idx, axis=0), self.oy.take(idx, axis=0)
         out.mean = [self.mean[r] for r in rows]
         out._bases = {k: v.take(idx, axis=0) for k, v in self._bases.items()}
-        out._gathers = {}  # offsets depend on the lines' count only: rebuilt on demand
         return out
 
     def offsets(self, count: int) -> np.ndarray:
         """Flat offsets of ``count`` rows, to gather ``(L, T, k)`` sample indices at once."""
-        key = ("rows", count)
-        found = self._gathers.get(key)
-        if found is None:
-            found = self._gathers[key] = (np.arange(count) * self.width)[:, None, None]
-        return found
+        return _row_offsets(self.width, count)
 
     def gather_offsets(self, name: str, count: int) -> np.ndarray:
         """``(2, 1, count, 1)`` flat offsets of ``count`` lines' ``x`` and ``y`` rows in
         ``basis(name)``: added to ``(k, L, T)`` sample indices, one ``take`` gathers the
         samples' coordinates as ``(2, k, L, T)``."""
-        key = (name, count)
-        found = self._gathers.get(key)
-        if found is None:
-            stride = self.basis(name).shape[1] * self.width
-            lines = (np.arange(count) * stride)[:, None]
-            found = self._gathers[key] = lines + np.array([0, self.width])[:, None, None, None]
-        return found
+        return _gather_offsets(self.basis(name).shape[1], self.width, count)
 
     def basis(self, name: str) -> np.ndarray:
         """``(L, m, W)`` monomials of the centred points, built once per batch."""
@@ -231,6 +218,24 @@ class Segments:
                 np.add(x * x, y * y, out=found[:, 2])
             self._bases[name] = found
         return found
+
+
+# The offsets depend on the layout's sizes alone, which repeat from frame to frame (a width is
+# a frame's longest line plus one): built once each, read-only, rather than once a fit.
+@functools.lru_cache(maxsize=1024)
+def _row_offsets(width: int, count: int) -> np.ndarray:
+    return _read_only((np.arange(count) * width)[:, None, None])
+
+
+@functools.lru_cache(maxsize=1024)
+def _gather_offsets(monomials: int, width: int, count: int) -> np.ndarray:
+    lines = (np.arange(count) * (monomials * width))[:, None]
+    return _read_only(lines + np.array([0, width])[:, None, None, None])
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def as_segments(points: Segments | Sequence[np.ndarray]) -> Segments:

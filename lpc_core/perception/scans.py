@@ -29,6 +29,7 @@ except ImportError:
     _QR_R_RAW = None
 
 from lpc_core.perception.intrinsics import Intrinsics
+from lpc_core.perception.solids import einsum_norms
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -765,6 +766,5 @@ def _orthonormal_columns(a: np.ndarray) -> np.ndarray:
 
 
 def squared_steps(points: np.ndarray) -> np.ndarray:
-    """(N - 1,) squared distance between consecutive points."""
-    d = np.diff(points, axis=0)
-    return np.einsum("ij,ij->i", d, d)
+    """(N - 1,) squared distance between consecutive points (einsum's sum of squares)."""
+    return einsum_norms(np.diff(points, axis=0))

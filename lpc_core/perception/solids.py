@@ -419,10 +419,14 @@ class CylinderSolid:
         return cls(point=point, axis=np.array(d), radius=float(radius), cost=cost)
 
     def residuals(self, points: np.ndarray) -> np.ndarray:
+        return np.abs(self.offsets(points))
+
+    def offsets(self, points: np.ndarray) -> np.ndarray:
+        """Each point's distance across the axis less the radius: positive outside."""
         w = np.asarray(points, dtype=np.float64) - self.point
         # The part across the axis column by column (no (N, 3) outer product to broadcast).
         q = _off_axis(w, w @ self.axis, self.axis)
-        return np.abs(np.sqrt(_einsum_norms(q)) - self.radius)
+        return np.sqrt(einsum_norms(q)) - self.radius
 
     def silhouette_distance(self, points: np.ndarray) -> np.ndarray:
         """View angle (radians) from each point's ray in to the cylinder's silhouette (its two
@@ -456,7 +460,7 @@ def silhouette_distance(
     for k, qk in enumerate(_off_axis(p, p @ a, a)):
         across[:, k] = qk
     angle = _tangent_angle(across, c - (c @ a) * a, radius)
-    return angle * np.sqrt(_einsum_norms(across) / _einsum_norms(p))
+    return angle * np.sqrt(einsum_norms(across) / einsum_norms(p))
 
 
 def _off_axis(
@@ -473,14 +477,15 @@ def _off_axis(
     return qx, qy, qz
 
 
-def _einsum_norms(q: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+def einsum_norms(q: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """``np.einsum("ij,ij->i", q, q)`` of (N, 3) vectors with contiguous rows (or the three
     columns of such an array), to the bit, on whole columns at a third of its cost. Over
     contiguous rows einsum adds a row's three squares as (x^2 + z^2) + y^2 (its unrolled sum
     of products; the same on 2.8 million random rows); over strided ones (a transposed
-    array) it adds them in turn, so those are left to it."""
+    array) it adds them in turn, and float32 rows as (x^2 + y^2) + z^2, so those are left
+    to it."""
     if isinstance(q, np.ndarray):
-        if q.strides[1] != q.itemsize:
+        if q.strides[1] != q.itemsize or q.dtype != np.float64:
             return np.einsum("ij,ij->i", q, q)
         q = q[:, 0], q[:, 1], q[:, 2]
     x, y, z = q
@@ -526,7 +531,7 @@ def _tangent_angle(points: np.ndarray, centre: np.ndarray, radius: float) -> np.
     np.subtract(cross[0], z * cy, out=cross[0])
     np.subtract(cross[1], x * cz, out=cross[1])
     np.subtract(cross[2], y * cx, out=cross[2])
-    off = np.arctan2(np.sqrt(_einsum_norms(cross)), points @ centre)
+    off = np.arctan2(np.sqrt(einsum_norms(cross)), points @ centre)
     return half - off
 
 
