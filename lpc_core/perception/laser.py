@@ -4466,8 +4466,10 @@ def _rim_free(
     side, else it is widened until it lies that far inside them on the two sides' mean
     (``_reaching_rims``; rims without what a window carried past them, ``_past_rims``);
     within ``_OCCLUDED_RIM_PX`` where both rims are occluding edges before a far background
-    (``_occluding_rims``, read on ``full``). ``seen``: ``_seen_round(lines, full)`` where the
-    caller has it.
+    (``_occluding_rims``, read on ``full``), and within ``_INSIDE_FIT_RIM_PX`` where such rims
+    also lie ``_RIMS_INSIDE_FIT_PX`` or more inside ``full``'s silhouette (``_past_silhouette``):
+    the window carried none of them out with the fit it flattened. ``seen``:
+    ``_seen_round(lines, full)`` where the caller has it.
     """
     margin = params.rim_bias_px * pixel_rad
     if margin <= 0:
@@ -4619,12 +4621,12 @@ def _rim_free(
     slack = _OCCLUDED_RIM_PX if occluding else _RIM_PX
     # The window's pull flattens the whole arc's fit, so its silhouette lies past the round's
     # by as much as the flanks were pulled; occluding rims that the window carried out with
-    # it reach that silhouette (the 50 mm bottle tilted right: 1-3 px past the true one where
+    # it reach that silhouette (the 50 mm bottle tilted right: 2-3 px past the true one where
     # they lie within a pixel of it), while rims 2 px or more inside it are where the surface
-    # ended (the 60 mm can: 1-3 px inside the true silhouette there, the refit 5-12 mm narrow
-    # on SGBM 7 with a projector beside the left imager or 2.5 times the shot noise). Inside
-    # such rims the refit keeps a pixel's slack: over the sweep's studied settings, the four
-    # cylinders 19 settings better, 8 worse (the can 18 / 4).
+    # ended (the 60 mm can: 1-3 px inside the true silhouette there, the refit 5-11 mm narrow
+    # under SGBM 7 with the projector 15 mm from the left imager or 1.7 times the shot noise).
+    # Inside such rims the refit keeps a pixel's slack: over the sweep's 84 studied settings,
+    # the four cylinders 19 settings better, 8 worse (the can 18 / 4).
     rim_points = samples.compress(rims, axis=0)
     if occluding:
         inside = _past_silhouette(full, rim_points)
