@@ -334,6 +334,9 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     monkeypatch.setattr(
         laser, "_with_face_edges", lambda uv, cropped, reach, _: (uv, cropped, reach)
     )
+    # Nor the share of runs stopping inside the fattened band (laser._stopped_shares), which
+    # moves these sides in with and without the rule alike.
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
     errors, before = _box_width_errors(
         monkeypatch,
         "cuboid_tilt_left",
@@ -539,6 +542,9 @@ def test_the_box_tilted_left_trims_runs_ending_on_a_ramp_to_the_table(
     the true side and the width came out 1.1 mm wide. With its share of the step behind it
     (``laser._stepped_ends``, 0.83 of a window) the side's median moves in 1.3 mm."""
     view, lines = _setting_frame("sgbm7", "cuboid_tilt_left", 1, 0)
+    # Without the share of runs stopping inside the fattened band (laser._stopped_shares):
+    # it moves the side in without the step's share too (the width 0.3 mm wide so).
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
     result = reconstruct_laser(lines, seed=view.seq)
     monkeypatch.setattr(laser, "_stepped_ends", lambda ln, *_: [0.0] * (2 * len(ln)))
     before = reconstruct_laser(lines, seed=view.seq)
@@ -613,6 +619,10 @@ def test_the_lying_box_trims_its_sides_along_the_rows_by_their_share(
     0.3 mm. (Found on trial 1 frame 0, 1.5 mm narrow -> within 0.3; there the face's direction
     from the trimmed seeds' own count, ``_counted_direction``, now leaves it 1.0 mm narrow.)"""
     view, lines = _setting_frame("bm5", "cuboid_lying", 0, 4)
+    # Without the share of runs stopping inside the fattened band (laser._stopped_shares),
+    # which takes this frame's width 0.56 mm narrow: a run whose segment falls behind the
+    # face past its end (the top face past the crease, no band) lay 1.0 mm inside already.
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
     result = reconstruct_laser(lines, seed=view.seq)
     monkeypatch.setattr(laser, "_across_rows", lambda *_: 1.0)
     before = reconstruct_laser(lines, seed=view.seq)
