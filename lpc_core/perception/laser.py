@@ -1243,14 +1243,14 @@ def _stopped_shares(seeds: _Seeds, far: np.ndarray, stepped: np.ndarray) -> np.n
     of the window's fattening where an occluding seed at the jump took it all. Untrimmed, such
     seeds set their side's median out: over the stereo sweep's 84 studied settings' boxes
     (functional suite, 2 trials x 5 frames) they lay a median 0.45 of the window's trim past
-    the true side at SGBM (0.9 on the upright and tilted boxes' sides), none at BM, whose
-    band holds the edge's disparity (a plateau the run follows to the jump) or no depth.
-    Four-line cuboid width MAE 2.697 -> 2.656 mm (33 settings better by 0.05 mm, 6 worse by
-    0.05-0.12 mm: BM 5, SGBM 3, SGBM 5 with dense even dots, SGBM 5 3-way supersampled, two
-    projector rigs, where both sides lay inside already); the upright box
-    2.917 -> 2.848, tilted left 3.603 -> 3.503, the lying box 1.081 -> 1.086 (its sides face
-    up and down in the image: _across_rows leaves them little trim). A whole window: 2.638,
-    but 15 worse; three quarters 2.644, 10 worse."""
+    the true side at SGBM (0.9-1.2 on the upright box's sides, 0.4-0.9 on the tilted ones'),
+    0.0 at BM, and their distance did not fall with the samples left past the run (so no
+    share of the rest, as ``_ramp_ends`` gives). Four-line cuboid width MAE 2.697 -> 2.656 mm
+    (33 settings better by 0.05 mm, 6 worse by 0.05-0.12 mm: BM 5, SGBM 3, SGBM 5 with dense
+    even dots, SGBM 5 3-way supersampled, two projector rigs, where both sides lay inside
+    already); the upright box 2.917 -> 2.848, tilted left 3.603 -> 3.503, the lying box 1.081
+    -> 1.086 (its sides face up and down in the image: _across_rows leaves them little trim).
+    A whole window: 2.638, but 15 worse; three quarters 2.644, 10 worse."""
     res = seeds.resuming if seeds.resuming is not None else np.zeros(len(far), dtype=bool)
     stopped = far & ~seeds.cropped & (seeds.occluding <= 0) & ~res & (stepped <= 0)
     return np.where(stopped, _STOPPED_SHARE, stepped)
