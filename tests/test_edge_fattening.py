@@ -334,6 +334,9 @@ def test_a_box_side_with_one_near_edge_still_goes_through_its_seeds_median(
     monkeypatch.setattr(
         laser, "_with_face_edges", lambda uv, cropped, reach, _: (uv, cropped, reach)
     )
+    # Nor the share of runs stopping inside the fattened band (laser._stopped_shares), which
+    # moves these sides in with and without the rule alike.
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
     errors, before = _box_width_errors(
         monkeypatch,
         "cuboid_tilt_left",
@@ -539,6 +542,9 @@ def test_the_box_tilted_left_trims_runs_ending_on_a_ramp_to_the_table(
     the true side and the width came out 1.1 mm wide. With its share of the step behind it
     (``laser._stepped_ends``, 0.83 of a window) the side's median moves in 1.3 mm."""
     view, lines = _setting_frame("sgbm7", "cuboid_tilt_left", 1, 0)
+    # Without the share of runs stopping inside the fattened band (laser._stopped_shares):
+    # it moves the side in without the step's share too (the width 0.3 mm wide so).
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
     result = reconstruct_laser(lines, seed=view.seq)
     monkeypatch.setattr(laser, "_stepped_ends", lambda ln, *_: [0.0] * (2 * len(ln)))
     before = reconstruct_laser(lines, seed=view.seq)
@@ -613,10 +619,52 @@ def test_the_lying_box_trims_its_sides_along_the_rows_by_their_share(
     0.3 mm. (Found on trial 1 frame 0, 1.5 mm narrow -> within 0.3; there the face's direction
     from the trimmed seeds' own count, ``_counted_direction``, now leaves it 1.0 mm narrow.)"""
     view, lines = _setting_frame("bm5", "cuboid_lying", 0, 4)
+    # Without the share of runs stopping inside the fattened band (laser._stopped_shares),
+    # which takes this frame's width 0.56 mm narrow: a run whose segment falls behind the
+    # face past its end (the top face past the crease, no band) lay 1.0 mm inside already.
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
     result = reconstruct_laser(lines, seed=view.seq)
     monkeypatch.setattr(laser, "_across_rows", lambda *_: 1.0)
     before = reconstruct_laser(lines, seed=view.seq)
     assert result.shape == before.shape == "cuboid"
     truth = view.truth.grasp_width_m
     assert truth - before.grasp_width_m > 0.001
+    assert abs(result.grasp_width_m - truth) < 0.0003
+
+
+def test_a_run_stopping_short_with_a_far_background_takes_part_of_the_window() -> None:
+    """``laser._stopped_shares``: an uncut seed at no occluding edge whose run stops short of
+    its segment's end, with the background far behind the segment and the segment staying off
+    the face's plane, takes ``_STOPPED_SHARE`` of the window for its side's median; an
+    occluding seed, a cut one, one whose segment comes back onto the plane, one with a near
+    background behind it and one with a near step's share keep what they had."""
+    n = 6
+    seeds = laser._Seeds(
+        points=np.zeros((n, 3)),
+        cropped=np.array([False, False, True, False, False, False]),
+        occluding=np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]),
+        resuming=np.array([False, False, False, True, False, False]),
+    )
+    far = np.array([True, True, True, True, False, True])
+    stepped = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.3])
+    got = laser._stopped_shares(seeds, far, stepped)
+    assert got.tolist() == [laser._STOPPED_SHARE, 0.0, 0.0, 0.0, 0.0, 0.3]
+    assert 0.0 < laser._STOPPED_SHARE < 1.0
+
+
+def test_the_box_tilted_left_trims_runs_stopping_inside_the_fattened_band(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SGBM 7 in 8-path (HH) mode, the box tilted left, trial 0 frame 2: two runs stop short
+    of their segments' ends with the room far behind them (no occluding edge: untrimmed), the
+    matcher's fill past the side drifting off the face's plane; the width came out 1.7 mm
+    wide. With half a window's trim off their ends for the side's median
+    (``laser._stopped_shares``) it comes out within 0.3 mm."""
+    view, lines = _setting_frame("hh", "cuboid_tilt_left", 0, 2)
+    result = reconstruct_laser(lines, seed=view.seq)
+    monkeypatch.setattr(laser, "_stopped_shares", lambda seeds, far, stepped: stepped)
+    before = reconstruct_laser(lines, seed=view.seq)
+    assert result.shape == before.shape == "cuboid"
+    truth = view.truth.grasp_width_m
+    assert before.grasp_width_m - truth > 0.0015
     assert abs(result.grasp_width_m - truth) < 0.0003
