@@ -1383,7 +1383,7 @@ def _flattened_flanks(
     A ball's arc flattens alike: the 70 mm ball on SGBM 11, where the table's plane was not
     found, fitted 3.6-6.6 mm wide at the 6 px margin, 1.1-2.1 on its crest. A cap alone
     trades its radius against its centre's depth, and a tight window bends it tighter still
-    (SGBM 7, the same ball resting: its crest 1-6 mm narrower than a fit that was right), so
+    (SGBM 7, the same ball resting: its crest 0.8-5.2 mm narrower than a fit that was right), so
     the caller leaves a ball whose fit touches its table (_touches) to that fit.
 
     A prism standing with an edge toward the camera, taken for a cylinder, has a crest that
