@@ -992,6 +992,42 @@ def test_a_can_whose_crest_bends_as_its_flanks_keeps_its_fit() -> None:
     assert abs(1000 * (fixed.radius - 0.03)) < 0.3
 
 
+def _flanked_ball(pull_m: float, reach_px: float) -> tuple[np.ndarray, SphereModel]:
+    """A 70 mm ball's camera-facing half at 0.22 m, 0.3 mm noise, its flanks pulled toward the
+    camera (out along the normal) by ``pull_m`` at the silhouette, falling linearly to nothing
+    ``reach_px`` in (a window's reach), its crest untouched; and a RANSAC start a little off."""
+    rng = np.random.default_rng(0)
+    centre, radius = np.array([0.0, 0.0, 0.22]), 0.035
+    normals = rng.normal(size=(6000, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    normals[:, 2] = -np.abs(normals[:, 2])
+    points = centre + radius * normals + rng.normal(0.0, 0.0003, (6000, 3))
+    inside_px = silhouette_distance(points, centre, radius) * INTR.fx
+    points, normals, inside_px = (
+        points[inside_px > 0],
+        normals[inside_px > 0],
+        inside_px[inside_px > 0],
+    )
+    points += normals * (pull_m * np.clip(1.0 - inside_px / reach_px, 0.0, 1.0))[:, None]
+    return points, SphereModel(centre + np.array([0.001, 0.0, 0.002]), radius + 0.003)
+
+
+def test_a_ball_whose_flanks_a_window_flattened_takes_its_crests_radius() -> None:
+    points, start = _flanked_ball(0.003, 9.0)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert 1000 * (fixed.radius - 0.035) > 3.0  # the 6 px margin keeps the flattened flanks
+    crest = _flattened_flanks(points, fixed, PARAMS)
+    assert abs(1000 * (crest.radius - 0.035)) < 1.0
+    assert _flattened_flanks(points, fixed, replace(PARAMS, crest_narrower_m=0.0)) is fixed
+
+
+def test_a_ball_whose_crest_bends_as_its_flanks_keeps_its_fit() -> None:
+    points, start = _flanked_ball(0.0, 9.0)
+    fixed = _camera_facing(points, start, CloudParams(rim_band_px=0.0), 1 / INTR.fx)
+    assert _flattened_flanks(points, fixed, PARAMS) is fixed
+    assert abs(1000 * (fixed.radius - 0.035)) < 0.5
+
+
 def _edge_on_prism(circumradius: float) -> tuple[np.ndarray, CylinderModel]:
     """A hexagonal prism standing 0.25 m away with an edge toward the camera: the two faces
     that meet in it (the next two are edge-on), 0.3 mm noise, and a cylinder's RANSAC start."""

@@ -93,11 +93,13 @@ class CloudParams:
     # rim has its background far behind (see _round_facing). 0 turns it off.
     rim_band_px: float = 2.0
     rim_bulge_m: float = 0.0003
-    # A window matcher flattens a standing can's arc over its flanks, not over its crest: where
-    # the crest alone (its close points at least ``crest_inset`` of the half-width in view
-    # inside the camera-facing fit's silhouette) spans a width more than ``crest_narrower_m``
-    # narrower, the crest's radius stands (see _flattened_flanks); only where the frame's
-    # residuals are correlated like a window matcher's. 0 turns it off. A faceted ridge
+    # A window matcher flattens a standing can's or a ball's arc over its flanks, not over its
+    # crest: where the crest alone (its close points at least ``crest_inset`` of the
+    # half-width in view inside the camera-facing fit's silhouette) spans a width more than
+    # ``crest_narrower_m`` narrower, the crest's radius stands (see _flattened_flanks); only
+    # where the frame's residuals are correlated like a window matcher's, and a ball only
+    # where no resting fit applies and its fit stands off its table (_touches). 0 turns it
+    # off. A faceted ridge
     # turned toward the camera (a hexagonal prism's edge) also bends tighter than the fit:
     # where the crest's middle (its close points at least 1 - ``ridge_middle`` of the
     # half-width in) stands out of the crest's circle by more than ``ridge_proud_m`` beyond
@@ -1362,9 +1364,9 @@ def _round_facing(
 
 
 def _flattened_flanks(
-    points: np.ndarray, model: CylinderModel, params: CloudParams
-) -> CylinderModel:
-    """The cylinder refitted (its axis kept) on its crest: its close points at least
+    points: np.ndarray, model: SphereModel | CylinderModel, params: CloudParams
+) -> SphereModel | CylinderModel:
+    """The round refitted (a cylinder's axis kept) on its crest: its close points at least
     ``crest_inset`` of its half-width in view inside its silhouette, where that spans a width
     more than ``crest_narrower_m`` narrower than ``model``; else ``model``.
 
@@ -1377,6 +1379,12 @@ def _flattened_flanks(
     the crest's fit has its own noise: its width came out 0.5-1.5 mm narrower on SGBM 3-7,
     within ``crest_narrower_m``, so only a larger gap tells a flattened arc. (A block
     matcher's frames mostly read too little correlation for the caller's gate, BM 11's too.)
+
+    A ball's arc flattens alike: the 70 mm ball on SGBM 11, where the table's plane was not
+    found, fitted 3.6-6.6 mm wide at the 6 px margin, 1.1-2.1 on its crest. A cap alone
+    trades its radius against its centre's depth, and a tight window bends it tighter still
+    (SGBM 7, the same ball resting: its crest 0.8-5.2 mm narrower than a fit that was right), so
+    the caller leaves a ball whose fit touches its table (_touches) to that fit.
 
     A prism standing with an edge toward the camera, taken for a cylinder, has a crest that
     bends tighter too, but as a ridge: its faces meet in the crest's middle, which stands out
@@ -1391,6 +1399,13 @@ def _flattened_flanks(
     crest = close & (solid.silhouette_distance(points) >= params.crest_inset * _half_width(solid))
     if np.count_nonzero(crest) < max(10, len(points) // 8):
         return model
+    if isinstance(solid, SphereSolid):
+        cap = SphereSolid.estimate(points[crest], init=(solid.center, solid.radius))
+        if not cap or not params.radius_min_m <= cap.radius:
+            return model
+        if 2 * (model.radius - cap.radius) <= params.crest_narrower_m:
+            return model
+        return SphereModel(cap.center, cap.radius)
     refit = CylinderSolid.estimate(points[crest], solid.axis, iterations=2)
     if (
         not refit
@@ -2016,6 +2031,16 @@ def _lifted_rest(
     return _resting_width(segment, plane, whole.center, whole.radius, None, params, 0.0)
 
 
+def _touches(plane: PlaneSolid | None, sphere: SphereModel, params: CloudParams) -> bool:
+    """Whether ``sphere`` stands on the supporting plane (``_rest_plane``) within the fit
+    threshold: the table then holds the camera-facing fit's radius against its centre's
+    depth, which a refit on the crest alone (_flattened_flanks) would trade."""
+    if plane is None:
+        return False
+    gap = float((sphere.center - plane.point) @ plane.normal) - sphere.radius
+    return abs(gap) <= params.fit_threshold_m
+
+
 def _behind_support(segment: np.ndarray, support: np.ndarray, params: CloudParams) -> bool:
     """Whether more than ``segment_max_behind_fraction`` of ``segment`` lies more than
     ``support_threshold_m`` behind the plane through ``support``, as seen from the camera.
@@ -2177,6 +2202,13 @@ def reconstruct_cloud(
         )
         if resting is None and sphere is not fit.model:
             resting = _lifted_rest(segment[fit.inliers], plane, sphere, fit.model, params)
+        if (
+            resting is None
+            and params.crest_narrower_m > 0
+            and not _touches(plane, sphere, params)
+            and _window_matched(depth, intrinsics, params)
+        ):
+            sphere = _flattened_flanks(segment, sphere, params)
         return Reconstruction(
             shape="sphere", method="cloud",
             grasp_width_m=2 * sphere.radius if resting is None else resting,
