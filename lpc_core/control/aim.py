@@ -242,6 +242,8 @@ _OCTANTS = np.array(
     [[math.cos(k * math.pi / 4) for k in range(8)], [math.sin(k * math.pi / 4) for k in range(8)]]
 )
 _FLAT_M = 1e-9  # a hull thinner than this is a segment
+# Each ring vertex's successor, for rings of up to eight vertices (one per direction).
+_NEXT = [np.roll(np.arange(k), -1) for k in range(9)]
 
 
 def without_support(points: np.ndarray, params: AimParams, seed: int = 0) -> np.ndarray:
@@ -292,19 +294,16 @@ def _hull(points: np.ndarray) -> list[Point]:
     if len(ring) > 1 and ring[0] == ring[-1]:
         ring.pop()
     if len(ring) >= 3:
-        # Each edge's start and direction as (k, 1) columns, built from the few ring floats
-        # in one array: the test below then runs on (k, N) rows.
-        ex, ey, sx, sy = np.array(
-            [
-                [bx - ax for (ax, _), (bx, _) in zip(ring, ring[1:] + ring[:1], strict=True)],
-                [by - ay for (_, ay), (_, by) in zip(ring, ring[1:] + ring[:1], strict=True)],
-                [ax for ax, _ in ring],
-                [ay for _, ay in ring],
-            ]
-        )[:, :, None]
-        # cross(edge, p - start) < 0: p lies right of (outside) that counter-clockwise edge.
-        cross = ex * (points[:, 1] - sy) - ey * (points[:, 0] - sx)
-        candidates = ring + points[np.logical_or.reduce(cross < 0.0, axis=0)].tolist()
+        # Each edge's start and direction as (k, 1) columns, from the ring's few floats in one
+        # array: the test below then runs on (k, N) rows.
+        starts = np.array(ring)
+        edges = starts[_NEXT[len(ring)]] - starts
+        ex, ey = edges.T[:, :, None]
+        sx, sy = starts.T[:, :, None]
+        # cross(edge, p - start) < 0: p lies right of (outside) that counter-clockwise edge;
+        # a - b < 0 exactly when a < b for finite floats (subnormals kept), one pass fewer.
+        outside = np.less(ex * (points[:, 1] - sy), ey * (points[:, 0] - sx))
+        candidates = ring + points[np.logical_or.reduce(outside, axis=0)].tolist()
     else:
         candidates = points.tolist()
     hull = _monotone_chain(candidates)
