@@ -468,10 +468,9 @@ def objects_in_view(points: np.ndarray, params: AimParams) -> InView | None:
     if len(kept) == 1 and counts[kept[0]] == len(points):
         groups = [np.ascontiguousarray(xy)]  # the common frame: one object and nothing else
     else:
-        # One stable sort gives every object's points, in their order, as a slice.
-        grouped = xy[labels.argsort(kind="stable")]
-        ends = counts.cumsum().tolist()
-        groups = [grouped[ends[k] - counts[k] : ends[k]] for k in kept.tolist()]
+        # Each object's points in their order, one mask each: a frame keeps one to four
+        # objects (the rest are specks), where a stable sort of every label cost more.
+        groups = [xy[labels == k] for k in kept.tolist()]
     found = [_hull_distance(_hull(members)) for members in groups]
     # members.mean(axis=0) without its argument handling: the same sum over the same array,
     # divided by the count.
