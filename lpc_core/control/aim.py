@@ -288,15 +288,14 @@ def _hull(points: np.ndarray) -> list[Point]:
     plain floats cost less than small arrays in the steps that follow."""
     extremes = (points @ _OCTANTS).argmax(axis=0).tolist()
     # Consecutive directions often share their extreme point: keep each once, in order.
-    ring: list[list[float]] = points[
-        [e for k, e in enumerate(extremes) if k == 0 or e != extremes[k - 1]]
-    ].tolist()
+    starts = points[[e for k, e in enumerate(extremes) if k == 0 or e != extremes[k - 1]]]
+    ring: list[list[float]] = starts.tolist()
     if len(ring) > 1 and ring[0] == ring[-1]:
         ring.pop()
+        starts = starts[:-1]
     if len(ring) >= 3:
-        # Each edge's start and direction as (k, 1) columns, from the ring's few floats in one
-        # array: the test below then runs on (k, N) rows.
-        starts = np.array(ring)
+        # Each edge's start and direction as (k, 1) columns: the test below then runs on
+        # (k, N) rows.
         edges = starts[_NEXT[len(ring)]] - starts
         ex, ey = edges.T[:, :, None]
         sx, sy = starts.T[:, :, None]
