@@ -1197,3 +1197,29 @@ def test_a_can_whose_smoothed_arc_two_planes_explain_stays_a_cylinder() -> None:
     assert result.shape == "cylinder", (result.shape, result.extra)
     assert result.extra["bent_face"] == 1.0
     assert result.extra["cuboid_fraction"] > result.extra["cylinder_fraction"]
+
+
+def _resting_ball_widths_mm(radius_m: float, params: CloudParams) -> np.ndarray:
+    """Width errors (mm, three noise seeds) of a ball resting on a table tilted toward the
+    camera, 0.28 m away, its rims pulled toward the camera by a 9 x 9 window."""
+    touch = (0, 0, 0.28 + radius_m * 2**0.5)  # the plane through it lies radius_m from its centre
+    z = _fattened(
+        np.minimum(_hit_sphere((0.0, 0.0, 0.28), radius_m), _hit_plane((0, -1, 1), touch)), 4
+    )
+    errors = []
+    for seed in range(3):
+        result = reconstruct_cloud(_frame(z, seed=seed), INTR, params, seed=seed)
+        assert result.shape == "sphere", result.reason
+        errors.append(1000 * (result.grasp_width_m - 2 * radius_m))
+    return np.array(errors)
+
+
+def test_a_resting_ball_wide_in_view_takes_its_width_past_the_rims() -> None:
+    # The 70 mm ball spans ~27 px of half-width at 0.28 m (at least 4 margins): its resting
+    # refit past the margin sheds the rims' pull on every seed; the 40 mm ball (~15 px) keeps
+    # the refit on all its inliers.
+    kept = replace(PARAMS, rest_margin_span=0.0)
+    past, every = _resting_ball_widths_mm(0.035, PARAMS), _resting_ball_widths_mm(0.035, kept)
+    assert np.all(every > 2.5) and np.all(past < every - 0.3)
+    small = _resting_ball_widths_mm(0.02, PARAMS)
+    assert np.array_equal(small, _resting_ball_widths_mm(0.02, kept))

@@ -93,6 +93,10 @@ class CloudParams:
     # rim has its background far behind (see _round_facing). 0 turns it off.
     rim_band_px: float = 2.0
     rim_bulge_m: float = 0.0003
+    # A resting ball wide enough in view (half-width at least this many silhouette margins)
+    # takes its resting width from the points past the margin (see _rest_past_rims). 0 turns
+    # it off (4: 24 px at the benchmark's focal length; at 20 px the 40 mm ball came in too).
+    rest_margin_span: float = 4.0
     # A window matcher flattens a standing can's or a ball's arc over its flanks, not over its
     # crest: where the crest alone (its close points at least ``crest_inset`` of the
     # half-width in view inside the camera-facing fit's silhouette) spans a width more than
@@ -184,6 +188,7 @@ class CloudParams:
             "silhouette_margin_px",
             "rim_band_px",
             "rim_bulge_m",
+            "rest_margin_span",
             "crest_inset",
             "crest_narrower_m",
             "edge_fattening_px",
@@ -2007,6 +2012,37 @@ def _resting_width(
     )
 
 
+def _rest_past_rims(
+    segment: np.ndarray,
+    plane: PlaneSolid,
+    sphere: SphereModel,
+    intrinsics: Intrinsics,
+    params: CloudParams,
+) -> float | None:
+    """A resting ball's width (_resting_width) fitted again on its close points at least
+    ``silhouette_margin_px`` inside the camera-facing fit's silhouette, where its half-width in
+    view spans at least ``rest_margin_span`` margins; else None.
+
+    The resting refit on all inliers keeps the rims, which a window matcher pulls toward the
+    camera (the margin's reason), and the contact then holds a radius too large for them: the
+    70 mm ball resting came out +1 to +2.6 mm wide on SGBM 11, HH 9 without the left-right
+    check and the wide-window block matchers. Past the margin the refit sheds that pull. On a
+    ball spanning few pixels the margin takes most of its view, and the cap left trades its
+    radius against the contact (the 40 mm ball at 12-20 px half-width came out narrower
+    still on most studied settings), so only a ball wide in view takes it."""
+    if params.rest_margin_span <= 0:
+        return None
+    solid = _solid(sphere)
+    margin_rad = params.silhouette_margin_px / intrinsics.fx
+    if _half_width(solid) < params.rest_margin_span * margin_rad:
+        return None
+    close = solid.residuals(segment) <= params.fit_threshold_m
+    inside = close & (solid.silhouette_distance(segment) >= margin_rad)
+    if np.count_nonzero(inside) < 10:
+        return None
+    return _resting_width(segment[inside], plane, sphere.center, sphere.radius, None, params)
+
+
 def _lifted_rest(
     segment: np.ndarray,
     plane: PlaneSolid | None,
@@ -2200,6 +2236,8 @@ def reconstruct_cloud(
         resting = _resting_width(
             segment[fit.inliers], plane, sphere.center, sphere.radius, None, params
         )
+        if resting is not None:
+            resting = _rest_past_rims(segment, plane, sphere, intrinsics, params) or resting
         if resting is None and sphere is not fit.model:
             resting = _lifted_rest(segment[fit.inliers], plane, sphere, fit.model, params)
         if (
