@@ -1331,9 +1331,7 @@ def _facing_passes(
             break
         solid = refit
         passes += 1
-    if isinstance(solid, SphereSolid):
-        return SphereModel(solid.center, solid.radius), passes
-    return CylinderModel(solid.point, solid.axis, solid.radius), passes
+    return _model(solid), passes
 
 
 def _round_facing(
@@ -1404,22 +1402,19 @@ def _flattened_flanks(
     crest = close & (solid.silhouette_distance(points) >= params.crest_inset * _half_width(solid))
     if np.count_nonzero(crest) < max(10, len(points) // 8):
         return model
-    if isinstance(solid, SphereSolid):
-        cap = SphereSolid.estimate(points[crest], init=(solid.center, solid.radius))
-        if not cap or not params.radius_min_m <= cap.radius:
-            return model
-        if 2 * (model.radius - cap.radius) <= params.crest_narrower_m:
-            return model
-        return SphereModel(cap.center, cap.radius)
-    refit = CylinderSolid.estimate(points[crest], solid.axis, iterations=2)
+    refit = (
+        SphereSolid.estimate(points[crest], init=(solid.center, solid.radius))
+        if isinstance(solid, SphereSolid)
+        else CylinderSolid.estimate(points[crest], solid.axis, iterations=2)
+    )
     if (
         not refit
         or not params.radius_min_m <= refit.radius
         or 2 * (model.radius - refit.radius) <= params.crest_narrower_m
-        or _proud_ridge(points[crest], refit, params)
+        or (isinstance(refit, CylinderSolid) and _proud_ridge(points[crest], refit, params))
     ):
         return model
-    return CylinderModel(refit.point, refit.axis, refit.radius)
+    return _model(refit)
 
 
 def _proud_ridge(crest: np.ndarray, solid: CylinderSolid, params: CloudParams) -> bool:
@@ -1450,6 +1445,13 @@ def _solid(model: SphereModel | CylinderModel) -> SphereSolid | CylinderSolid:
     if isinstance(model, SphereModel):
         return SphereSolid(center=model.center, radius=model.radius)
     return CylinderSolid(point=model.center, axis=model.axis, radius=model.radius)
+
+
+def _model(solid: SphereSolid | CylinderSolid) -> SphereModel | CylinderModel:
+    """``_solid``'s inverse."""
+    if isinstance(solid, SphereSolid):
+        return SphereModel(solid.center, solid.radius)
+    return CylinderModel(solid.point, solid.axis, solid.radius)
 
 
 def _half_width(solid: SphereSolid | CylinderSolid) -> float:
