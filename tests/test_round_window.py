@@ -10,6 +10,12 @@ from lpc_core.perception.scans import cut_scan_lines
 from tests.test_stereo_shapes import _bench_frame
 
 
+def _cylinder_error_mm(view, result) -> float:
+    """The frame's object read as a cylinder, and its width's error (mm)."""
+    assert result.shape == "cylinder"
+    return 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+
+
 def test_a_band_refitted_inside_its_rims_does_not_narrow_pass_after_pass() -> None:
     """SGBM (block 5), the jar cap's 60 mm band seen from the front, trial 1 frame 4: each
     refit inside the rims held fewer samples within its bands than the last, the arc measured
@@ -19,8 +25,7 @@ def test_a_band_refitted_inside_its_rims_does_not_narrow_pass_after_pass() -> No
     view, result = _bench_frame(
         "jar_cap", 1, 4, suite="irregular", detail="front", kind="sgbm", block_size=5
     )
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 12.0, error_mm
 
 
@@ -40,8 +45,7 @@ def test_a_round_whose_rims_end_in_plateaus_is_refitted_inside_them_under_block_
     quantum (laser._fattened_rims): the samples reached the rims and the window fattened them,
     so the arc inside them is pulled toward the camera too. Refitted inside them, within 3 mm."""
     view, result = _bench_frame(name, trial, frame, kind="bm", block_size=block)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 3.0, (error_mm, before_mm)
 
 
@@ -60,8 +64,7 @@ def test_a_round_is_trimmed_inside_the_extent_its_samples_show_without_fattened_
     the refit inside it kept the arc the window pulled toward the camera: ``before_mm`` wide.
     Measured from the extent without those plateaus, the refit is within 4.5 mm."""
     view, result = _bench_frame(name, trial, frame, kind="sgbm", block_size=block)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 4.5, (error_mm, before_mm)
 
 
@@ -83,8 +86,7 @@ def test_a_round_whose_rims_smear_toward_a_far_background_still_shows_its_silhou
     within a diameter behind its rims (laser._smeared_past): with the smear not counted, the
     refit inside the rims is within 2.5 mm."""
     view, result = _bench_frame("cylinder_tilt_right", trial, frame, kind="sgbm", **matcher)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 2.5, (error_mm, before_mm)
 
 
@@ -109,8 +111,7 @@ def test_a_rim_plateau_smoothed_on_past_the_segment_end_is_no_support(
     window's plateau smoothed on (laser._smeared_past), and the refit inside the rims is
     within ``within_mm``."""
     view, result = _bench_frame("cylinder_tilt_right", trial, frame, kind="sgbm", **matcher)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < within_mm, (error_mm, before_mm)
 
 
@@ -123,8 +124,7 @@ def test_a_band_standing_on_the_table_keeps_the_table_past_its_base() -> None:
     view, result = _bench_frame(
         "jar_cap", 0, 4, suite="irregular", detail="front", kind="sgbm", block_size=5
     )
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert error_mm > -5.0, error_mm
 
 
@@ -145,8 +145,7 @@ def test_a_flat_fit_past_rims_lost_in_holes_is_refitted_bounded_by_the_samples(
     px beyond the samples on both sides (laser._flat_fit): the window flattened it. Refitted
     inside the rims, with no sample seen on the round beyond the refit, within 2.5 mm."""
     view, result = _bench_frame("cylinder_upright", trial, frame, kind="bm", block_size=block)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 2.5, (error_mm, before_mm)
 
 
@@ -157,8 +156,7 @@ def test_a_refit_inside_rims_lost_in_holes_keeps_the_samples_within_its_silhouet
     silhouette. Those lie within the round's silhouette (nothing fattened them): the fit
     stands."""
     view, result = _bench_frame("cylinder_upright", 1, 0, kind="bm", block_size=5)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 2.5, error_mm
 
 
@@ -215,8 +213,7 @@ def test_a_refit_reaches_the_rims_its_lines_show(
     views = lv.views("functional", 2, 5, 0, names=[name], sensor=sensor)
     view = next(v for v in views if (v.trial, v.frame) == (trial, frame))
     result = reconstruct_laser(cut_scan_lines(view.depth, lv.INTRINSICS), seed=view.seq)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < within_mm, (error_mm, before_mm)
 
 
@@ -236,8 +233,7 @@ def test_a_block_matchers_hole_beside_the_second_imagers_side_holds_the_rim(
     wide. The silhouette lies about the middle of that hole (laser._unoccluded_hole): within
     3 mm."""
     view, result = _bench_frame(name, trial, frame, kind="bm", block_size=block)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 3.0, (error_mm, before_mm)
 
 
@@ -265,8 +261,7 @@ def test_a_smeared_straight_tail_past_an_oblique_rim_is_no_generator(
     from tests.test_bm_shapes import _sweep_frame
 
     view, result = _sweep_frame(setting, "cylinder_tilt_right", trial, frame)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 7.0, (error_mm, before_mm)
     angle = _angle_error(result.wrist_angle_rad, view.truth.wrist_angle_rad)
     assert angle is not None and abs(angle) < 3.0, angle
@@ -291,8 +286,7 @@ def test_a_refit_reaches_rims_at_occluding_edges_within_two_pixels(
     from tests.test_bm_shapes import _sweep_frame
 
     view, result = _sweep_frame(setting, name, trial, frame)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 2.0, (error_mm, before_mm)
 
 
@@ -315,8 +309,7 @@ def test_a_refit_reaches_rims_a_window_flattened_in_place(
     from tests.test_bm_shapes import _sweep_frame
 
     view, result = _sweep_frame(setting, name, trial, frame)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 1.0, (error_mm, before_mm)
 
 
@@ -338,6 +331,5 @@ def test_a_refit_reaches_rims_well_inside_the_flattened_fit(
     from tests.test_bm_shapes import _sweep_frame
 
     view, result = _sweep_frame(setting, name, trial, frame)
-    assert result.shape == "cylinder"
-    error_mm = 1000 * (result.grasp_width_m - view.truth.grasp_width_m)
+    error_mm = _cylinder_error_mm(view, result)
     assert abs(error_mm) < 2.0, (error_mm, before_mm)
